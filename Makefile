@@ -1,0 +1,40 @@
+# Two commands for a fresh machine (Debian/Ubuntu, Python 3.11):
+#   make run    one simulated episode on the default scenario (output in out/<timestamp>/)
+#   make test   the test suite
+# Both install what they need on first use: system libraries through apt
+# (sudo if not root) and a virtualenv in .venv with the package in editable mode.
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed
+SYSTEM_LIBS := libusb-1.0-0 libegl1 libegl-mesa0 libgl1-mesa-dri
+ARGS ?=
+PYTEST_ARGS ?=
+
+.PHONY: run test setup system-deps clean
+
+run: $(STAMP)
+	$(VENV)/bin/lmap-drake run $(ARGS)
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -q $(PYTEST_ARGS)
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@$(MAKE) --no-print-directory system-deps
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(VENV)/bin/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+system-deps:
+	@missing=""; for p in $(SYSTEM_LIBS); do \
+	  dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing system packages:$$missing"; \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update -q && $$SUDO apt-get install -y -q --no-install-recommends $$missing; \
+	fi
+
+clean:
+	rm -rf $(VENV) *.egg-info out

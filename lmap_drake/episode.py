@@ -1,0 +1,47 @@
+"""Runs on a station and writes their results to an output folder."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+from pydrake.geometry import Meshcat
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from lmap_drake.scenario import DumpScenario, Scenario
+from lmap_drake.station import MakeStation
+from lmap_drake.viz import SaveDepth, SaveLabel, SaveRgb
+
+
+def RunStationSnapshot(scenario: Scenario, out: Path, hardware: bool = False,
+                       progress: Callable[[str], None] = print) -> list[str]:
+    """Builds the station, holds the arm at ``robot.initial_q`` for
+    ``simulation_duration`` s, and writes ``scenario.yaml``, ``rgb.png``,
+    ``depth.png`` (colour-mapped metres), ``label.png`` and ``scene.html``."""
+    out = Path(out)
+    DumpScenario(scenario, out / "scenario.yaml")
+    progress("building station")
+    meshcat = Meshcat()
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem("station", MakeStation(scenario, meshcat, hardware))
+    q_hold = builder.AddNamedSystem("ur5_hold", ConstantVectorSource(scenario.robot.initial_q))
+    builder.Connect(q_hold.get_output_port(), station.GetInputPort("ur5.position"))
+    grip = builder.AddNamedSystem(
+        "gripper_hold", ConstantVectorSource([scenario.robot.initial_gripper_width]))
+    builder.Connect(grip.get_output_port(), station.GetInputPort("gripper.position"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    ApplySimulatorConfig(scenario.simulator_config, simulator)
+    progress(f"simulating {scenario.simulation_duration:.2f} s")
+    meshcat.StartRecording()
+    simulator.AdvanceTo(scenario.simulation_duration)
+    meshcat.StopRecording()
+    meshcat.PublishRecording()
+    context = station.GetMyContextFromRoot(simulator.get_context())
+    progress("rendering camera0")
+    SaveRgb(station.GetOutputPort("camera0.rgb_image").Eval(context), out / "rgb.png")
+    SaveDepth(station.GetOutputPort("camera0.depth_image").Eval(context), out / "depth.png")
+    SaveLabel(station.GetOutputPort("camera0.label_image").Eval(context), out / "label.png")
+    (out / "scene.html").write_text(meshcat.StaticHtml())
+    return ["scenario.yaml", "rgb.png", "depth.png", "label.png", "scene.html"]

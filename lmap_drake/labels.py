@@ -1,0 +1,42 @@
+"""Semantic classes and the render-label encoding shared by the simulator,
+perception and evaluation.
+
+A render label is ``class_id * 100 + instance`` (instance 0..99); anything
+outside [100, 500) is background (Drake's reserved empty/don't-care labels
+included).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+BACKGROUND = 0
+BRANCH = 1
+LEAF = 2
+FRUIT = 3
+ROBOT = 4
+CLASS_NAMES = {BACKGROUND: "background", BRANCH: "branch", LEAF: "leaf",
+               FRUIT: "fruit", ROBOT: "robot"}
+_STRIDE = 100
+
+
+def EncodeLabel(class_id: int, instance: int = 0) -> int:
+    """Render-label value for a class and an instance index (0..99)."""
+    if class_id not in CLASS_NAMES or class_id == BACKGROUND:
+        raise ValueError(f"class_id must be one of {sorted(CLASS_NAMES)[1:]}, got {class_id}")
+    if not 0 <= instance < _STRIDE:
+        raise ValueError(f"instance must be in [0, {_STRIDE}), got {instance}")
+    return class_id * _STRIDE + instance
+
+
+def DecodeLabels(label_image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel (class_id, instance) arrays from a label image (any int dtype).
+
+    Background pixels get class 0 and instance -1.
+    """
+    lab = np.asarray(label_image).astype(np.int64)
+    if lab.ndim == 3:
+        lab = lab[..., 0]
+    valid = (lab >= _STRIDE) & (lab < (ROBOT + 1) * _STRIDE)
+    cls = np.where(valid, lab // _STRIDE, BACKGROUND)
+    inst = np.where(valid, lab % _STRIDE, -1)
+    return cls, inst

@@ -1,0 +1,1 @@
+"""Action planning: IK, candidates, checks, visibility, selection."""

@@ -1,0 +1,62 @@
+"""Inverse kinematics for the UR5 + 2F-85 TCP with Drake's
+``InverseKinematics`` on the controller plant (joint limits always on)."""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.inverse_kinematics import InverseKinematics
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.solvers import Solve
+
+
+@dc.dataclass
+class IkResult:
+    """``q``: 6 UR5 joint angles (rad); ``success`` and, if not, ``reason``."""
+    q: np.ndarray
+    success: bool
+    position_error: float
+    rotation_error: float
+    reason: str = ""
+
+
+def SolveTcpIk(plant: MultibodyPlant, X_WT: RigidTransform, q_seed: np.ndarray,
+               position_tolerance: float = 1e-4, rotation_tolerance: float = 1e-3,
+               gripper_half_opening: float = 0.0425) -> IkResult:
+    """Joint angles that put the ``tcp`` frame at ``X_WT`` (world frame),
+    starting from ``q_seed`` (6). ``plant`` is a controller plant from
+    ``MakeControllerPlant`` (8 positions: arm, then the two fingers)."""
+    ik = InverseKinematics(plant)
+    tcp = plant.GetFrameByName("tcp")
+    p = X_WT.translation()
+    tol = np.full(3, position_tolerance)
+    ik.AddPositionConstraint(tcp, np.zeros(3), plant.world_frame(), p - tol, p + tol)
+    ik.AddOrientationConstraint(plant.world_frame(), X_WT.rotation(), tcp,
+                                RotationMatrix(), rotation_tolerance)
+    q = ik.q()
+    prog = ik.get_mutable_prog()
+    prog.AddBoundingBoxConstraint(gripper_half_opening, gripper_half_opening, q[6:8])
+    q0 = np.concatenate([np.asarray(q_seed, float), [gripper_half_opening] * 2])
+    prog.AddQuadraticErrorCost(np.eye(6) * 0.01, q0[:6], q[:6])
+    prog.SetInitialGuess(q, q0)
+    result = Solve(prog)
+    q_sol = result.GetSolution(q)[:6]
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, np.concatenate([q_sol, [gripper_half_opening] * 2]))
+    X = plant.CalcRelativeTransform(context, plant.world_frame(), tcp)
+    pos_err = float(np.linalg.norm(X.translation() - p))
+    rot_err = float(X.rotation().InvertAndCompose(X_WT.rotation()).ToAngleAxis().angle())
+    ok = bool(result.is_success()) and pos_err < 10 * position_tolerance + 1e-6
+    reason = "" if ok else f"IK failed ({result.get_solver_id().name()}: " \
+        f"{result.get_solution_result()}), position error {pos_err:.4f} m"
+    return IkResult(q_sol, ok, pos_err, rot_err, reason)
+
+
+def TcpPose(plant: MultibodyPlant, q: np.ndarray, gripper_half_opening: float = 0.0425
+            ) -> RigidTransform:
+    """``X_WT`` of the controller plant's ``tcp`` frame at joint angles ``q`` (6)."""
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, np.concatenate([q, [gripper_half_opening] * 2]))
+    return plant.CalcRelativeTransform(context, plant.world_frame(),
+                                       plant.GetFrameByName("tcp"))

@@ -1,0 +1,1 @@
+"""Plant models: fruit meshes, the plant scene added to the station."""

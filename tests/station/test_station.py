@@ -1,0 +1,128 @@
+"""The simulated station: port contract, servo behaviour, rendering."""
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels
+from lmap_drake.paths import DEFAULT_SCENARIO_FILE
+from lmap_drake.planning.ik import SolveTcpIk
+from lmap_drake.scenario import LoadScenario
+from lmap_drake.station import STATION_PORTS, MakeStation
+from lmap_drake.station.robot import MakeControllerPlant
+from lmap_drake.station.station import HardwareStationUnavailable
+
+
+def _port_names(diagram):
+    ins = [diagram.get_input_port(i).get_name() for i in range(diagram.num_input_ports())]
+    outs = [diagram.get_output_port(i).get_name() for i in range(diagram.num_output_ports())]
+    return ins, outs
+
+
+@pytest.mark.parametrize("name", ["Defaults", "OneOfEverything"])
+def test_station_builds_with_exactly_the_contract_ports(name):
+    s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name=name)
+    ins, outs = _port_names(MakeStation(s))
+    assert sorted(ins) == sorted(STATION_PORTS["inputs"])
+    assert sorted(outs) == sorted(STATION_PORTS["outputs"])
+
+
+def test_hardware_request_gives_clear_error(scenario):
+    with pytest.raises(HardwareStationUnavailable, match="hardware station"):
+        MakeStation(scenario, hardware=True)
+
+
+def _closed_loop(scenario, q_source, gripper_width):
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakeStation(scenario))
+    src = builder.AddSystem(q_source)
+    builder.Connect(src.get_output_port(), station.GetInputPort("ur5.position"))
+    grip = builder.AddSystem(ConstantVectorSource([gripper_width]))
+    builder.Connect(grip.get_output_port(), station.GetInputPort("gripper.position"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    context = station.GetMyContextFromRoot(simulator.get_mutable_context())
+    return simulator, station, context
+
+
+def _tcp(station, context):
+    plant = station.GetSubsystemByName("plant")
+    pc = station.GetSubsystemContext(plant, context)
+    return plant.CalcRelativeTransform(pc, plant.world_frame(), plant.GetFrameByName("tcp"))
+
+
+def test_held_command_keeps_arm_still(scenario):
+    sim, station, ctx = _closed_loop(
+        scenario, ConstantVectorSource(scenario.robot.initial_q), 0.085)
+    p0 = _tcp(station, ctx).translation()
+    q0 = station.GetOutputPort("ur5.position_measured").Eval(ctx).copy()
+    sim.AdvanceTo(0.5)
+    assert np.linalg.norm(_tcp(station, ctx).translation() - p0) < 1e-3
+    assert np.abs(station.GetOutputPort("ur5.position_measured").Eval(ctx) - q0).max() < 1e-3
+    state = station.GetOutputPort("ur5.state_estimated").Eval(ctx)
+    assert state.shape == (12,) and np.abs(state[6:]).max() < 1e-2
+
+
+def test_gripper_opens_and_closes(scenario):
+    sim, station, ctx = _closed_loop(
+        scenario, ConstantVectorSource(scenario.robot.initial_q), 0.0)
+    assert station.GetOutputPort("gripper.state_measured").Eval(ctx)[0] == pytest.approx(0.085)
+    sim.AdvanceTo(1.0)
+    assert station.GetOutputPort("gripper.state_measured").Eval(ctx)[0] < 0.002
+    scenario.robot.initial_gripper_width = 0.0
+    sim, station, ctx = _closed_loop(
+        scenario, ConstantVectorSource(scenario.robot.initial_q), 0.085)
+    sim.AdvanceTo(1.0)
+    assert station.GetOutputPort("gripper.state_measured").Eval(ctx)[0] > 0.083
+
+
+def test_tcp_tracks_slow_cartesian_pull(scenario):
+    """A 6 cm straight pull over 3 s, in front of the plant: the simulated TCP
+    stays within 5 mm of the Cartesian line at every sample."""
+    X_WB = scenario.robot.X_WB.GetDeterministicValue()
+    controller_plant, _, _ = MakeControllerPlant(X_WB)
+    R_WT = RotationMatrix.MakeXRotation(-np.pi / 2)  # approach along +y_W
+    p0, dp, T = np.array([0.45, -0.22, 0.40]), np.array([0.0, -0.06, 0.0]), 3.0
+    times = np.linspace(0.0, T, 31)
+    qs = []
+    seed = np.array([0.0, -1.5, 1.5, -1.57, -1.57, 0.0])
+    for t in times:
+        r = SolveTcpIk(controller_plant, RigidTransform(R_WT, p0 + dp * t / T), seed)
+        assert r.success, r.reason
+        qs.append(r.q)
+        seed = r.q
+    scenario.robot.initial_q = list(qs[0])
+    traj = PiecewisePolynomial.CubicShapePreserving(times, np.array(qs).T, True)
+    sim, station, ctx = _closed_loop(scenario, TrajectorySource(traj), 0.085)
+    errors = []
+    for t in np.arange(0.0, T + 0.5, 0.05):
+        sim.AdvanceTo(t)
+        expected = p0 + dp * min(t, T) / T
+        errors.append(np.linalg.norm(_tcp(station, ctx).translation() - expected))
+    assert max(errors) < 5e-3
+    # and it really moved 6 cm
+    assert np.linalg.norm(_tcp(station, ctx).translation() - p0) > 0.055
+
+
+def test_camera_images(scenario):
+    station = MakeStation(scenario)
+    ctx = station.CreateDefaultContext()
+    rgb = station.GetOutputPort("camera0.rgb_image").Eval(ctx)
+    depth = station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0]
+    label = station.GetOutputPort("camera0.label_image").Eval(ctx).data
+    cam = scenario.cameras["camera0"]
+    assert rgb.data.shape == (cam.height, cam.width, 4)
+    assert depth.dtype == np.float32 and depth.shape == (cam.height, cam.width)
+    cls, _ = DecodeLabels(label)
+    assert (cls == FRUIT).sum() > 0, "the fruit's label must be visible"
+    plant_px = np.isin(cls, [BRANCH, LEAF, FRUIT])
+    assert plant_px.sum() > 1000
+    assert np.all(np.isfinite(depth[plant_px]))
+    # The plant is 0.45-0.75 m from the camera along its optical axis.
+    assert 0.4 < depth[plant_px].min() and depth[plant_px].max() < 0.8
+    # Fruit pixels are red, leaf pixels green.
+    assert rgb.data[cls == FRUIT][:, 0].mean() > rgb.data[cls == FRUIT][:, 1].mean() + 50
+    assert rgb.data[cls == LEAF][:, 1].mean() > rgb.data[cls == LEAF][:, 0].mean() + 30

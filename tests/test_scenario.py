@@ -1,0 +1,68 @@
+import pytest
+
+from lmap_drake.paths import DEFAULT_SCENARIO_FILE
+from lmap_drake.scenario import DumpScenario, LoadScenario, Scenario, ScenarioError
+
+
+@pytest.mark.parametrize("name", ["Defaults", "OneOfEverything"])
+def test_named_scenarios_load(name):
+    s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name=name)
+    assert isinstance(s, Scenario)
+    assert "camera0" in s.cameras
+
+
+def test_one_of_everything_differs_from_defaults():
+    d = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    o = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="OneOfEverything")
+    assert o.random_seed == 7 and d.random_seed == 0
+    assert o.cameras["camera0"].width == 320 and d.cameras["camera0"].width == 640
+    assert o.robot.kp != d.robot.kp
+    assert o.perception.segmenter == "color_depth"
+    assert o.planner.distances == [0.02, 0.04]
+
+
+def test_unknown_key_names_key_and_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("Mine:\n  robot:\n    initial_qq: [0, 0, 0, 0, 0, 0]\n")
+    with pytest.raises(ScenarioError) as err:
+        LoadScenario(filename=bad, scenario_name="Mine")
+    assert "Mine.robot.initial_qq" in str(err.value)
+    assert str(bad) in str(err.value)
+
+
+def test_unknown_key_in_override_text():
+    with pytest.raises(ScenarioError, match=r"cameras\.camera0\.fx"):
+        LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_text="{cameras: {camera0: {fx: 1}}}")
+
+
+def test_override_text_applies_last():
+    s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="OneOfEverything",
+                     scenario_text="{random_seed: 11, robot: {gripper_kp: 123.0}}")
+    assert s.random_seed == 11 and s.robot.gripper_kp == 123.0
+    assert s.cameras["camera0"].width == 320  # untouched by the override
+
+
+def test_missing_file_and_name(tmp_path):
+    with pytest.raises(ScenarioError, match="not found"):
+        LoadScenario(filename=tmp_path / "nope.yaml")
+    with pytest.raises(ScenarioError, match="Nope.*OneOfEverything"):
+        LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Nope")
+
+
+def test_bad_values_are_rejected():
+    with pytest.raises(ScenarioError, match="initial_q"):
+        LoadScenario(scenario_text="{robot: {initial_q: [0, 1]}}")
+    with pytest.raises(ScenarioError, match="segmenter"):
+        LoadScenario(scenario_text="{perception: {segmenter: magic}}")
+
+
+def test_dump_round_trips(tmp_path):
+    s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="OneOfEverything")
+    DumpScenario(s, tmp_path / "s.yaml")
+    text = (tmp_path / "s.yaml").read_text()
+    (tmp_path / "wrapped.yaml").write_text(
+        "Dumped:\n" + "".join("  " + line + "\n" for line in text.splitlines()))
+    t = LoadScenario(filename=tmp_path / "wrapped.yaml", scenario_name="Dumped")
+    assert t.robot.kp == s.robot.kp
+    assert t.cameras["camera0"].focal.x == s.cameras["camera0"].focal.x
+    assert t.plant_scene.fruit_color.rgba.tolist() == s.plant_scene.fruit_color.rgba.tolist()
