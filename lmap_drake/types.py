@@ -1,0 +1,68 @@
+"""Data passed between pipeline stages (world frame W, metres). Small
+dataclasses of numpy arrays; heavy objects (decoders, KD-trees) stay
+attributes of the systems that own them."""
+from __future__ import annotations
+
+import dataclasses as dc
+from typing import Callable
+
+import numpy as np
+
+
+def _empty3() -> np.ndarray:
+    return np.zeros((0, 3))
+
+
+def _empty_ids() -> np.ndarray:
+    return np.zeros(0, dtype=np.int64)
+
+
+@dc.dataclass
+class SemanticScene:
+    """Segmented points in the world frame (m) with per-point instance ids
+    (-1 = unassigned), plus the camera pose ``X_WC`` (4x4) they came from.
+    ``flags`` carries conditions such as ``"no_fruit_in_view"``."""
+    branch_points_W: np.ndarray = dc.field(default_factory=_empty3)
+    leaf_points_W: np.ndarray = dc.field(default_factory=_empty3)
+    fruit_points_W: np.ndarray = dc.field(default_factory=_empty3)
+    branch_instance: np.ndarray = dc.field(default_factory=_empty_ids)
+    leaf_instance: np.ndarray = dc.field(default_factory=_empty_ids)
+    fruit_instance: np.ndarray = dc.field(default_factory=_empty_ids)
+    X_WC: np.ndarray = dc.field(default_factory=lambda: np.eye(4))
+    flags: list[str] = dc.field(default_factory=list)
+
+    def is_empty(self) -> bool:
+        return (len(self.branch_points_W) + len(self.leaf_points_W)
+                + len(self.fruit_points_W)) == 0
+
+
+@dc.dataclass
+class BranchEstimate:
+    """Completed branch: triangle mesh and surface samples (W, m), unit axis."""
+    vertices_W: np.ndarray
+    faces: np.ndarray
+    samples_W: np.ndarray
+    axis_W: np.ndarray
+
+
+@dc.dataclass
+class FruitEstimate:
+    """Completed fruit. ``X_WO`` is the Sim(3) object-to-world map as a 4x4
+    (scale folded into the rotation block); ``sdf_W`` maps (N,3) world
+    points to signed distances in metres (negative inside)."""
+    vertices_W: np.ndarray
+    faces: np.ndarray
+    X_WO: np.ndarray
+    latent: np.ndarray
+    center_W: np.ndarray
+    peduncle_axis_W: np.ndarray
+    sdf_W: Callable[[np.ndarray], np.ndarray] | None = None
+    loss_trace: list[dict] = dc.field(default_factory=list)
+
+
+@dc.dataclass
+class SceneEstimate:
+    """What shape completion hands to the planner."""
+    semantic: SemanticScene
+    branch: BranchEstimate | None = None
+    fruit: FruitEstimate | None = None
