@@ -1,7 +1,7 @@
 """``lmap-drake``: command-line entry point.
 
     lmap-drake run [--scenario_file F] [--scenario_name N] [--scenario_text YAML]
-                   [--output DIR] [--hardware]
+                   [--output DIR] [--hardware [--dry-run]]
 """
 from __future__ import annotations
 
@@ -39,13 +39,20 @@ def cmd_run(args) -> int:
     except ScenarioError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    if args.dry_run and not args.hardware:
+        print("error: --dry-run needs --hardware", file=sys.stderr)
+        return 2
     out = Path(args.output) if args.output else Path("out") / _dt.datetime.now().strftime(
         "%Y%m%d-%H%M%S")
     out.mkdir(parents=True, exist_ok=True)
     _stage(f"scenario '{args.scenario_name}' from {args.scenario_file}; output {out}")
     t0 = time.time()
     try:
-        files = RunStationSnapshot(scenario, out, hardware=args.hardware, progress=_stage)
+        if args.hardware:
+            from lmap_drake.station.hardware.run import RunHardwareSnapshot
+            files = RunHardwareSnapshot(scenario, out, dry_run=args.dry_run, progress=_stage)
+        else:
+            files = RunStationSnapshot(scenario, out, hardware=False, progress=_stage)
     except RuntimeError as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
@@ -61,6 +68,9 @@ def main(argv=None) -> int:
     _add_scenario_args(run)
     run.add_argument("--hardware", action="store_true",
                      help="use the hardware station instead of the simulation")
+    run.add_argument("--dry-run", action="store_true",
+                     help="with --hardware: connect read-only, read state and one RGB-D "
+                          "frame, plan and print the trajectory; command nothing")
     run.set_defaults(func=cmd_run)
     args = parser.parse_args(argv)
     return args.func(args)

@@ -181,6 +181,7 @@ class Scenario:
     shape: ShapeConfig = dc.field(default_factory=ShapeConfig)
     deformation: DeformationConfig = dc.field(default_factory=DeformationConfig)
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
+    hardware: "HardwareConfig" = dc.field(default_factory=lambda: HardwareConfig())
 
 
 class ScenarioError(ValueError):
@@ -317,3 +318,10 @@ def Validate(s: Scenario) -> None:
 def DumpScenario(s: Scenario, filename: str | Path) -> None:
     """Writes the resolved scenario (all fields) as YAML."""
     Path(filename).write_text(yaml_dump_typed(s, schema=Scenario))
+
+
+# Imported last: with an eager lmap_drake/station/__init__.py, importing
+# hardware_config at the top would import this module half-initialised.
+# Drake's yaml reads the dataclass field's type object, hence the fix-up.
+from lmap_drake.station.hardware_config import HardwareConfig  # noqa: E402
+Scenario.__dataclass_fields__["hardware"].type = HardwareConfig

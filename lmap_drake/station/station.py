@@ -168,8 +168,9 @@ def MakeStation(scenario: Scenario, meshcat: Meshcat | None = None,
     this module's docstring. The simulated station contains systems named
     ``plant`` and ``scene_graph``."""
     if hardware:
-        raise HardwareStationUnavailable(
-            "The hardware station (ur_rtde, Robotiq socket, pyrealsense2) is not built "
-            "yet; it is tracked as the hardware-station issue. Run without --hardware "
-            "to use the simulated station.")
+        # Real UR5 + 2F-85 + L515 (lmap_drake/station/hardware/station.py); raises
+        # HardwareStationUnavailable when a library or a device is missing.
+        # ``meshcat`` is not used on hardware.
+        from lmap_drake.station.hardware.station import MakeHardwareStation
+        return MakeHardwareStation(scenario)
     return _MakeSimStation(scenario, meshcat)

@@ -1,0 +1,146 @@
+"""``MakeHardwareStation``: the real UR5 cell as a Diagram with the same
+exported ports as the simulated station (``lmap_drake.station.STATION_PORTS``).
+
+- ``ur5.position`` (in, 6 rad) -> safety checks -> ur_rtde servoJ streaming;
+- ``gripper.position`` (in, 1 m) -> Robotiq ``SET POS .. SPE .. FOR .. GTO 1``;
+- ``ur5.position_measured`` (6), ``ur5.state_estimated`` (12) <- getActualQ/Qd;
+- ``gripper.state_measured`` (2) <- ``GET POS`` (opening m, rate m/s);
+- ``camera0.rgb_image`` / ``camera0.depth_image`` <- RealSense, depth aligned
+  to colour, metres, +inf where the camera has no return;
+- ``camera0.label_image``: same type and size as in simulation, but every
+  pixel is ``RenderLabel.kEmpty`` (decodes to background): a real camera has
+  no ground-truth labels, so a pipeline on hardware must use a segmenter that
+  does not read labels (``perception.segmenter`` other than ``label``).
+
+The camera pose comes from ``hardware.camera.calibration_file``, the
+intrinsics from the device: ``HardwareCamera(station)`` returns them.
+Call ``StopHardwareStation(station)`` when done (also registered with
+``atexit``): it stops the servo, the control script, the gripper socket and
+the camera pipeline.
+"""
+from __future__ import annotations
+
+import atexit
+import dataclasses as dc
+
+from pydrake.systems.framework import Diagram, DiagramBuilder
+
+from lmap_drake.scenario import Scenario
+from lmap_drake.station.hardware.realsense_client import ConnectRealSense, ImportPyrealsense2
+from lmap_drake.station.hardware.robotiq_client import RobotiqClient
+from lmap_drake.station.hardware.systems import RealSenseCamera, RobotiqDriver, Ur5Driver
+from lmap_drake.station.hardware.ur_client import ConnectUr, ImportUrRtde
+from lmap_drake.station.hardware_config import (CalibrationError, CalibrationX_WC,
+                                                HardwareConfig, LoadCameraCalibration,
+                                                ValidateHardwareConfig)
+
+
+@dc.dataclass
+class HardwareClients:
+    """The three device clients (real or injected fakes with the same
+    methods). ``Close`` stops and disconnects all of them, arm first."""
+    ur: object
+    gripper: object
+    camera: object
+
+    def Close(self) -> None:
+        for client in (self.ur, self.gripper, self.camera):
+            if client is None:
+                continue
+            try:
+                client.Close()
+            except Exception:
+                pass
+
+
+def _Unavailable(msg: str) -> Exception:
+    from lmap_drake.station.station import HardwareStationUnavailable
+    return HardwareStationUnavailable(msg)
+
+
+def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> HardwareClients:
+    """Connects UR5, gripper and camera (libraries checked first, before
+    anything is touched). ``read_only``: no RTDE control interface (the arm
+    cannot move) and no gripper activation (activation moves the fingers)."""
+    ImportUrRtde()
+    ImportPyrealsense2()
+    ur = gripper = camera = None
+    try:
+        ur = ConnectUr(config.ur, read_only=read_only)
+        host = config.gripper.host or config.ur.robot_ip
+        gripper = RobotiqClient.Connect(config.gripper, host)
+        if config.gripper.activate and not read_only:
+            gripper.Activate(timeout=10.0)
+        camera = ConnectRealSense(config.camera)
+    except BaseException:
+        HardwareClients(ur, gripper, camera).Close()
+        raise
+    return HardwareClients(ur, gripper, camera)
+
+
+def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = None) -> Diagram:
+    """The hardware station Diagram for ``scenario.hardware``. ``clients``
+    (tests, or a caller that connected first) are used as given; otherwise
+    the real devices are connected. Raises HardwareStationUnavailable when a
+    library or a device is missing, CalibrationError for a bad calibration
+    file."""
+    from lmap_drake.station.station import HardwareStationUnavailable
+
+    config = scenario.hardware
+    own_clients = clients is None
+    if own_clients:  # a missing library is the first thing to report
+        ImportUrRtde()
+        ImportPyrealsense2()
+    try:
+        ValidateHardwareConfig(config)
+        calib = LoadCameraCalibration(config.camera.calibration_file)
+    except (ValueError, CalibrationError) as err:
+        raise HardwareStationUnavailable(f"hardware station: {err}") from err
+    X_WC = CalibrationX_WC(calib, scenario.robot.X_WB.GetDeterministicValue())
+    if own_clients:
+        clients = ConnectHardwareClients(config)
+    try:
+        serial = getattr(clients.camera, "serial", "")
+        if calib.camera_serial and serial and calib.camera_serial != serial:
+            raise HardwareStationUnavailable(
+                f"hardware station: the calibration file {config.camera.calibration_file} is "
+                f"for camera {calib.camera_serial}, the connected camera is {serial}")
+        builder = DiagramBuilder()
+        ur5 = builder.AddNamedSystem("ur5_driver",
+                                     Ur5Driver(clients.ur, config.ur.command_period))
+        gripper = builder.AddNamedSystem(
+            "gripper_driver", RobotiqDriver(clients.gripper, config.gripper.update_period))
+        camera = builder.AddNamedSystem(
+            "camera0", RealSenseCamera(clients.camera, 1.0 / config.camera.fps, X_WC))
+        builder.ExportInput(ur5.GetInputPort("position"), "ur5.position")
+        builder.ExportInput(gripper.GetInputPort("position"), "gripper.position")
+        builder.ExportOutput(ur5.GetOutputPort("position_measured"), "ur5.position_measured")
+        builder.ExportOutput(ur5.GetOutputPort("state_estimated"), "ur5.state_estimated")
+        builder.ExportOutput(gripper.GetOutputPort("state_measured"), "gripper.state_measured")
+        builder.ExportOutput(camera.GetOutputPort("rgb_image"), "camera0.rgb_image")
+        builder.ExportOutput(camera.GetOutputPort("depth_image"), "camera0.depth_image")
+        builder.ExportOutput(camera.GetOutputPort("label_image"), "camera0.label_image")
+        diagram = builder.Build()
+        diagram.set_name("station")
+    except BaseException:
+        if own_clients:
+            clients.Close()
+        raise
+    atexit.register(clients.Close)
+    return diagram
+
+
+def _Drivers(station: Diagram):
+    return [station.GetSubsystemByName(n) for n in ("ur5_driver", "gripper_driver", "camera0")]
+
+
+def StopHardwareStation(station: Diagram) -> None:
+    """Stops the arm (servoStop, stopScript) and closes every client."""
+    ur5, gripper, camera = _Drivers(station)
+    HardwareClients(ur5.client, gripper.client, camera.client).Close()
+
+
+def HardwareCamera(station: Diagram):
+    """(X_WC RigidTransform, CameraInfo) of camera0 on the hardware station."""
+    camera = station.GetSubsystemByName("camera0")
+    return camera.X_WC, camera.camera_info
