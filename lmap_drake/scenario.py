@@ -99,17 +99,32 @@ class PlantSceneConfig:
 
 @dc.dataclass
 class PerceptionConfig:
-    """Segmentation and point-cloud parameters (paper Sec. III-A-1)."""
+    """Segmentation and point-cloud parameters (paper Sec. III-A-1). See
+    ``lmap_drake/perception/``. Lengths in metres."""
     segmenter: str = "label"  # label | color_depth | grounded_sam
     depth_cut: float = 1.5
     dbscan_eps: float = 0.008
     dbscan_min_points: int = 30
     voxel_size: float = 0.003
+    # Statistical outlier removal (open3d): neighbours and std-dev ratio.
+    outlier_neighbors: int = 20
+    outlier_std_ratio: float = 2.0
+    # color_depth: structures narrower than this are branch candidates; green
+    # curved regions may be reported as (green) fruit.
+    branch_max_width: float = 0.035
+    detect_green_fruit: bool = True
+    # grounded_sam: local files only (GroundingDINO config .py and checkpoint,
+    # SAM checkpoint), never downloaded; SAM model type; torch device.
+    grounded_sam_config: str = ""
     grounded_sam_checkpoint: str = ""
     sam_checkpoint: str = ""
+    sam_model_type: str = "vit_h"
+    grounded_sam_device: str = "cpu"
     box_threshold: float = 0.25
     text_threshold: float = 0.25
     nms_threshold: float = 0.8
+    # view fusion: a new instance joins an earlier one within this distance.
+    fusion_match_distance: float = 0.008
 
 
 @dc.dataclass

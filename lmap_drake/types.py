@@ -30,6 +30,8 @@ class SemanticScene:
     fruit_instance: np.ndarray = dc.field(default_factory=_empty_ids)
     X_WC: np.ndarray = dc.field(default_factory=lambda: np.eye(4))
     flags: list[str] = dc.field(default_factory=list)
+    # Added by perception: how many camera views were fused into these sets.
+    num_views: int = 1
 
     def is_empty(self) -> bool:
         return (len(self.branch_points_W) + len(self.leaf_points_W)

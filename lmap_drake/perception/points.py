@@ -1,0 +1,213 @@
+"""Semantic point clouds from a segmentation and a depth image (paper
+Sec. III-A-1): depth cut, de-projection into the world frame, statistical
+outlier removal, DBSCAN instances, voxel downsampling.
+
+Conventions: Drake camera frame C (+z forward, +x right, +y down); pixel
+(u, v) = (column, row) de-projects as ``x = (u - cx) z / fx``,
+``y = (v - cy) z / fy`` exactly like Drake's ``DepthImageToPointCloud``.
+Depth is metres along the optical axis; NaN, +-inf, zero, negative and
+beyond-cut depths are dropped. Points are returned in the world frame W,
+metres.
+
+open3d is used for statistical outlier removal and DBSCAN: both are C++
+KD-tree implementations in a well-kept library that the project already
+depends on, and they are what the authors' released code uses. Voxel
+downsampling is plain numpy so that instance ids survive it.
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+
+from lmap_drake.labels import BRANCH, FRUIT, LEAF
+from lmap_drake.types import SemanticScene
+
+CLASS_FIELDS = {BRANCH: "branch", LEAF: "leaf", FRUIT: "fruit"}
+
+
+@dc.dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels (Drake ``CameraInfo`` convention)."""
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @staticmethod
+    def FromCameraConfig(cam) -> "Intrinsics":
+        """From a ``pydrake.systems.sensors.CameraConfig``."""
+        color, _ = cam.MakeCameras()
+        info = color.core().intrinsics()
+        return Intrinsics(info.width(), info.height(), info.focal_x(), info.focal_y(),
+                          info.center_x(), info.center_y())
+
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+
+def AsTransform(X) -> np.ndarray:
+    """4x4 numpy array from a Drake RigidTransform or a 4x4 array."""
+    if hasattr(X, "GetAsMatrix4"):
+        return np.asarray(X.GetAsMatrix4(), float)
+    X = np.asarray(X, float)
+    if X.shape != (4, 4):
+        raise ValueError(f"camera pose must be a RigidTransform or a 4x4 matrix, got {X.shape}")
+    return X
+
+
+def ValidDepthMask(depth: np.ndarray, depth_cut: float | None = None) -> np.ndarray:
+    """True where depth is finite, > 0 and (if given) <= ``depth_cut`` m."""
+    d = np.asarray(depth, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(d) & (d > 0)
+        if depth_cut is not None and depth_cut > 0:
+            valid &= d <= depth_cut
+    return valid
+
+
+def DeprojectPixels(depth: np.ndarray, mask: np.ndarray, K: Intrinsics,
+                    X_WC=None) -> np.ndarray:
+    """(N, 3) points of the pixels where ``mask`` is true, in W if ``X_WC``
+    is given (else in C). Pixels without valid depth are skipped; order is
+    row-major over the mask."""
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim == 3:
+        d = d[..., 0]
+    m = np.asarray(mask, bool) & ValidDepthMask(d)
+    v, u = np.nonzero(m)
+    z = d[v, u]
+    p_C = np.stack([(u - K.cx) * z / K.fx, (v - K.cy) * z / K.fy, z], axis=1)
+    if X_WC is None:
+        return p_C
+    X = AsTransform(X_WC)
+    return p_C @ X[:3, :3].T + X[:3, 3]
+
+
+def PointsImage(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
+    """HxWx3 camera-frame points (NaN where the depth is invalid)."""
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim == 3:
+        d = d[..., 0]
+    valid = ValidDepthMask(d)
+    z = np.where(valid, d, np.nan)
+    v, u = np.mgrid[0:d.shape[0], 0:d.shape[1]]
+    return np.stack([(u - K.cx) * z / K.fx, (v - K.cy) * z / K.fy, z], axis=-1)
+
+
+def _o3d_cloud(points: np.ndarray):
+    import open3d as o3d
+    pc = o3d.geometry.PointCloud()
+    pc.points = o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
+    return pc
+
+
+def StatisticalOutlierMask(points: np.ndarray, nb_neighbors: int = 20,
+                           std_ratio: float = 2.0) -> np.ndarray:
+    """Boolean inlier mask (open3d ``remove_statistical_outlier``): a point
+    is an outlier if its mean distance to its ``nb_neighbors`` nearest
+    neighbours exceeds the global mean by ``std_ratio`` standard deviations.
+    Sets smaller than ``nb_neighbors + 1`` are returned unchanged."""
+    n = len(points)
+    keep = np.ones(n, bool)
+    if n <= nb_neighbors or nb_neighbors <= 0:
+        return keep
+    _, idx = _o3d_cloud(points).remove_statistical_outlier(nb_neighbors, std_ratio)
+    keep[:] = False
+    keep[np.asarray(idx, dtype=np.int64)] = True
+    return keep
+
+
+def DbscanLabels(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
+    """DBSCAN cluster id per point (open3d), -1 for noise. Cluster ids are
+    renumbered by decreasing size (0 = largest)."""
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    labels = np.asarray(_o3d_cloud(points).cluster_dbscan(eps, int(min_points)),
+                        dtype=np.int64)
+    ids, counts = np.unique(labels[labels >= 0], return_counts=True)
+    out = np.full(n, -1, dtype=np.int64)
+    for new, old in enumerate(ids[np.argsort(-counts, kind="stable")]):
+        out[labels == old] = new
+    return out
+
+
+def VoxelDownsample(points: np.ndarray, voxel: float,
+                    instance: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid of the points in each (voxel, instance) cell. Returns the
+    points and their instance ids (all -1 if ``instance`` is None). Output
+    order is deterministic (sorted by cell). ``voxel <= 0`` returns the
+    input unchanged."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    inst = (np.full(len(points), -1, np.int64) if instance is None
+            else np.asarray(instance, np.int64))
+    if voxel <= 0 or len(points) == 0:
+        return points.copy(), inst.copy()
+    keys = np.concatenate([np.floor(points / voxel).astype(np.int64), inst[:, None]], axis=1)
+    _, cell, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    cell = cell.ravel()
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, cell, points)
+    out_inst = np.full(len(counts), -1, np.int64)
+    out_inst[cell] = inst
+    return sums / counts[:, None], out_inst
+
+
+@dc.dataclass
+class PointParams:
+    """Point-cloud post-processing parameters (see ``PerceptionConfig``)."""
+    depth_cut: float = 1.5
+    dbscan_eps: float = 0.008
+    dbscan_min_points: int = 30
+    voxel_size: float = 0.003
+    outlier_neighbors: int = 20
+    outlier_std_ratio: float = 2.0
+
+    @staticmethod
+    def FromConfig(cfg) -> "PointParams":
+        return PointParams(**{f.name: getattr(cfg, f.name) for f in dc.fields(PointParams)
+                              if hasattr(cfg, f.name)})
+
+
+def ClassPoints(points_W: np.ndarray, params: PointParams) -> tuple[np.ndarray, np.ndarray]:
+    """One class's full-resolution points -> (downsampled points, instance
+    ids). Order: statistical outlier removal, DBSCAN at full resolution (so
+    the density the eps / min_points values were chosen for is kept), voxel
+    downsampling per instance. DBSCAN noise keeps instance -1 (unassigned)."""
+    if len(points_W) == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    keep = StatisticalOutlierMask(points_W, params.outlier_neighbors, params.outlier_std_ratio)
+    pts = points_W[keep]
+    inst = DbscanLabels(pts, params.dbscan_eps, params.dbscan_min_points)
+    return VoxelDownsample(pts, params.voxel_size, inst)
+
+
+def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
+                       params: PointParams, flags: list[str] | None = None) -> SemanticScene:
+    """Semantic point sets in W from a per-pixel class map (``lmap_drake.labels``
+    ids). Pixels beyond ``params.depth_cut`` or without valid depth are
+    dropped. Never raises on empty input: empty sets plus flags
+    (``no_valid_depth``, ``no_<class>_in_view``, ``empty_scene``)."""
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim == 3:
+        d = d[..., 0]
+    X = AsTransform(X_WC)
+    flags = list(flags or [])
+    valid = ValidDepthMask(d, params.depth_cut)
+    if not valid.any():
+        flags.append("no_valid_depth")
+    scene = SemanticScene(X_WC=X.copy())
+    for cls, name in CLASS_FIELDS.items():
+        pts = DeprojectPixels(d, (class_map == cls) & valid, K, X)
+        pts, inst = ClassPoints(pts, params)
+        setattr(scene, f"{name}_points_W", pts)
+        setattr(scene, f"{name}_instance", inst)
+        if len(pts) == 0:
+            flags.append(f"no_{name}_in_view")
+    if scene.is_empty():
+        flags.append("empty_scene")
+    scene.flags = flags
+    return scene

@@ -1,0 +1,471 @@
+"""Per-pixel semantic segmentation of an RGB-D view into background, branch,
+leaf and fruit (ids from ``lmap_drake.labels``) with instance ids.
+
+Three backends behind one interface (``Segmenter.Segment``), chosen by
+``PerceptionConfig.segmenter``:
+
+- ``label``: decodes the simulator's label image (exact; tests, ablations).
+- ``color_depth``: classical, needs no labels or weights, works on real
+  RGB-D. Colour (HSV) separates saturated red/orange/yellow fruit from green
+  leaves; geometry finds the branch (thin, long, straight structures after a
+  metric-size morphological opening of the plant mask split at depth
+  discontinuities) and green fruit (curved, non-planar green regions).
+- ``grounded_sam``: adapter for GroundingDINO + SAM with local weights
+  (prompts ``branch. leaf. sweet pepper.``, box/text thresholds 0.25, NMS
+  0.8 as in the authors' code). Missing files raise
+  ``MissingWeightsError`` naming the path and the config key; nothing is
+  downloaded.
+
+Images: ``rgb`` HxWx3 (or x4) uint8, ``depth`` HxW float metres along the
+optical axis (NaN/inf/0 = no return), ``label`` HxW render labels.
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
+from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
+
+SEGMENTERS = ("label", "color_depth", "grounded_sam")
+CLASS_IDS = {"branch": BRANCH, "leaf": LEAF, "fruit": FRUIT}
+
+
+class SegmenterError(ValueError):
+    """Bad segmenter name or missing input."""
+
+
+class MissingWeightsError(FileNotFoundError):
+    """A model file named in the perception config does not exist."""
+
+
+@dc.dataclass
+class Segmentation:
+    """``class_map`` HxW int64 (labels ids, 0 = background), ``instance_map``
+    HxW int64 (per-class instance index, -1 = background), ``flags``."""
+    class_map: np.ndarray
+    instance_map: np.ndarray
+    flags: list[str] = dc.field(default_factory=list)
+
+    def mask(self, class_id: int) -> np.ndarray:
+        return self.class_map == class_id
+
+
+def _rgb3(rgb) -> np.ndarray:
+    a = np.asarray(getattr(rgb, "data", rgb))
+    return np.ascontiguousarray(a[..., :3]).astype(np.uint8)
+
+
+def _depth2(depth) -> np.ndarray:
+    d = np.asarray(getattr(depth, "data", depth), dtype=np.float64)
+    return d[..., 0] if d.ndim == 3 else d
+
+
+class Segmenter:
+    """Interface: ``Segment(rgb, depth, label=None) -> Segmentation``."""
+    name = "base"
+    needs_label = False
+
+    def Segment(self, rgb, depth, label=None) -> Segmentation:  # pragma: no cover
+        raise NotImplementedError
+
+
+def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = None,
+                            depth_jump: float = 0.02) -> np.ndarray:
+    """Per-class 8-connected components as instance ids (0 = largest);
+    neighbouring pixels whose depth differs by more than ``depth_jump`` m are
+    cut apart when ``depth`` is given."""
+    inst = np.full(class_map.shape, -1, np.int64)
+    cut = DepthEdges(depth, depth_jump, both_sides=True) if depth is not None else None
+    for c in (BRANCH, LEAF, FRUIT):
+        m = class_map == c
+        if cut is not None:
+            m = m & ~cut
+        lab, n = ndimage.label(m, structure=np.ones((3, 3)))
+        if n == 0:
+            continue
+        sizes = ndimage.sum(m, lab, index=np.arange(1, n + 1))
+        order = np.argsort(-sizes, kind="stable")
+        remap = np.full(n + 1, -1, np.int64)
+        remap[order + 1] = np.arange(n)
+        inst[m] = remap[lab[m]]
+        if cut is not None:  # cut pixels join their nearest instance
+            rest = (class_map == c) & cut
+            if rest.any():
+                _, (iy, ix) = ndimage.distance_transform_edt(~m, return_indices=True)
+                inst[rest] = inst[iy[rest], ix[rest]]
+    return inst
+
+
+class LabelSegmenter(Segmenter):
+    """Exact segmentation from the simulator's label image (robot pixels are
+    background)."""
+    name = "label"
+    needs_label = True
+
+    def Segment(self, rgb, depth, label=None) -> Segmentation:
+        if label is None:
+            raise SegmenterError("the 'label' segmenter needs camera0.label_image "
+                                 "(simulation only); connect it or choose color_depth")
+        cls, inst = DecodeLabels(np.asarray(getattr(label, "data", label)))
+        cls = np.where(cls == ROBOT, BACKGROUND, cls)
+        inst = np.where(cls == BACKGROUND, -1, inst)
+        return Segmentation(cls.astype(np.int64), inst.astype(np.int64))
+
+
+# ----------------------------------------------------------------------------
+# Classical colour + depth segmenter.
+
+@dc.dataclass
+class ColorDepthParams:
+    """Thresholds of ``ColorDepthSegmenter`` (hue in degrees, S and V in
+    [0, 1], lengths in metres)."""
+    depth_cut: float = 1.5
+    fruit_hue_max: float = 65.0      # red/orange/yellow: hue < max or >= wrap
+    fruit_hue_wrap: float = 330.0
+    fruit_min_saturation: float = 0.75
+    green_hue: tuple[float, float] = (65.0, 170.0)
+    plant_min_saturation: float = 0.2
+    min_value: float = 0.08
+    depth_edge: float = 0.01         # depth jump that separates surfaces
+    branch_max_width: float = 0.035  # opening size: wider structures are not branch
+    branch_min_length: float = 0.04
+    branch_max_aspect: float = 0.35  # width / length of a branch piece
+    detect_green_fruit: bool = True
+    green_fruit_min_relief: float = 0.3  # sqrt(l3 / l2) of a region's points
+    green_fruit_max_extent: float = 0.16
+    min_region_pixels: int = 30
+    fill_iterations: int = 3
+
+
+def RgbToHsv(rgb: np.ndarray) -> np.ndarray:
+    """HxWx3 uint8 -> HxWx3 float (hue degrees, saturation, value)."""
+    from matplotlib.colors import rgb_to_hsv
+    hsv = rgb_to_hsv(rgb.astype(np.float64) / 255.0)
+    hsv[..., 0] *= 360.0
+    return hsv
+
+
+def DepthEdges(depth: np.ndarray, jump: float, both_sides: bool = False) -> np.ndarray:
+    """Pixels on the far side of a depth discontinuity larger than ``jump`` m
+    with a 4-neighbour (both sides if ``both_sides``). Invalid depth never
+    makes an edge."""
+    d = np.where(ValidDepthMask(depth), depth, np.nan)
+    edge = np.zeros(d.shape, bool)
+    with np.errstate(invalid="ignore"):
+        for axis in (0, 1):
+            diff = np.diff(d, axis=axis)  # d[i+1] - d[i]
+            far_next = diff > jump        # i+1 is farther
+            far_prev = diff < -jump       # i is farther
+            if both_sides:
+                far_next = far_prev = far_next | far_prev
+            if axis == 0:
+                edge[1:] |= far_next
+                edge[:-1] |= far_prev
+            else:
+                edge[:, 1:] |= far_next
+                edge[:, :-1] |= far_prev
+    return edge
+
+
+def _opening(mask: np.ndarray, radius: float) -> np.ndarray:
+    """Binary opening with a disk of ``radius`` px via distance transforms."""
+    if radius <= 0.5 or not mask.any():
+        return mask.copy()
+    eroded = ndimage.distance_transform_edt(mask) > radius
+    if not eroded.any():
+        return eroded
+    return (ndimage.distance_transform_edt(~eroded) <= radius) & mask
+
+
+def _pca(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (descending) and eigenvectors (columns) of the covariance."""
+    c = np.cov(points.T)
+    w, v = np.linalg.eigh(c)
+    return w[::-1].clip(min=0), v[:, ::-1]
+
+
+class ColorDepthSegmenter(Segmenter):
+    """Classical RGB-D segmenter: no labels, no weights.
+
+    1. Plant pixels: valid depth within the cut and a saturated colour (grey,
+       white, black and blue — the robot, the background — are not plant).
+    2. Far-side pixels of depth discontinuities are set aside so surfaces at
+       different depths (a branch behind a leaf) are not connected.
+    3. Branch: the plant mask minus its opening with a disk as wide as
+       ``branch_max_width`` at the plant's depth leaves thin structures; each
+       thin 8-connected piece that is not fruit-coloured and whose
+       back-projected points are long (>= ``branch_min_length``) and narrow
+       (width/length <= ``branch_max_aspect``) is branch (green or brown).
+    4. Fruit: saturated red/orange/yellow; leaf: green. A green region whose
+       points are far from planar (relief sqrt(l3/l2) >= ``green_fruit_min_relief``)
+       and fruit-sized is a green fruit (flag ``green_fruit_detected``).
+    5. Unassigned pixels next to a labelled pixel at a similar depth (shaded
+       rims, discontinuity pixels) take its class, for a few iterations.
+    6. Instances: per-class connected components cut at depth jumps.
+    """
+    name = "color_depth"
+
+    def __init__(self, K: Intrinsics, params: ColorDepthParams | None = None):
+        self.K = K
+        self.p = params or ColorDepthParams()
+
+    def ColorMasks(self, rgb: np.ndarray, valid: np.ndarray):
+        """(fruit-coloured, green, other plant-coloured) boolean masks."""
+        p = self.p
+        hsv = RgbToHsv(rgb)
+        h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+        lit = valid & (v >= p.min_value)
+        warm = (h < p.fruit_hue_max) | (h >= p.fruit_hue_wrap)
+        fruit = lit & warm & (s >= p.fruit_min_saturation)
+        green = lit & (h >= p.green_hue[0]) & (h < p.green_hue[1]) & (s >= p.plant_min_saturation)
+        other = lit & warm & (s >= p.plant_min_saturation) & ~fruit
+        return fruit, green, other
+
+    def Segment(self, rgb, depth, label=None) -> Segmentation:
+        p = self.p
+        rgb = _rgb3(rgb)
+        d = _depth2(depth)
+        flags: list[str] = []
+        valid = ValidDepthMask(d, p.depth_cut)
+        cls = np.zeros(d.shape, np.int64)
+        if not valid.any():
+            return Segmentation(cls, np.full(d.shape, -1, np.int64), ["no_valid_depth"])
+        P_img = PointsImage(d, self.K)
+        fruit_col, green, other = self.ColorMasks(rgb, valid)
+        plant = fruit_col | green | other
+        edges = DepthEdges(d, p.depth_edge)
+        core = plant & ~edges
+
+        # Branch: thin, long, straight pieces.
+        branch = np.zeros_like(core)
+        if core.any():
+            z = float(np.median(d[core]))
+            radius = 0.5 * p.branch_max_width * self.K.fx / z
+            thin = core & ~_opening(core, radius) & ~fruit_col
+            lab, n = ndimage.label(thin, structure=np.ones((3, 3)))
+            for i, sl in enumerate(ndimage.find_objects(lab), start=1):
+                piece = lab[sl] == i
+                if piece.sum() < p.min_region_pixels:
+                    continue
+                pts = P_img[sl][piece]
+                w, _ = _pca(pts)
+                length = 4.0 * np.sqrt(w[0])  # +-2 sigma of a uniform-ish spread
+                width = 4.0 * np.sqrt(w[1])
+                if length >= p.branch_min_length and width <= p.branch_max_aspect * length:
+                    branch[sl] |= piece
+        cls[branch] = BRANCH
+        cls[core & ~branch & fruit_col] = FRUIT
+        cls[core & ~branch & green] = LEAF
+
+        # Green fruit: curved, fruit-sized green regions.
+        if p.detect_green_fruit:
+            lab, n = ndimage.label(cls == LEAF)
+            for i, sl in enumerate(ndimage.find_objects(lab), start=1):
+                region = lab[sl] == i
+                if region.sum() < 4 * p.min_region_pixels:
+                    continue
+                pts = P_img[sl][region]
+                w, _ = _pca(pts)
+                relief = np.sqrt(w[2] / max(w[1], 1e-12))
+                extent = 4.0 * np.sqrt(w[0])
+                if relief >= p.green_fruit_min_relief and extent <= p.green_fruit_max_extent:
+                    cls[sl][region] = FRUIT
+                    if "green_fruit_detected" not in flags:
+                        flags.append("green_fruit_detected")
+
+        # Fill rims and discontinuity pixels from depth-continuous neighbours.
+        todo = valid & (cls == BACKGROUND) & (plant | edges)
+        tol = max(p.depth_edge, 1e-3)
+        H, W = d.shape
+        for _ in range(p.fill_iterations):
+            if not todo.any():
+                break
+            new = cls.copy()
+            for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1)):
+                src = np.zeros_like(cls)
+                srcd = np.full(d.shape, np.nan)
+                ys = slice(max(dy, 0), H + min(dy, 0)); yd = slice(max(-dy, 0), H + min(-dy, 0))
+                xs = slice(max(dx, 0), W + min(dx, 0)); xd = slice(max(-dx, 0), W + min(-dx, 0))
+                src[yd, xd] = cls[ys, xs]
+                srcd[yd, xd] = d[ys, xs]
+                with np.errstate(invalid="ignore"):
+                    ok = todo & (new == BACKGROUND) & (src != BACKGROUND) & (np.abs(srcd - d) < tol)
+                new[ok] = src[ok]
+            todo &= new == BACKGROUND
+            cls = new
+            # the fill may grow from any plant pixel, including the edges
+        inst = InstancesFromComponents(cls, d, max(2 * p.depth_edge, 0.02))
+        return Segmentation(cls, inst, flags)
+
+
+# ----------------------------------------------------------------------------
+# GroundedSAM adapter.
+
+GROUNDED_SAM_PROMPT = "branch. leaf. sweet pepper."
+
+
+def PhraseToClass(phrase: str) -> int:
+    """GroundingDINO phrase -> class id (BACKGROUND when unrecognised)."""
+    p = phrase.lower()
+    if "pepper" in p or "sweet" in p or "fruit" in p:
+        return FRUIT
+    if "leaf" in p or "leaves" in p:
+        return LEAF
+    if "branch" in p or "stem" in p:
+        return BRANCH
+    return BACKGROUND
+
+
+def BoxNms(boxes_xyxy: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:
+    """Indices kept by greedy non-maximum suppression, best score first."""
+    boxes = np.asarray(boxes_xyxy, float).reshape(-1, 4)
+    order = list(np.argsort(-np.asarray(scores, float), kind="stable"))
+    area = (boxes[:, 2] - boxes[:, 0]).clip(0) * (boxes[:, 3] - boxes[:, 1]).clip(0)
+    keep = []
+    while order:
+        i = order.pop(0)
+        keep.append(i)
+        rest = []
+        for j in order:
+            xx1, yy1 = max(boxes[i, 0], boxes[j, 0]), max(boxes[i, 1], boxes[j, 1])
+            xx2, yy2 = min(boxes[i, 2], boxes[j, 2]), min(boxes[i, 3], boxes[j, 3])
+            inter = max(0.0, xx2 - xx1) * max(0.0, yy2 - yy1)
+            iou = inter / max(area[i] + area[j] - inter, 1e-12)
+            if iou <= iou_threshold:
+                rest.append(j)
+        order = rest
+    return np.asarray(keep, dtype=np.int64)
+
+
+def ComposeMasks(masks: np.ndarray, phrases: list[str], shape) -> Segmentation:
+    """Instance masks (N, H, W) with phrases -> class and instance maps.
+    Larger masks are painted first so smaller (usually nearer, e.g. a fruit
+    seen through leaves) ones stay on top."""
+    cls = np.zeros(shape, np.int64)
+    inst = np.full(shape, -1, np.int64)
+    masks = np.asarray(masks, bool).reshape(-1, *shape)
+    counters = {BRANCH: 0, LEAF: 0, FRUIT: 0}
+    order = np.argsort(-masks.reshape(len(masks), -1).sum(axis=1), kind="stable")
+    for k in order:
+        c = PhraseToClass(phrases[k])
+        if c == BACKGROUND or not masks[k].any():
+            continue
+        cls[masks[k]] = c
+        inst[masks[k]] = counters[c]
+        counters[c] += 1
+    return Segmentation(cls, inst)
+
+
+class GroundedSamSegmenter(Segmenter):
+    """GroundingDINO (text-prompted boxes) + SAM (box-prompted masks) with
+    local weights. Pixels beyond ``depth_cut`` are blacked out before the
+    models see the image (paper Sec. III-A-1)."""
+    name = "grounded_sam"
+
+    FILES = (("grounded_sam_config", "GroundingDINO model config (.py)"),
+             ("grounded_sam_checkpoint", "GroundingDINO checkpoint (.pth)"),
+             ("sam_checkpoint", "SAM checkpoint (.pth)"))
+
+    def __init__(self, cfg):
+        self.cfg = cfg
+        for key, what in self.FILES:
+            path = getattr(cfg, key, "")
+            if not path:
+                raise MissingWeightsError(
+                    f"grounded_sam segmenter: perception.{key} is not set; it must name the "
+                    f"local {what}. Nothing is downloaded: put the file on disk and set "
+                    f"the key, or use segmenter: color_depth.")
+            if not Path(path).is_file():
+                raise MissingWeightsError(
+                    f"grounded_sam segmenter: {what} not found at '{path}' "
+                    f"(perception.{key}). Nothing is downloaded: put the file there, or "
+                    f"use segmenter: color_depth.")
+        self._dino = None
+        self._sam = None
+
+    def _load(self):
+        if self._dino is not None:
+            return
+        try:
+            from groundingdino.util.inference import load_model  # noqa: F401
+            from segment_anything import SamPredictor, sam_model_registry
+        except ImportError as err:
+            raise SegmenterError(
+                "grounded_sam segmenter: the weights exist but the packages "
+                "'groundingdino' and 'segment_anything' are not importable "
+                f"({err}); install them in .venv or use segmenter: color_depth") from err
+        from groundingdino.util.inference import load_model
+        c = self.cfg
+        self._dino = load_model(c.grounded_sam_config, c.grounded_sam_checkpoint,
+                                device=c.grounded_sam_device)
+        sam = sam_model_registry[c.sam_model_type](checkpoint=c.sam_checkpoint)
+        sam.to(device=c.grounded_sam_device)
+        self._sam = SamPredictor(sam)
+
+    def Segment(self, rgb, depth, label=None) -> Segmentation:
+        import torch
+        from PIL import Image
+        self._load()
+        import groundingdino.datasets.transforms as T
+        from groundingdino.util.inference import predict
+        c = self.cfg
+        img = _rgb3(rgb).copy()
+        d = _depth2(depth)
+        img[~ValidDepthMask(d, c.depth_cut)] = 0
+        H, W = img.shape[:2]
+        transform = T.Compose([T.RandomResize([800], max_size=1333), T.ToTensor(),
+                               T.Normalize([0.485, 0.456, 0.406], [0.229, 0.224, 0.225])])
+        image_t, _ = transform(Image.fromarray(img), None)
+        boxes, logits, phrases = predict(self._dino, image_t, GROUNDED_SAM_PROMPT,
+                                         box_threshold=c.box_threshold,
+                                         text_threshold=c.text_threshold,
+                                         device=c.grounded_sam_device)
+        if len(boxes) == 0:
+            return Segmentation(np.zeros((H, W), np.int64), np.full((H, W), -1, np.int64),
+                                ["no_detections"])
+        b = boxes.cpu().numpy() * np.array([W, H, W, H])
+        xyxy = np.stack([b[:, 0] - b[:, 2] / 2, b[:, 1] - b[:, 3] / 2,
+                         b[:, 0] + b[:, 2] / 2, b[:, 1] + b[:, 3] / 2], axis=1)
+        keep = BoxNms(xyxy, logits.cpu().numpy(), c.nms_threshold)
+        xyxy, phrases = xyxy[keep], [phrases[i] for i in keep]
+        self._sam.set_image(img)
+        tb = self._sam.transform.apply_boxes_torch(
+            torch.as_tensor(xyxy, dtype=torch.float32, device=self._sam.device), (H, W))
+        masks, _, _ = self._sam.predict_torch(point_coords=None, point_labels=None,
+                                              boxes=tb, multimask_output=False)
+        return ComposeMasks(masks[:, 0].cpu().numpy(), phrases, (H, W))
+
+
+def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
+    """The backend named by ``cfg.segmenter`` (a ``PerceptionConfig``)."""
+    name = cfg.segmenter
+    if name == "label":
+        return LabelSegmenter()
+    if name == "color_depth":
+        params = ColorDepthParams(depth_cut=cfg.depth_cut)
+        for f in ("branch_max_width", "detect_green_fruit"):
+            if hasattr(cfg, f):
+                setattr(params, f, getattr(cfg, f))
+        return ColorDepthSegmenter(K, params)
+    if name == "grounded_sam":
+        return GroundedSamSegmenter(cfg)
+    raise SegmenterError(f"perception.segmenter '{name}' unknown; choose one of "
+                         f"{', '.join(SEGMENTERS)}")
+
+
+def ClassIou(pred: np.ndarray, truth: np.ndarray, class_id: int) -> float:
+    """Intersection over union of one class; NaN when both are empty."""
+    a, b = pred == class_id, truth == class_id
+    union = np.logical_or(a, b).sum()
+    if union == 0:
+        return float("nan")
+    return float(np.logical_and(a, b).sum() / union)
+
+
+def TruthClassMap(label) -> np.ndarray:
+    """Ground-truth class map from a render label image (robot = background)."""
+    return LabelSegmenter().Segment(None, None, label).class_map

@@ -1,0 +1,1 @@
+"""Thin Drake LeafSystems, one file per pipeline stage."""

@@ -1,0 +1,148 @@
+"""``Perception``: the segmentation + semantic point-cloud stage as a Drake
+LeafSystem (thin shell around ``lmap_drake.perception``).
+
+Input ports:
+
+- ``camera0.rgb_image`` (abstract ``ImageRgba8U``): colour image.
+- ``camera0.depth_image`` (abstract ``ImageDepth32F``): depth along the
+  optical axis, metres; NaN / inf / 0 = no return.
+- ``camera0.label_image`` (abstract ``ImageLabel16I``, optional): render
+  labels (simulation only); required only by the ``label`` segmenter.
+- ``camera0.X_WC`` (abstract ``RigidTransform``, optional): pose of the
+  camera frame C (Drake convention: +z forward, +x right, +y down) in the
+  world W. Unconnected, the fixed eye-to-hand pose ``camera_config.X_PB``
+  (base frame world) is used.
+- ``capture`` (vector, 1, optional): a view counter. Whenever its value
+  exceeds the number of views already fused, the current view is fused into
+  the state at the start of the next simulation step (per-step
+  unrestricted-update event).
+
+Output ports:
+
+- ``semantic_scene`` (abstract ``SemanticScene``): the current view's
+  branch / leaf / fruit points in W (metres) with instance ids and flags.
+  Computed on demand in the output calc and cached by Drake until an input
+  changes (the camera ports change every render, i.e. when the scene does).
+- ``fused_semantic_scene`` (abstract ``SemanticScene``): the views fused so
+  far (paper Sec. III-E: leaf from the newest view, fruit and branch
+  accumulated); empty with flag ``no_views_fused`` until the first capture.
+  Held in abstract state; ``CaptureView(context)`` fuses the current view
+  directly (scripts, or an orchestrator that owns the context).
+
+Intrinsics come from the scenario's ``CameraConfig`` given to the
+constructor; parameters from ``PerceptionConfig``. The segmenter (a heavy
+object for ``grounded_sam``) is an attribute of the system, not context
+state.
+"""
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
+from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
+
+from lmap_drake.perception.fusion import FuseViews
+from lmap_drake.perception.points import BuildSemanticScene, Intrinsics, PointParams
+from lmap_drake.perception.segmentation import MakeSegmenter, Segmenter, SegmenterError
+from lmap_drake.types import SemanticScene
+
+
+def _camera_pose(camera_config) -> RigidTransform:
+    base = camera_config.X_PB.base_frame
+    if base not in (None, "", "world"):
+        raise ValueError(f"camera {camera_config.name}: X_PB.base_frame '{base}' is not the "
+                         "world; connect the camera0.X_WC input port instead")
+    return camera_config.X_PB.GetDeterministicValue()
+
+
+class Perception(LeafSystem):
+    """RGB-D (+ optional labels) -> SemanticScene; see the module docstring
+    for ports, frames and units."""
+
+    def __init__(self, camera_config, config, segmenter: Segmenter | None = None):
+        super().__init__()
+        self.set_name("perception")
+        self._config = config
+        self._K = Intrinsics.FromCameraConfig(camera_config)
+        self._params = PointParams.FromConfig(config)
+        self._segmenter = segmenter if segmenter is not None else MakeSegmenter(config, self._K)
+        self._X_WC_default = _camera_pose(camera_config)
+        name = camera_config.name
+        self._rgb = self.DeclareAbstractInputPort(
+            f"{name}.rgb_image", AbstractValue.Make(ImageRgba8U()))
+        self._depth = self.DeclareAbstractInputPort(
+            f"{name}.depth_image", AbstractValue.Make(ImageDepth32F()))
+        self._label = self.DeclareAbstractInputPort(
+            f"{name}.label_image", AbstractValue.Make(ImageLabel16I()))
+        self._pose = self.DeclareAbstractInputPort(
+            f"{name}.X_WC", AbstractValue.Make(RigidTransform()))
+        self._capture = self.DeclareVectorInputPort("capture", 1)
+        self._fused_index = self.DeclareAbstractState(
+            AbstractValue.Make(SemanticScene(flags=["no_views_fused"], num_views=0)))
+        self._scene_port = self.DeclareAbstractOutputPort(
+            "semantic_scene", lambda: AbstractValue.Make(SemanticScene()), self._calc_scene,
+            prerequisites_of_calc={self.all_input_ports_ticket()})
+        self.DeclareAbstractOutputPort(
+            "fused_semantic_scene", lambda: AbstractValue.Make(SemanticScene()),
+            self._calc_fused,
+            prerequisites_of_calc={self.abstract_state_ticket(self._fused_index)})
+        self.DeclarePerStepUnrestrictedUpdateEvent(self._on_step)
+
+    @property
+    def segmenter(self) -> Segmenter:
+        return self._segmenter
+
+    def CameraPose(self, context: Context) -> RigidTransform:
+        """X_WC from the input port, or the configured fixed pose."""
+        if self._pose.HasValue(context):
+            return self._pose.Eval(context)
+        return self._X_WC_default
+
+    def ComputeScene(self, context: Context) -> SemanticScene:
+        """Segments the current images and builds the world-frame point sets."""
+        if not (self._rgb.HasValue(context) and self._depth.HasValue(context)):
+            raise SegmenterError("perception needs camera0.rgb_image and camera0.depth_image "
+                                 "connected (or fixed)")
+        rgb = self._rgb.Eval(context).data
+        depth = self._depth.Eval(context).data
+        label = None
+        if self._segmenter.needs_label:
+            if not self._label.HasValue(context):
+                raise SegmenterError(
+                    f"segmenter '{self._segmenter.name}' needs camera0.label_image "
+                    "connected (simulation only); use segmenter: color_depth otherwise")
+            label = self._label.Eval(context).data
+        seg = self._segmenter.Segment(rgb, depth, label)
+        X_WC = self.CameraPose(context).GetAsMatrix4()
+        return BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._params, seg.flags)
+
+    def _calc_scene(self, context: Context, output) -> None:
+        output.set_value(self.ComputeScene(context))
+
+    def _calc_fused(self, context: Context, output) -> None:
+        output.set_value(context.get_abstract_state(self._fused_index).get_value())
+
+    def _fuse(self, previous: SemanticScene, scene: SemanticScene) -> SemanticScene:
+        if previous.num_views == 0:
+            return scene
+        return FuseViews(previous, scene, self._params.voxel_size,
+                         self._config.fusion_match_distance)
+
+    def CaptureView(self, context: Context) -> SemanticScene:
+        """Fuses the current view into this system's state in ``context``
+        (a mutable context of this system) and returns the fused scene."""
+        state = context.get_mutable_abstract_state(self._fused_index)
+        fused = self._fuse(state.get_value(), self._scene_port.Eval(context))
+        state.set_value(fused)
+        return fused
+
+    def _on_step(self, context: Context, state: State):
+        if not self._capture.HasValue(context):
+            return EventStatus.DidNothing()
+        previous = context.get_abstract_state(self._fused_index).get_value()
+        if self._capture.Eval(context)[0] <= previous.num_views:
+            return EventStatus.DidNothing()
+        fused = self._fuse(previous, self._scene_port.Eval(context))
+        state.get_mutable_abstract_state(self._fused_index).set_value(fused)
+        return EventStatus.Succeeded()

@@ -1,0 +1,129 @@
+"""De-projection, depth filtering, outliers, DBSCAN, voxels, semantic sets."""
+import numpy as np
+import pytest
+
+from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels
+from lmap_drake.perception.points import (BuildSemanticScene, DbscanLabels, DeprojectPixels,
+                                          Intrinsics, PointParams, StatisticalOutlierMask,
+                                          ValidDepthMask, VoxelDownsample)
+from perception_scenes import Render
+
+K = Intrinsics(8, 6, 10.0, 10.0, 3.5, 2.5)
+
+# Camera 0.3 m in front of the placeholder leaf, looking along +y_W (z_C = +y_W,
+# y_C = -z_W): the leaf's front face is the plane y_W = -0.101.
+FACING_LEAF = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
+               "focal: !FocalLength {x: 228.4, y: 228.5}, center_x: 161.3, center_y: 118.7, "
+               "X_PB: {base_frame: world, translation: [0.5, -0.40, 0.355], "
+               "rotation: !Rpy {deg: [-90.0, 0.0, 0.0]}}}}")
+
+
+def test_deprojection_of_rendered_plane_within_2mm():
+    from lmap_drake.scenario import LoadScenario
+    from lmap_drake.station import MakeStation
+    s = LoadScenario(scenario_text=FACING_LEAF)
+    station = MakeStation(s)
+    ctx = station.CreateDefaultContext()
+    depth = station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0]
+    cls, _ = DecodeLabels(station.GetOutputPort("camera0.label_image").Eval(ctx).data)
+    cam = s.cameras["camera0"]
+    Kc = Intrinsics.FromCameraConfig(cam)
+    assert (Kc.cx, Kc.cy, Kc.width) == (161.3, 118.7, 320)
+    leaf = cls == LEAF
+    assert leaf.sum() > 2000
+    p = DeprojectPixels(depth, leaf, Kc, cam.X_PB.GetDeterministicValue())
+    assert len(p) == leaf.sum()
+    # on the plane y = -0.101 (depth error)
+    assert np.abs(p[:, 1] + 0.101).max() < 2e-3
+    # and inside the plate's extent (x 0.45..0.55, z 0.3225..0.3875): lateral error
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    assert abs(lo[0] - 0.45) < 2e-3 and abs(hi[0] - 0.55) < 2e-3
+    assert abs(lo[2] - 0.3225) < 2e-3 and abs(hi[2] - 0.3875) < 2e-3
+
+
+def test_deprojection_matches_pinhole_and_pose():
+    depth = np.full((6, 8), 2.0, np.float32)
+    mask = np.zeros((6, 8), bool)
+    mask[2, 5] = True
+    p_C = DeprojectPixels(depth, mask, K)
+    np.testing.assert_allclose(p_C, [[(5 - 3.5) * 0.2, (2 - 2.5) * 0.2, 2.0]])
+    X = np.eye(4)
+    X[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]
+    X[:3, 3] = [1, 2, 3]
+    p_W = DeprojectPixels(depth, mask, K, X)
+    np.testing.assert_allclose(p_W[0], X[:3, :3] @ p_C[0] + [1, 2, 3])
+
+
+def test_nan_inf_zero_negative_and_far_depth_are_dropped():
+    depth = np.full((6, 8), 1.0, np.float32)
+    depth[0, 0], depth[0, 1], depth[0, 2] = np.nan, np.inf, -np.inf
+    depth[0, 3], depth[0, 4], depth[0, 5] = 0.0, -1.0, 2.0
+    valid = ValidDepthMask(depth, depth_cut=1.5)
+    assert valid.sum() == 48 - 6
+    p = DeprojectPixels(depth, np.ones_like(valid), K)
+    assert len(p) == 48 - 5 and np.all(np.isfinite(p))  # no cut: only 2.0 m survives
+
+
+def test_all_nan_depth_gives_empty_scene_with_flags():
+    cm = np.full((6, 8), FRUIT)
+    scene = BuildSemanticScene(cm, np.full((6, 8), np.nan), K, np.eye(4), PointParams())
+    assert scene.is_empty()
+    assert {"no_valid_depth", "no_fruit_in_view", "empty_scene"} <= set(scene.flags)
+    assert scene.fruit_points_W.shape == (0, 3) and scene.fruit_instance.shape == (0,)
+
+
+def test_empty_masks_give_empty_sets_not_a_crash():
+    scene = BuildSemanticScene(np.zeros((6, 8), int), np.ones((6, 8)), K, np.eye(4),
+                               PointParams())
+    assert scene.is_empty() and "empty_scene" in scene.flags
+    assert "no_valid_depth" not in scene.flags
+
+
+def test_outlier_removal_drops_far_point():
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([rng.normal(0, 0.005, (300, 3)), [[0.3, 0.3, 0.3]]])
+    keep = StatisticalOutlierMask(pts, 20, 2.0)
+    assert not keep[-1] and keep[:-1].mean() > 0.9
+    assert StatisticalOutlierMask(pts[:5], 20, 2.0).all()  # too few: unchanged
+
+
+def test_dbscan_splits_two_blobs_largest_first():
+    rng = np.random.default_rng(1)
+    a = rng.uniform(-0.01, 0.01, (400, 3))
+    b = rng.uniform(-0.01, 0.01, (200, 3)) + [0.1, 0, 0]
+    labels = DbscanLabels(np.concatenate([b, a, [[1.0, 1.0, 1.0]]]), 0.008, 30)
+    assert set(labels[:200]) == {1} and set(labels[200:600]) == {0} and labels[-1] == -1
+    assert DbscanLabels(np.zeros((0, 3)), 0.008, 30).shape == (0,)
+
+
+def test_voxel_downsample_keeps_instances_apart():
+    pts = np.array([[0.0001, 0, 0], [0.0002, 0, 0], [0.0001, 0, 0], [0.01, 0, 0]])
+    out, inst = VoxelDownsample(pts, 0.003, np.array([0, 0, 1, 0]))
+    assert len(out) == 3
+    assert sorted(inst.tolist()) == [0, 0, 1]
+    out2, _ = VoxelDownsample(pts, 0.0)
+    assert len(out2) == 4
+
+
+def test_semantic_scene_from_rendered_labels():
+    v = Render()
+    cls, _ = DecodeLabels(v.label)
+    scene = BuildSemanticScene(cls, v.depth, v.K, v.X_WC, PointParams())
+    s = v.scenario.plant_scene
+    assert not scene.flags
+    for name in ("branch", "leaf", "fruit"):
+        pts = getattr(scene, f"{name}_points_W")
+        inst = getattr(scene, f"{name}_instance")
+        assert len(pts) > 20 and len(inst) == len(pts)
+    # Fruit points lie on the fruit: within its half-size of the centre.
+    c = np.asarray(getattr(s, "fruit_center_W", scene.fruit_points_W.mean(axis=0)))
+    d = np.linalg.norm(scene.fruit_points_W - c, axis=1)
+    assert d.max() < 0.06
+    # Voxel size respected: no two fruit points of one instance closer than ~voxel/2.
+    from scipy.spatial import cKDTree
+    dd, _ = cKDTree(scene.leaf_points_W).query(scene.leaf_points_W, k=2)
+    assert np.median(dd[:, 1]) > 0.0015
+    # Branch points lie near the vertical branch axis.
+    if hasattr(s, "p_W_branch_base"):
+        r = np.linalg.norm(scene.branch_points_W[:, :2] - np.asarray(s.p_W_branch_base)[:2], axis=1)
+        assert r.max() < 0.015

@@ -1,0 +1,114 @@
+"""Segmenter backends on rendered scenes, and the GroundedSAM adapter."""
+import numpy as np
+import pytest
+
+from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels, EncodeLabel
+from lmap_drake.perception.segmentation import (BoxNms, ClassIou, ColorDepthParams,
+                                                ColorDepthSegmenter,
+                                                ComposeMasks, DepthEdges, LabelSegmenter,
+                                                MakeSegmenter, MissingWeightsError,
+                                                SegmenterError, TruthClassMap)
+from lmap_drake.scenario import PerceptionConfig
+from perception_scenes import BELOW_CAMERA, FruitColor, Render
+
+
+@pytest.fixture(scope="module")
+def views():
+    return {c: Render(FruitColor(c)) for c in ("red", "yellow", "orange", "green")}
+
+
+def test_label_backend_is_exact_and_robot_is_background(views):
+    v = views["red"]
+    seg = LabelSegmenter().Segment(v.rgb, v.depth, v.label)
+    cls, inst = DecodeLabels(v.label)
+    for c in (BRANCH, LEAF, FRUIT):
+        assert ClassIou(seg.class_map, cls, c) == 1.0
+    assert (seg.class_map == 4).sum() == 0
+    assert np.all(seg.instance_map[seg.class_map == 0] == -1)
+    with pytest.raises(SegmenterError, match="label_image"):
+        LabelSegmenter().Segment(v.rgb, v.depth, None)
+
+
+@pytest.mark.parametrize("color", ["red", "yellow", "orange"])
+def test_color_depth_backend_meets_iou_targets(views, color):
+    v = views[color]
+    seg = ColorDepthSegmenter(v.K).Segment(v.rgb, v.depth)  # no label image given
+    truth = TruthClassMap(v.label)
+    assert ClassIou(seg.class_map, truth, FRUIT) >= 0.9
+    assert ClassIou(seg.class_map, truth, LEAF) >= 0.8
+    assert ClassIou(seg.class_map, truth, BRANCH) >= 0.7
+    # one fruit and one leaf instance
+    assert seg.instance_map[seg.class_map == FRUIT].max() == 0
+    assert seg.instance_map[seg.class_map == LEAF].max() == 0
+
+
+def test_color_depth_finds_green_fruit_by_shape():
+    """Green fruit on green leaves: found by geometry (its surface is curved,
+    the leaf's is flat) when enough of it is visible."""
+    v = Render(FruitColor("green"), camera=BELOW_CAMERA)
+    seg = ColorDepthSegmenter(v.K).Segment(v.rgb, v.depth)
+    truth = TruthClassMap(v.label)
+    assert "green_fruit_detected" in seg.flags
+    assert ClassIou(seg.class_map, truth, FRUIT) >= 0.9
+    assert ClassIou(seg.class_map, truth, LEAF) >= 0.8
+    # switched off, the green fruit is (wrongly) leaf: the geometry cue matters
+    off = ColorDepthSegmenter(v.K, ColorDepthParams(detect_green_fruit=False))
+    assert ClassIou(off.Segment(v.rgb, v.depth).class_map, truth, FRUIT) < 0.5
+
+
+def test_color_depth_ignores_what_is_beyond_the_depth_cut(views):
+    v = views["red"]
+    cfg = PerceptionConfig(segmenter="color_depth", depth_cut=0.3)  # plant is ~0.5 m away
+    seg = MakeSegmenter(cfg, v.K).Segment(v.rgb, v.depth)
+    assert (seg.class_map > 0).sum() == 0
+
+
+def test_color_depth_survives_nan_depth(views):
+    v = views["red"]
+    depth = v.depth.copy()
+    depth[::2] = np.nan
+    seg = ColorDepthSegmenter(v.K).Segment(v.rgb, depth)
+    assert np.all(seg.class_map[::2] == 0)
+    empty = ColorDepthSegmenter(v.K).Segment(v.rgb, np.full_like(depth, np.nan))
+    assert (empty.class_map == 0).all() and "no_valid_depth" in empty.flags
+
+
+def test_depth_edges_mark_far_side_only():
+    d = np.ones((4, 6))
+    d[:, 3:] = 1.5
+    e = DepthEdges(d, 0.01)
+    assert e[:, 3].all() and not e[:, 2].any() and e.sum() == 4
+
+
+def test_bad_segmenter_name_is_a_clear_error(views):
+    with pytest.raises(SegmenterError, match="unknown.*color_depth"):
+        MakeSegmenter(PerceptionConfig(segmenter="magic"), views["red"].K)
+
+
+def test_grounded_sam_missing_weights_names_file_and_key(tmp_path, views):
+    cfg = PerceptionConfig(segmenter="grounded_sam")
+    with pytest.raises(MissingWeightsError, match="perception.grounded_sam_config is not set"):
+        MakeSegmenter(cfg, views["red"].K)
+    cfg.grounded_sam_config = str(tmp_path / "GroundingDINO_SwinT_OGC.py")
+    (tmp_path / "GroundingDINO_SwinT_OGC.py").write_text("# config")
+    cfg.grounded_sam_checkpoint = str(tmp_path / "groundingdino_swint_ogc.pth")
+    cfg.sam_checkpoint = str(tmp_path / "sam_vit_h.pth")
+    with pytest.raises(MissingWeightsError) as err:
+        MakeSegmenter(cfg, views["red"].K)
+    msg = str(err.value)
+    assert "groundingdino_swint_ogc.pth" in msg and "perception.grounded_sam_checkpoint" in msg
+    assert isinstance(err.value, FileNotFoundError)
+
+
+def test_grounded_sam_postprocessing():
+    boxes = np.array([[0, 0, 10, 10], [0, 0, 10, 9.5], [20, 20, 30, 30]], float)
+    assert BoxNms(boxes, np.array([0.9, 0.8, 0.5]), 0.8).tolist() == [0, 2]
+    assert BoxNms(boxes, np.array([0.9, 0.8, 0.5]), 0.99).tolist() == [0, 1, 2]
+    masks = np.zeros((3, 5, 5), bool)
+    masks[0] = True                      # leaf, large
+    masks[1, 1:3, 1:3] = True            # sweet pepper, on top
+    masks[2, 4, :] = True                # unknown phrase: ignored
+    seg = ComposeMasks(masks, ["leaf", "sweet pepper", "pot"], (5, 5))
+    assert (seg.class_map == FRUIT).sum() == 4
+    assert (seg.class_map == LEAF).sum() == 21
+    assert seg.instance_map[1, 1] == 0
