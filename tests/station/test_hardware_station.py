@@ -102,6 +102,7 @@ def _run(station, q_cmd, opening, t_end):
     builder.Connect(q_src.get_output_port(), station.GetInputPort("ur5.position"))
     builder.Connect(g_src.get_output_port(), station.GetInputPort("gripper.position"))
     sim = Simulator(builder.Build())
+    sim.set_target_realtime_rate(1.0)  # as on hardware: events stand for wall time
     sim.AdvanceTo(t_end)
     return sim
 
@@ -115,8 +116,9 @@ def test_commands_reach_the_fake_devices(fake_station, hw_scenario, gripper_serv
                for line in gripper_server.received)
     n_pos = sum(line.startswith("SET POS") for line in gripper_server.received)
     assert n_pos == 1  # sent once, not at every update
-    ctx = station.GetMyContextFromRoot(sim.get_context())
     assert np.allclose(clients.ur.receive.q, q_cmd, atol=1e-6)
+    assert np.allclose(station.GetOutputPort("ur5.position_measured").Eval(
+        station.GetMyContextFromRoot(sim.get_context())), q_cmd, atol=1e-6)
 
 
 def test_refused_joint_command_aborts_the_episode(fake_station, hw_scenario):
@@ -152,11 +154,12 @@ def test_protective_stop_aborts_simulation_with_clear_message(fake_station, hw_s
     assert clients.ur.control.script_stops == 1
 
 
-def test_lost_gripper_link_aborts(fake_station, hw_scenario, gripper_server):
-    station, _ = fake_station
+def test_lost_gripper_link_aborts_and_stops_the_arm(fake_station, hw_scenario, gripper_server):
+    station, clients = fake_station
     gripper_server.DropClients()
     with pytest.raises(HardwareAbort, match="gripper"):
         _run(station, hw_scenario.robot.initial_q, 0.085, 0.2)
+    assert clients.ur.control.script_stops == 1 and not clients.ur.streaming
 
 
 def test_calibration_in_robot_base_frame_is_moved_to_world(tmp_path, hw_scenario):

@@ -109,9 +109,11 @@ def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = No
         ur5 = builder.AddNamedSystem("ur5_driver",
                                      Ur5Driver(clients.ur, config.ur.command_period))
         gripper = builder.AddNamedSystem(
-            "gripper_driver", RobotiqDriver(clients.gripper, config.gripper.update_period))
+            "gripper_driver", RobotiqDriver(clients.gripper, config.gripper.update_period,
+                                            on_abort=clients.ur.Halt))
         camera = builder.AddNamedSystem(
-            "camera0", RealSenseCamera(clients.camera, 1.0 / config.camera.fps, X_WC))
+            "camera0", RealSenseCamera(clients.camera, 1.0 / config.camera.fps, X_WC,
+                                       on_abort=clients.ur.Halt))
         builder.ExportInput(ur5.GetInputPort("position"), "ur5.position")
         builder.ExportInput(gripper.GetInputPort("position"), "gripper.position")
         builder.ExportOutput(ur5.GetOutputPort("position_measured"), "ur5.position_measured")

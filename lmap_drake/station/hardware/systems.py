@@ -18,6 +18,22 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageLabel16I, ImageRgba8U
 
 from lmap_drake.station.hardware.robotiq_client import CheckOpeningCommand, OpeningToPos
+from lmap_drake.station.hardware.safety import HardwareAbort
+
+
+def _StopOnAbort(update, on_abort):
+    """Wraps an event callback: on HardwareAbort, call ``on_abort`` (stop the
+    arm) before re-raising, so a gripper or camera failure also stops it."""
+    if on_abort is None:
+        return update
+
+    def wrapped(context, state):
+        try:
+            return update(context, state)
+        except HardwareAbort:
+            on_abort()
+            raise
+    return wrapped
 
 
 class Ur5Driver(LeafSystem):
@@ -56,16 +72,18 @@ class RobotiqDriver(LeafSystem):
     """Input ``position`` (1, opening m, 0 closed .. 0.085 open; optional);
     output ``state_measured`` (2: opening m, its rate m/s by finite
     difference over ``period``). A new ``SET POS`` is sent only when the
-    commanded POS register value changes."""
+    commanded POS register value changes. ``on_abort`` is called before a
+    HardwareAbort (a refused command, a lost link) leaves an event."""
 
-    def __init__(self, client, period: float):
+    def __init__(self, client, period: float, on_abort=None):
         super().__init__()
         self.client = client
         self._period = float(period)
         self._input = self.DeclareVectorInputPort("position", 1)
         self._x = self.DeclareDiscreteState(np.array([client.Opening(), 0.0]))
-        self.DeclareInitializationDiscreteUpdateEvent(self._Init)
-        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._Update)
+        self.DeclareInitializationDiscreteUpdateEvent(_StopOnAbort(self._Init, on_abort))
+        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0,
+                                                _StopOnAbort(self._Update, on_abort))
         self.DeclareStateOutputPort("state_measured", self._x)
 
     def _Init(self, context, discrete_state) -> None:
@@ -92,9 +110,9 @@ class RealSenseCamera(LeafSystem):
     metres, +inf = no return) and ``label_image`` (ImageLabel16I, every pixel
     ``RenderLabel.kEmpty``: a real camera has no labels). Captures every
     ``period`` s. ``camera_info`` (device intrinsics) and ``X_WC`` (from the
-    calibration file) are attributes."""
+    calibration file) are attributes. ``on_abort`` as for RobotiqDriver."""
 
-    def __init__(self, client, period: float, X_WC: RigidTransform):
+    def __init__(self, client, period: float, X_WC: RigidTransform, on_abort=None):
         super().__init__()
         self.client = client
         self.X_WC = X_WC
@@ -105,8 +123,9 @@ class RealSenseCamera(LeafSystem):
         self._rgb = self.DeclareAbstractState(AbstractValue.Make(rgb))
         self._depth = self.DeclareAbstractState(AbstractValue.Make(depth))
         self._label = EmptyLabelImage(w, h)
-        self.DeclareInitializationUnrestrictedUpdateEvent(self._Update)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(float(period), 0.0, self._Update)
+        update = _StopOnAbort(self._Update, on_abort)
+        self.DeclareInitializationUnrestrictedUpdateEvent(update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(float(period), 0.0, update)
         self.DeclareAbstractOutputPort(
             "rgb_image", lambda: AbstractValue.Make(ImageRgba8U(w, h)),
             lambda c, out: out.set_value(c.get_abstract_state(self._rgb).get_value()),
