@@ -1,0 +1,167 @@
+#!/usr/bin/env python
+"""Segmentation IoU per backend and scenario against the simulator's labels.
+
+    python scripts/eval_segmentation.py --out out/seg.json
+    python scripts/eval_segmentation.py --scenario_file diagrams/default.yaml \
+        --scenario_names Defaults OneOfEverything --backends color_depth label --out seg.json
+
+Default scenarios: every scenario in diagrams/suite.yaml if that file exists,
+otherwise Defaults and OneOfEverything from diagrams/default.yaml.
+
+Writes JSON: ``{backend: {"mean": {"fruit_iou", "leaf_iou", "branch_iou"},
+"mean_non_green": {...}, "mean_green": {...}, "scenarios": {name: {...}}}}``.
+IoU is over pixels; the robot counts as background. A class absent from both
+the truth and the prediction has IoU null and is left out of the means.
+``fruit_color`` (red / orange / yellow / green, from the rendered truth
+pixels' hue) lets green peppers be reported separately.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+CLASSES = (("fruit_iou", 3), ("leaf_iou", 2), ("branch_iou", 1))
+
+
+def _default_scenarios() -> tuple[Path, list[str]]:
+    suite = REPO / "diagrams" / "suite.yaml"
+    if suite.exists():
+        return suite, []  # [] = every scenario in the file
+    return REPO / "diagrams" / "default.yaml", ["Defaults", "OneOfEverything"]
+
+
+def _scenario_names(path: Path) -> list[str]:
+    from lmap_drake.scenario import _RawYaml
+    return [k for k in (_RawYaml(path.read_text()) or {}) if not str(k).startswith("_")]
+
+
+def _fruit_color(rgb: np.ndarray, truth: np.ndarray) -> str | None:
+    from lmap_drake.perception.segmentation import RgbToHsv
+    m = truth == 3
+    if m.sum() == 0:
+        return None
+    h = RgbToHsv(rgb[..., :3])[..., 0][m]
+    hue = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(h))))) % 360)
+    if hue >= 330 or hue < 15:
+        return "red"
+    if hue < 40:
+        return "orange"
+    if hue < 70:
+        return "yellow"
+    return "green"
+
+
+def _render(scenario, settle: float):
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from lmap_drake.station import MakeStation
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakeStation(scenario))
+    q = builder.AddSystem(ConstantVectorSource(scenario.robot.initial_q))
+    builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
+    g = builder.AddSystem(ConstantVectorSource([scenario.robot.initial_gripper_width]))
+    builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    if settle > 0:
+        sim.AdvanceTo(settle)
+    ctx = station.GetMyContextFromRoot(sim.get_context())
+    rgb = np.array(station.GetOutputPort("camera0.rgb_image").Eval(ctx).data)
+    depth = np.array(station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0])
+    label = np.array(station.GetOutputPort("camera0.label_image").Eval(ctx).data[..., 0])
+    return rgb, depth, label
+
+
+def _mean(rows: list[dict]) -> dict:
+    out = {}
+    for key, _ in CLASSES:
+        vals = [r[key] for r in rows if r.get(key) is not None]
+        out[key] = float(np.mean(vals)) if vals else None
+        out[key.replace("_iou", "_n")] = len(vals)
+    return out
+
+
+def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
+             scenario_text: str = "{}", settle: float = 0.0, log=print) -> dict:
+    import dataclasses as dc
+
+    from lmap_drake.perception.points import Intrinsics
+    from lmap_drake.perception.segmentation import ClassIou, MakeSegmenter, TruthClassMap
+    from lmap_drake.scenario import LoadScenario
+    names = names or _scenario_names(scenario_file)
+    results = {b: {"scenarios": {}} for b in backends}
+    for name in names:
+        s = LoadScenario(filename=scenario_file, scenario_name=name, scenario_text=scenario_text)
+        t0 = time.time()
+        rgb, depth, label = _render(s, settle)
+        truth = TruthClassMap(label)
+        color = _fruit_color(rgb, truth)
+        K = Intrinsics.FromCameraConfig(s.cameras["camera0"])
+        for backend in backends:
+            cfg = dc.replace(s.perception, segmenter=backend)
+            row = {"fruit_color": color,
+                   "truth_pixels": {k.replace("_iou", ""): int((truth == c).sum())
+                                    for k, c in CLASSES}}
+            try:
+                t1 = time.time()
+                seg = MakeSegmenter(cfg, K).Segment(rgb, depth, label)
+                row["seconds"] = round(time.time() - t1, 3)
+                for key, c in CLASSES:
+                    v = ClassIou(seg.class_map, truth, c)
+                    row[key] = None if math.isnan(v) else round(v, 4)
+                row["flags"] = seg.flags
+            except Exception as err:  # e.g. grounded_sam without weights
+                row["error"] = f"{type(err).__name__}: {err}"
+            results[backend]["scenarios"][name] = row
+            log(f"{name:24s} {backend:12s} " + (row.get("error") or " ".join(
+                f"{k}={row[k]}" for k, _ in CLASSES)) + f"  fruit={color}")
+        log(f"  ({time.time() - t0:.1f} s)")
+    for backend, res in results.items():
+        rows = [r for r in res["scenarios"].values() if "error" not in r]
+        res["mean"] = {k: v for k, v in _mean(rows).items() if k.endswith("_iou")}
+        res["counts"] = {k: v for k, v in _mean(rows).items() if k.endswith("_n")}
+        res["mean_non_green"] = _mean([r for r in rows if r["fruit_color"] != "green"])
+        res["mean_green"] = _mean([r for r in rows if r["fruit_color"] == "green"])
+    return results
+
+
+def main(argv=None) -> int:
+    file_default, names_default = _default_scenarios()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="output JSON file")
+    ap.add_argument("--scenario_file", type=Path, default=None,
+                    help=f"scenario YAML (default {file_default.relative_to(REPO)})")
+    ap.add_argument("--scenario_names", nargs="*", default=None,
+                    help="scenario names (default: every scenario in suite.yaml, or "
+                         "Defaults OneOfEverything in default.yaml)")
+    ap.add_argument("--backends", nargs="+", default=["color_depth", "label"])
+    ap.add_argument("--scenario_text", default="{}", help="YAML overrides for every scenario")
+    ap.add_argument("--settle", type=float, default=0.0,
+                    help="simulated seconds before rendering (e.g. for a FEM leaf to settle)")
+    args = ap.parse_args(argv)
+    scenario_file = args.scenario_file or file_default
+    if args.scenario_names is not None:
+        names = args.scenario_names
+    else:
+        names = names_default if args.scenario_file is None else []
+    res = Evaluate(scenario_file, names, args.backends, args.scenario_text, args.settle)
+    res["_meta"] = {"scenario_file": str(scenario_file),
+                    "scenario_text": args.scenario_text, "settle": args.settle}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(res, indent=2))
+    for b in args.backends:
+        print(f"{b:12s} mean {res[b]['mean']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
