@@ -1,0 +1,1 @@
+"""Shape completion (paper Sec. III-A): branch completion, free space, DeepSDF, SSC, baselines, metrics."""

@@ -1,0 +1,288 @@
+"""Scene-consistent shape completion (SSC, paper Sec. III-A-3).
+
+Pose convention (one convention throughout this package):
+    T_WO = Sim3(s, R, t) maps the canonical object frame O to the world W,
+        p_W = s * R @ p_O + t,        p_O = R^T (p_W - t) / s.
+The paper's T_{w->o} is T_WO^{-1}. ``X_WO`` (4x4) holds ``s R`` in its
+rotation block and ``t`` in its translation. The decoder is queried at
+``p_O``; the world-frame signed distance is ``s * D(p_O, z)`` (m).
+
+Optimised with Adam (lr ``learning_rate``): the latent ``z`` (init: mean
+training latent), ``log s`` (init 0, s = 1), a rotation vector ``w`` with
+``R = exp([w]_x)`` (init 0, R = I) and ``t`` (init: centroid of the fruit
+points pushed ``push_from_camera`` m away from the camera).
+
+Losses (lengths measured in ``loss_length_unit`` m, default 0.01 = cm, so
+the paper's weights 1 / 2 / 0.1 / 1 balance):
+  sur  mean over fruit points of (s D / u)^2
+  neg  weighted mean over the *active* negative points (inside or within
+       ``negative_margin`` of the current surface at the last refresh) of
+       relu(-s D / u); weights: leaf, observed branch, free space 1,
+       completed-branch samples ``w_neg_completed_branch``
+  ped  mean over the ``num_peduncle_points`` highest-z points of the
+       template surface (canonical frame, from a coarse 16^3
+       marching-tetrahedra mesh of the current z, refreshed every
+       ``refresh_every`` iterations) of |(T_WO p_ped - p_cor) / u|^2, p_cor
+       the nearest completed-branch sample
+  reg  |z|^2
+Outside the decoder's training cube (half-side 0.08 m in O) the SDF is
+bounded below by the distance to the cube, so far negative points never
+pull on extrapolated values.
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+import time
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from lmap_drake.shape.deepsdf import CUBE_RADIUS, DeepSDFDecoder
+from lmap_drake.shape.marching import ExtractIsoSurface, MarchingTetrahedra
+from lmap_drake.shape.metrics import MeshCentroid
+from lmap_drake.types import FruitEstimate
+
+
+@dc.dataclass
+class SscParams:
+    """SSC weights and optimiser settings (see the module docstring)."""
+    w_sur: float = 1.0
+    w_neg: float = 2.0
+    w_ped: float = 0.1
+    w_reg: float = 1.0
+    w_neg_completed_branch: float = 0.1
+    learning_rate: float = 0.01
+    iterations: int = 300
+    num_peduncle_points: int = 10
+    loss_length_unit: float = 0.01
+    push_from_camera: float = 0.01
+    max_surface_points: int = 300
+    max_negative_points: int = 300
+    negative_margin: float = 0.005
+    refresh_every: int = 25
+    mesh_spacing: float = 0.003
+    seed: int = 0
+
+    @staticmethod
+    def FromConfig(cfg, reestimate: bool = False) -> "SscParams":
+        """From ``lmap_drake.scenario.ShapeConfig`` (re-estimation mode uses
+        its ``reestimate_*`` weights)."""
+        p = SscParams()
+        for f in dc.fields(SscParams):
+            if hasattr(cfg, f.name):
+                setattr(p, f.name, getattr(cfg, f.name))
+        if reestimate:
+            p.w_ped = cfg.reestimate_w_ped
+            p.w_neg_completed_branch = cfg.reestimate_w_neg_completed_branch
+        return p
+
+
+class Adam:
+    """Plain Adam (Kingma & Ba 2014) on a list of leaf tensors. Used instead
+    of ``torch.optim.Adam``, whose first construction imports torch._dynamo
+    (several seconds on a busy 2-core machine)."""
+
+    def __init__(self, params, lr=0.01, betas=(0.9, 0.999), eps=1e-8):
+        self.params, self.lr, self.b1, self.b2, self.eps = list(params), lr, *betas, eps
+        self.m = [torch.zeros_like(p) for p in self.params]
+        self.v = [torch.zeros_like(p) for p in self.params]
+        self.k = 0
+
+    def zero_grad(self):
+        for p in self.params:
+            p.grad = None
+
+    @torch.no_grad()
+    def step(self):
+        self.k += 1
+        c1, c2 = 1 - self.b1 ** self.k, 1 - self.b2 ** self.k
+        for p, m, v in zip(self.params, self.m, self.v):
+            if p.grad is None:
+                continue
+            m.mul_(self.b1).add_(p.grad, alpha=1 - self.b1)
+            v.mul_(self.b2).addcmul_(p.grad, p.grad, value=1 - self.b2)
+            p.sub_(self.lr * (m / c1) / ((v / c2).sqrt() + self.eps))
+
+
+def Skew(w: torch.Tensor) -> torch.Tensor:
+    z = torch.zeros((), dtype=w.dtype)
+    return torch.stack([torch.stack([z, -w[2], w[1]]), torch.stack([w[2], z, -w[0]]),
+                        torch.stack([-w[1], w[0], z])])
+
+
+def Sim3Matrix(s: float, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """X_WO (4x4) from T_WO = (s, R, t)."""
+    X = np.eye(4)
+    X[:3, :3] = s * np.asarray(R)
+    X[:3, 3] = t
+    return X
+
+
+def _box_sdf(x: torch.Tensor, r: float) -> torch.Tensor:
+    q = x.abs() - r
+    outside = torch.clamp(q, min=0).norm(dim=1)
+    inside = torch.clamp(q.max(dim=1).values, max=0)
+    return outside + inside
+
+
+def DecoderSdf(decoder: DeepSDFDecoder, z: torch.Tensor, x_O: torch.Tensor) -> torch.Tensor:
+    """Decoder SDF in O (m), bounded below by the training cube's SDF."""
+    return torch.maximum(decoder(z, x_O), _box_sdf(x_O, CUBE_RADIUS))
+
+
+@torch.no_grad()
+def TemplateMesh(decoder, z: torch.Tensor, n: int = 16, lo=None, hi=None):
+    """Marching-tetrahedra mesh (frame O, m) of the decoder's zero level set
+    on an n^3 grid over the cube (or [lo, hi])."""
+    lo = np.full(3, -CUBE_RADIUS) if lo is None else np.asarray(lo, float)
+    hi = np.full(3, CUBE_RADIUS) if hi is None else np.asarray(hi, float)
+    axes = [np.linspace(lo[i], hi[i], n) for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    vals = DecoderSdf(decoder, z, torch.as_tensor(grid, dtype=torch.float32)).numpy()
+    return MarchingTetrahedra(vals.reshape(n, n, n), lo, (hi - lo) / (n - 1))
+
+
+def PeduncleTemplatePoints(decoder, z: torch.Tensor, k: int = 10) -> np.ndarray:
+    """The k highest-z vertices (O, m) of the coarse template mesh."""
+    v, _ = TemplateMesh(decoder, z, 16)
+    if len(v) == 0:
+        return np.zeros((0, 3))
+    return v[np.argsort(-v[:, 2])[:k]]
+
+
+def _subsample(p: np.ndarray, n: int, rng) -> np.ndarray:
+    return p if len(p) <= n else p[rng.choice(len(p), n, replace=False)]
+
+
+def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points_W: np.ndarray,
+                  camera_W: np.ndarray, negatives: list[tuple[np.ndarray, float]] = (),
+                  branch_samples_W: np.ndarray | None = None,
+                  params: SscParams | None = None, init: dict | None = None) -> FruitEstimate:
+    """Joint latent + Sim(3) optimisation (see the module docstring).
+
+    ``negatives``: (points (N,3) W, weight) pairs; ``branch_samples_W``:
+    completed-branch surface samples used by the peduncle loss (skipped
+    when None or ``w_ped == 0``). ``init`` may override ``z``, ``s``,
+    ``R``, ``t``. Returns a FruitEstimate (mesh by marching tetrahedra at
+    ``mesh_spacing`` m, X_WO, latent, centre = mesh volume centroid,
+    peduncle axis R e_z, batched numpy ``sdf_W``, per-iteration loss trace).
+    """
+    P = params or SscParams()
+    rng = np.random.default_rng(P.seed)
+    t_start = time.time()
+    fruit = np.asarray(fruit_points_W, float)
+    cam = np.asarray(camera_W, float)
+    u = P.loss_length_unit
+    c = fruit.mean(0)
+    away = (c - cam) / max(np.linalg.norm(c - cam), 1e-9)
+    init = init or {}
+    t0 = np.asarray(init.get("t", c + P.push_from_camera * away), float)
+    z = torch.tensor(np.asarray(init.get("z", mean_latent), np.float32), requires_grad=True)
+    log_s = torch.tensor(float(np.log(init.get("s", 1.0))), requires_grad=True)
+    R0 = torch.as_tensor(np.asarray(init.get("R", np.eye(3)), np.float32))
+    w = torch.zeros(3, requires_grad=True)
+    t = torch.tensor(t0.astype(np.float32), requires_grad=True)
+    opt = Adam([z, log_s, w, t], lr=P.learning_rate)
+
+    sur = torch.as_tensor(_subsample(fruit, P.max_surface_points, rng), dtype=torch.float32)
+    # Negative candidates near the fruit (the cube bound makes far ones moot).
+    reach = 0.12
+    neg_pts, neg_w = [], []
+    for pts, wt in negatives:
+        pts = np.asarray(pts, float).reshape(-1, 3)
+        if len(pts) == 0 or wt <= 0:
+            continue
+        pts = pts[np.linalg.norm(pts - t0, axis=1) < reach]
+        neg_pts.append(pts)
+        neg_w.append(np.full(len(pts), float(wt)))
+    neg_pts = np.concatenate(neg_pts) if neg_pts else np.zeros((0, 3))
+    neg_w = np.concatenate(neg_w) if neg_w else np.zeros(0)
+    neg_all = torch.as_tensor(neg_pts, dtype=torch.float32)
+    use_ped = branch_samples_W is not None and len(branch_samples_W) > 0 and P.w_ped > 0
+    btree = cKDTree(branch_samples_W) if use_ped else None
+
+    def pose():
+        R = R0 @ torch.linalg.matrix_exp(Skew(w))
+        return torch.exp(log_s), R, t
+
+    def to_O(pW, s, R):
+        return ((pW - t) @ R) / s           # rows: R^T (p - t) / s
+
+    trace = []
+    act_x = act_w = None
+    ped_O = None
+    for it in range(P.iterations):
+        if it % P.refresh_every == 0:
+            with torch.no_grad():
+                s, R, _ = pose()
+                if use_ped:
+                    ped_O = torch.as_tensor(
+                        PeduncleTemplatePoints(decoder, z.detach(), P.num_peduncle_points),
+                        dtype=torch.float32)
+                if len(neg_all):
+                    d = s * DecoderSdf(decoder, z, to_O(neg_all, s, R))
+                    act = np.flatnonzero(d.numpy() < P.negative_margin)
+                    act = _subsample(act, P.max_negative_points, rng)
+                    act_x, act_w = neg_all[act], torch.as_tensor(neg_w[act], dtype=torch.float32)
+        s, R, tt = pose()
+        n_s = len(sur)
+        q = sur if act_x is None or not len(act_x) else torch.cat([sur, act_x])
+        d_all = s * DecoderSdf(decoder, z, to_O(q, s, R)) / u   # one batched query
+        l_sur = (d_all[:n_s] ** 2).mean()
+        l_neg = torch.zeros(())
+        if len(q) > n_s:
+            l_neg = (act_w * torch.relu(-d_all[n_s:])).sum() / act_w.sum()
+        l_ped = torch.zeros(())
+        if use_ped and ped_O is not None and len(ped_O):
+            pW = s * ped_O @ R.T + tt
+            _, idx = btree.query(pW.detach().numpy())
+            cor = torch.as_tensor(branch_samples_W[idx], dtype=torch.float32)
+            l_ped = (((pW - cor) / u) ** 2).sum(1).mean()
+        l_reg = (z ** 2).sum()
+        loss = P.w_sur * l_sur + P.w_neg * l_neg + P.w_ped * l_ped + P.w_reg * l_reg
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        trace.append(dict(it=it, total=loss.item(), sur=l_sur.item(), neg=l_neg.item(),
+                          ped=l_ped.item(), reg=l_reg.item(), s=float(s.detach())))
+    with torch.no_grad():
+        s, R, tt = pose()
+        s, R, tt = float(s), R.numpy().astype(float), tt.numpy().astype(float)
+        U, _, Vt = np.linalg.svd(R)        # re-orthonormalise in float64
+        R = U @ Vt
+        zf = z.detach().clone()
+    est = MakeFruitEstimate(decoder, zf, s, R, tt, P.mesh_spacing)
+    est.loss_trace = trace
+    est.loss_trace.append(dict(it=-1, seconds=time.time() - t_start))
+    return est
+
+
+def MakeFruitEstimate(decoder, z: torch.Tensor, s: float, R: np.ndarray, t: np.ndarray,
+                      mesh_spacing: float = 0.003) -> FruitEstimate:
+    """FruitEstimate of the decoder surface for latent z at T_WO = (s, R, t)."""
+    zf = torch.as_tensor(z, dtype=torch.float32).detach()
+    v, _ = TemplateMesh(decoder, zf, 16)
+    if len(v):
+        lo, hi = v.min(0) - 0.012, v.max(0) + 0.012
+    else:
+        lo, hi = np.full(3, -CUBE_RADIUS), np.full(3, CUBE_RADIUS)
+    lo, hi = np.maximum(lo, -CUBE_RADIUS), np.minimum(hi, CUBE_RADIUS)
+
+    @torch.no_grad()
+    def sdf_O(x):
+        return DecoderSdf(decoder, zf, torch.as_tensor(x, dtype=torch.float32)).numpy()
+
+    vO, faces = ExtractIsoSurface(sdf_O, lo, hi, mesh_spacing / s)
+    vW = s * vO @ R.T + t
+
+    def sdf_W(points_W: np.ndarray, batch: int = 65536) -> np.ndarray:
+        """Signed distance (m, negative inside) at (N,3) world points."""
+        p = np.asarray(points_W, float).reshape(-1, 3)
+        out = [s * sdf_O(((p[i:i + batch] - t) @ R) / s) for i in range(0, len(p), batch)]
+        return np.concatenate(out).astype(float) if out else np.zeros(0)
+
+    center = MeshCentroid(vW, faces) if len(faces) else t.copy()
+    return FruitEstimate(vertices_W=vW, faces=faces, X_WO=Sim3Matrix(s, R, t),
+                         latent=zf.numpy().copy(), center_W=center,
+                         peduncle_axis_W=R[:, 2].copy(), sdf_W=sdf_W)

@@ -1,0 +1,80 @@
+"""``ShapeCompletion``: branch completion + scene-consistent shape completion
+(paper Sec. III-A) as a Drake LeafSystem (thin shell around
+``lmap_drake.shape.completion.CompleteScene``).
+
+Input ports:
+
+- ``semantic_scene`` (abstract ``SemanticScene``): segmented points in the
+  world frame W (metres) and the camera pose ``X_WC`` they came from (the
+  camera centre is the origin of the free-space rays).
+
+Output ports:
+
+- ``scene_estimate`` (abstract ``SceneEstimate``): the completed branch
+  (mesh + samples, W) and fruit (mesh, ``X_WO`` Sim(3) object-to-world,
+  latent, centre, peduncle axis, ``sdf_W`` callable, loss trace). Computed
+  on demand and cached by Drake until the input changes (it depends on the
+  input port only, not on time or state).
+
+The DeepSDF decoder is loaded once in the constructor (from
+``ShapeConfig.weights_file``, or passed in) and kept as an attribute, not
+Context state. ``reestimate=True`` (or the flag ``"reestimate"`` in the
+input's ``flags``) uses the re-estimation weights after the leaf action
+(``reestimate_w_ped``, ``reestimate_w_neg_completed_branch``).
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from lmap_drake.scenario import ShapeConfig
+from lmap_drake.shape.branch import BranchCompletionParams
+from lmap_drake.shape.completion import CompleteScene
+from lmap_drake.shape.deepsdf import LoadDecoder
+from lmap_drake.shape.ssc import SscParams
+from lmap_drake.types import SceneEstimate, SemanticScene
+
+
+def BranchParamsFromConfig(cfg: ShapeConfig) -> BranchCompletionParams:
+    p = BranchCompletionParams()
+    for f in dc.fields(BranchCompletionParams):
+        key = "branch_" + f.name
+        if hasattr(cfg, key):
+            setattr(p, f.name, getattr(cfg, key))
+    return p
+
+
+class ShapeCompletion(LeafSystem):
+    """SemanticScene -> SceneEstimate; see the module docstring."""
+
+    def __init__(self, cfg: ShapeConfig | None = None, decoder=None, mean_latent=None,
+                 reestimate: bool = False, method: str | None = None):
+        super().__init__()
+        self.cfg = cfg or ShapeConfig()
+        if decoder is None and (method or getattr(self.cfg, "method", "ssc")) != "supeps":
+            decoder, mean_latent, _ = LoadDecoder(self.cfg.weights_file,
+                                                  getattr(self.cfg, "mean_latent_file", "")
+                                                  or None)
+        self.decoder, self.mean_latent = decoder, mean_latent
+        self.reestimate = reestimate
+        self.method = method or getattr(self.cfg, "method", "ssc")
+        self.last_timings: dict = {}
+        self._in = self.DeclareAbstractInputPort("semantic_scene",
+                                                 AbstractValue.Make(SemanticScene()))
+        self.DeclareAbstractOutputPort(
+            "scene_estimate", lambda: AbstractValue.Make(SceneEstimate(SemanticScene())),
+            self._calc, prerequisites_of_calc={self._in.ticket()})
+
+    def params(self, reestimate: bool) -> SscParams:
+        return SscParams.FromConfig(self.cfg, reestimate=reestimate)
+
+    def _calc(self, context, output):
+        sem: SemanticScene = self._in.Eval(context)
+        re = self.reestimate or "reestimate" in sem.flags
+        timings = {}
+        est = CompleteScene(sem, self.decoder, self.mean_latent, self.params(re), self.method,
+                            self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg), timings)
+        self.last_timings = timings
+        output.set_value(est)

@@ -1,0 +1,62 @@
+import numpy as np
+import trimesh
+
+from lmap_drake.shape.marching import ExtractIsoSurface
+from lmap_drake.shape.metrics import (AngleErrorDeg, CenterErrorCm, ChamferCm, MeshCentroid,
+                                      MeshVolume, ShapeMetrics)
+
+
+def _sphere(r, c=(0, 0, 0)):
+    m = trimesh.creation.icosphere(subdivisions=5, radius=r)
+    m.apply_translation(c)
+    return m.vertices, m.faces
+
+
+def _expected_offset_chamfer_cm(r, d):
+    # Mean over sphere A (uniform: cos(theta) uniform in [-1, 1]) of the
+    # distance to sphere B of the same radius, centre offset by d.
+    x = np.linspace(-1, 1, 200001)
+    dist = np.abs(np.sqrt(r * r + d * d - 2 * r * d * x) - r)
+    return 100 * dist.mean()  # both directions are equal by symmetry
+
+
+def test_two_spheres_offset_by_one_cm():
+    r = 0.04
+    va, fa = _sphere(r)
+    vb, fb = _sphere(r, (0.01, 0, 0))
+    m = ShapeMetrics(va, fa, [0, 0, 1], vb, fb, [0, 0, 1], n=30000)
+    assert abs(m["center_err_cm"] - 1.0) < 0.01
+    assert m["volume_err_cm3"] < 0.5
+    assert m["angle_err_deg"] < 1e-6
+    assert abs(m["chamfer_cm"] - _expected_offset_chamfer_cm(r, 0.01)) < 0.03
+
+
+def test_concentric_spheres_volume_and_chamfer():
+    va, fa = _sphere(0.04)
+    vb, fb = _sphere(0.05)
+    m = ShapeMetrics(va, fa, [0, 0, 1], vb, fb, [1, 0, 0], n=20000)
+    assert abs(m["volume_err_cm3"] - 4 / 3 * np.pi * (125 - 64)) < 3.0
+    assert abs(m["chamfer_cm"] - 1.0) < 0.02
+    assert m["center_err_cm"] < 0.01
+    assert abs(m["angle_err_deg"] - 90) < 1e-6
+
+
+def test_basic_functions():
+    assert abs(AngleErrorDeg([0, 0, 1], [0, 1, 1]) - 45) < 1e-9
+    assert abs(CenterErrorCm([0, 0, 0], [0.03, 0.04, 0]) - 5.0) < 1e-9
+    p = np.random.default_rng(0).normal(size=(100, 3))
+    assert ChamferCm(p, p) == 0.0
+    assert ChamferCm(p, p + [0.01, 0, 0]) > 0.5 * 0.99
+
+
+def test_box_volume_centroid_and_marching_is_watertight():
+    box = trimesh.creation.box(extents=(0.02, 0.04, 0.06))
+    box.apply_translation((0.1, 0, 0))
+    assert abs(MeshVolume(box.vertices, box.faces) - 0.02 * 0.04 * 0.06) < 1e-12
+    np.testing.assert_allclose(MeshCentroid(box.vertices, box.faces), [0.1, 0, 0], atol=1e-12)
+    v, f = ExtractIsoSurface(lambda p: np.linalg.norm(p, axis=1) - 0.03, [-0.03] * 3,
+                             [0.03] * 3, 0.002)
+    m = trimesh.Trimesh(v, f, process=False)
+    assert m.is_watertight and m.is_winding_consistent
+    assert abs(MeshVolume(v, f) / (4 / 3 * np.pi * 0.03 ** 3) - 1) < 0.01
+    assert m.volume > 0  # outward winding
