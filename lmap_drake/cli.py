@@ -51,6 +51,9 @@ def cmd_run(args) -> int:
         if args.hardware:
             from lmap_drake.station.hardware.run import RunHardwareSnapshot
             files = RunHardwareSnapshot(scenario, out, dry_run=args.dry_run, progress=_stage)
+        elif scenario.plant_scene.kind == "procedural" and scenario.plant_scene.pull.enabled:
+            from lmap_drake.episode import RunScriptedPullEpisode
+            files = RunScriptedPullEpisode(scenario, out, progress=_stage)
         else:
             files = RunStationSnapshot(scenario, out, hardware=False, progress=_stage)
     except RuntimeError as err:

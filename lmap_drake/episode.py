@@ -45,3 +45,46 @@ def RunStationSnapshot(scenario: Scenario, out: Path, hardware: bool = False,
     SaveLabel(station.GetOutputPort("camera0.label_image").Eval(context), out / "label.png")
     (out / "scene.html").write_text(meshcat.StaticHtml())
     return ["scenario.yaml", "rgb.png", "depth.png", "label.png", "scene.html"]
+
+
+def RunScriptedPullEpisode(scenario: Scenario, out: Path,
+                           progress: Callable[[str], None] = print) -> list[str]:
+    """Procedural plant world: settle, observe, grasp and pull as given in
+    ``plant_scene.pull``, observe again. Writes the snapshot files (before
+    the pull), ``rgb_after.png``, ``label_after.png``, ``outcome.json``,
+    the ground truth (``ground_truth.json``, ``fruit_W.obj``,
+    ``leaf_rest_W.obj``) and ``scene.html`` (Meshcat recording; Meshcat's
+    recording does not animate the deformable leaf)."""
+    import json
+    import time
+
+    from lmap_drake.plants.generator import SaveGroundTruth
+    from lmap_drake.plants.simworld import PlantWorldSim, RunScriptedPull
+
+    out = Path(out)
+    DumpScenario(scenario, out / "scenario.yaml")
+    t0 = time.time()
+    meshcat = Meshcat()
+    progress("generating the plant and building the station")
+    world = PlantWorldSim(scenario, meshcat, progress)
+    files = ["scenario.yaml"] + SaveGroundTruth(world.model, out)
+    meshcat.StartRecording()
+    result = RunScriptedPull(world)
+    meshcat.StopRecording()
+    meshcat.PublishRecording()
+    before, after = result["before"], result["after"]
+    SaveRgb(before["rgb_image"], out / "rgb.png")
+    SaveDepth(before["depth_image"], out / "depth.png")
+    SaveLabel(before["label_image"], out / "label.png")
+    SaveRgb(after["rgb_image"], out / "rgb_after.png")
+    SaveLabel(after["label_image"], out / "label_after.png")
+    outcome = result["outcome"].to_dict()
+    record = dict(outcome)
+    record["simulated_seconds"] = world.time
+    record["wall_seconds"] = time.time() - t0
+    (out / "outcome.json").write_text(json.dumps(record, indent=2))
+    (out / "scene.html").write_text(meshcat.StaticHtml())
+    progress("outcome: " + ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
+                                      for k, v in outcome.items()))
+    return files + ["rgb.png", "depth.png", "label.png", "rgb_after.png", "label_after.png",
+                    "outcome.json", "scene.html"]

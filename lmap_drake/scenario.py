@@ -24,6 +24,7 @@ from pydrake.systems.sensors import CameraConfig
 from pydrake.geometry import SceneGraphConfig
 
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
+from lmap_drake.station.hardware_config import HardwareConfig
 
 
 def _transform(xyz, rpy_deg, base_frame: str | None = None) -> Transform:
@@ -70,7 +71,7 @@ class RobotConfig:
     X_WB: Transform = dc.field(
         default_factory=lambda: _transform([0.0, 0.0, 0.0], [0.0, 0.0, 180.0]))
     initial_q: list[float] = dc.field(
-        default_factory=lambda: [2.0, -1.9, 1.9, -1.571, -1.571, 0.0])
+        default_factory=lambda: [-1.3941, -0.552, 1.9769, 0.1742, -1.4152, -0.1795])
     initial_gripper_width: float = 0.085
     kp: list[float] = dc.field(default_factory=lambda: [8000., 8000., 4000., 600., 600., 300.])
     kd: list[float] = dc.field(default_factory=lambda: [400., 400., 200., 30., 30., 12.])
@@ -80,11 +81,131 @@ class RobotConfig:
 
 
 @dc.dataclass
+class BranchConfig:
+    """Rigid branch: a vertical cylinder, optionally bowed sideways (m)."""
+    radius: float = 0.006
+    length: float = 0.5
+    bend: float = 0.0
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.33, 0.45, 0.2, 1.0))
+
+
+@dc.dataclass
+class LeafConfig:
+    """FEM leaf: blade outline (m), mesh resolution and material.
+
+    Material defaults: E = 10 MPa (leaf lamina is reported at 5-20 MPa),
+    Poisson 0.3. The simulated blade is 2 mm thick (two 1 mm tet layers) for
+    well-shaped tets, so its ``mass_density`` is an effective 100 kg/m^3,
+    which gives a real lamina's ~0.2 kg/m^2. Damping: stiffness-proportional
+    ``stiffness_damping`` (s) and mass-proportional ``mass_damping`` (1/s).
+    ``clearance``: blade in front of the fruit's front (m); the blade leaves
+    the branch ``attach_above_fruit`` above the fruit top and bends down with
+    ``bend_radius``."""
+    length: float = 0.13
+    width: float = 0.075
+    shape: str = "ovate"
+    petiole_length: float = 0.04
+    petiole_width: float = 0.006
+    thickness: float = 0.002
+    target_tets: int = 1000
+    element_size: float = 0.0  # 0 = derived from target_tets
+    youngs_modulus: float = 10.0e6
+    poissons_ratio: float = 0.3
+    mass_density: float = 100.0
+    stiffness_damping: float = 0.01
+    mass_damping: float = 1.0
+    clearance: float = 0.025
+    min_fruit_clearance: float = 0.004
+    attach_above_fruit: float = 0.012
+    bend_radius: float = 0.025
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.2, 0.55, 0.15, 1.0))
+
+
+@dc.dataclass
+class FruitConfig:
+    """Pepper shape (see ``lmap_drake.plants.pepper.PepperShape``), colour and
+    placement. ``height_on_branch``: fruit centre above the branch base (m);
+    ``tilt_deg``: peduncle axis tilt from vertical, about a horizontal axis at
+    ``tilt_azimuth_deg`` from the camera direction."""
+    variant: str = "blocky"
+    size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
+    lobes: int = 4
+    lobe_depth: float = 0.08
+    squareness: float = 2.4
+    shoulder: float = 0.12
+    taper: float = 0.06
+    cone: float = 0.0
+    lobe_phase_deg: float = 0.0
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
+    stripe_color: Rgba = dc.field(default_factory=lambda: Rgba(0.55, 0.02, 0.02, 1.0))
+    stripes: int = 0
+    height_on_branch: float = 0.22
+    gap_to_branch: float = 0.004
+    tilt_deg: float = 10.0
+    tilt_azimuth_deg: float = 30.0
+    peduncle_length: float = 0.015
+    peduncle_radius: float = 0.004
+
+
+@dc.dataclass
+class ScriptedPullConfig:
+    """A grasp-and-pull given by hand (what ``lmap-drake run`` executes until
+    the planner chooses actions). The grasp sits ``grasp_from_tip`` (m) from
+    the blade tip along the midrib, ``grasp_v`` (m) to the side of it; the
+    gripper approaches along the midrib from beyond the tip with its pads
+    ``pregrasp_opening`` (m) apart, closing across the blade. The pull moves
+    the TCP ``distance`` (m) along ``direction_W`` in ``duration`` (s), then
+    holds for ``hold`` (s)."""
+    enabled: bool = True
+    grasp_from_tip: float = 0.015
+    grasp_v: float = 0.0
+    pregrasp_distance: float = 0.05
+    pregrasp_opening: float = 0.02
+    direction_W: list[float] = dc.field(default_factory=lambda: [-0.8, 0.0, 0.6])
+    distance: float = 0.07
+    duration: float = 2.0
+    hold: float = 0.5
+
+
+@dc.dataclass
+class OutcomeConfig:
+    """Thresholds of the ground-truth outcome measures (simulator only).
+
+    ``leaf_damage``: the ``strain_percentile`` of per-tet max principal
+    stretch, leaving out tets that touch a constraint, exceeds
+    ``tear_stretch``. ``plant_hazard``: the petiole's axial force estimate
+    E * A * (stretch - 1), with the median stretch of the ring of petiole
+    tets next to the branch attachment, exceeds ``petiole_max_force`` (N;
+    15 N is a 12.5 % petiole strain at the default E and cross-section). ``fruit_collision``: a leaf vertex or
+    robot geometry comes within ``-fruit_penetration`` of the fruit surface
+    (i.e. penetrates it by more than that, m) or touches it with more than
+    ``fruit_contact_force`` (N)."""
+    tear_stretch: float = 1.10
+    strain_percentile: float = 95.0
+    petiole_max_force: float = 15.0
+    fruit_penetration: float = 0.001
+    fruit_contact_force: float = 0.05
+    sample_period: float = 0.05
+
+
+@dc.dataclass
 class PlantSceneConfig:
-    """The plant in front of the robot (rigid placeholders until the
-    procedural plant world lands). Positions in world frame, metres."""
+    """The plant in front of the robot. ``kind: procedural`` builds the
+    branch, pepper and FEM leaf from the sub-configs, with the leaf swung so
+    that it hides ``occlusion`` of the fruit from camera0; ``kind:
+    placeholder`` is a cheap rigid scene (branch cylinder, leaf plate,
+    pepper mesh) for fast tests. World frame, metres."""
     kind: str = "placeholder"
+    name: str = ""
     p_W_branch_base: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
+    occlusion: float = 0.85
+    fruit_side: float = -1.0
+    branch: BranchConfig = dc.field(default_factory=BranchConfig)
+    leaf: LeafConfig = dc.field(default_factory=LeafConfig)
+    fruit: FruitConfig = dc.field(default_factory=FruitConfig)
+    pull: ScriptedPullConfig = dc.field(default_factory=ScriptedPullConfig)
+    outcome: OutcomeConfig = dc.field(default_factory=OutcomeConfig)
+    # placeholder-only fields
     branch_length: float = 0.5
     branch_radius: float = 0.006
     fruit_center_W: list[float] = dc.field(default_factory=lambda: [0.5, -0.045, 0.33])
@@ -129,8 +250,18 @@ class PerceptionConfig:
 
 @dc.dataclass
 class ShapeConfig:
-    """Branch completion and scene-consistent shape completion (Sec. III-A)."""
+    """Branch completion and scene-consistent shape completion (Sec. III-A).
+
+    ``weights_file`` is relative to the repository root (written by
+    ``scripts/train_deepsdf.py``); ``mean_latent_file`` is only needed for a
+    HortiMapping-style checkpoint. ``method``: ssc | homa | supeps. SSC
+    losses measure lengths in ``loss_length_unit`` (m; 0.01 = cm); see
+    ``lmap_drake/shape/ssc.py``. ``branch_*``: branch completion (slab
+    thickness, radius factor, cylinder mesh resolution, ARAP match distance;
+    metres)."""
     weights_file: str = "models/deepsdf/pepper_decoder.pt"
+    mean_latent_file: str = ""
+    method: str = "ssc"
     latent_size: int = 32
     free_space_voxel: float = 0.003
     w_sur: float = 1.0
@@ -143,11 +274,33 @@ class ShapeConfig:
     learning_rate: float = 0.01
     iterations: int = 300
     num_peduncle_points: int = 10
+    loss_length_unit: float = 0.01
+    push_from_camera: float = 0.01
+    max_surface_points: int = 300
+    max_negative_points: int = 300
+    negative_margin: float = 0.005
+    refresh_every: int = 25
+    mesh_spacing: float = 0.003
+    branch_slab: float = 0.01
+    branch_radius_factor: float = 1.0
+    branch_mesh_res: float = 0.003
+    branch_match_distance: float = 0.03
 
 
 @dc.dataclass
 class DeformationConfig:
-    """Embedded deformation graph and ARAP solve (Sec. III-B)."""
+    """Embedded deformation graph and ARAP solve (Sec. III-B). Lengths in m.
+
+    ``vein_weights``: edge weights for two / one / no midrib endpoints.
+    Leaf-to-branch edges use ``leaf_branch_edge_radius`` and
+    ``leaf_branch_weight`` (the authors' code: 16 mm, 100; set them to
+    ``edge_radius`` and 1 for the paper's single radius rule). A grasp more
+    than ``max_grasp_distance`` from the leaf is an error; a handle with no
+    leaf node within ``edge_radius`` is tied to its
+    ``handle_fallback_neighbors`` nearest leaf nodes. Dense points follow
+    their ``interpolation_neighbors`` nearest nodes (within
+    ``interpolation_radius``) with Gaussian RBF weights of width
+    ``interpolation_sigma``, each node applying its ARAP rotation."""
     voxel_size: float = 0.005
     edge_radius: float = 0.008
     vein_distance: float = 0.012
@@ -157,6 +310,13 @@ class DeformationConfig:
     fixed_branch_distance: float = 0.05
     max_iterations: int = 300
     relative_tolerance: float = 1e-5
+    leaf_branch_edge_radius: float = 0.016
+    leaf_branch_weight: float = 100.0
+    max_grasp_distance: float = 0.02
+    handle_fallback_neighbors: int = 3
+    interpolation_neighbors: int = 8
+    interpolation_radius: float = 0.05
+    interpolation_sigma: float = 0.005
 
 
 @dc.dataclass
@@ -186,7 +346,7 @@ class Scenario:
             target_realtime_rate=0.0))
     plant_config: MultibodyPlantConfig = dc.field(
         default_factory=lambda: MultibodyPlantConfig(
-            time_step=0.005, discrete_contact_approximation="sap"))
+            time_step=0.01, discrete_contact_approximation="sap"))
     scene_graph_config: SceneGraphConfig = dc.field(default_factory=SceneGraphConfig)
     robot: RobotConfig = dc.field(default_factory=RobotConfig)
     cameras: typing.Mapping[str, CameraConfig] = dc.field(
@@ -196,7 +356,7 @@ class Scenario:
     shape: ShapeConfig = dc.field(default_factory=ShapeConfig)
     deformation: DeformationConfig = dc.field(default_factory=DeformationConfig)
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
-    hardware: "HardwareConfig" = dc.field(default_factory=lambda: HardwareConfig())
+    hardware: HardwareConfig = dc.field(default_factory=HardwareConfig)
 
 
 class ScenarioError(ValueError):
@@ -321,8 +481,13 @@ def Validate(s: Scenario) -> None:
     for name, cam in s.cameras.items():
         need(cam.name == name, f"cameras.{name}.name must equal its key '{name}'")
         need(cam.depth and cam.rgb, f"cameras.{name} needs rgb and depth enabled")
-    need(s.plant_scene.kind in ("placeholder",),
-         f"plant_scene.kind '{s.plant_scene.kind}' unknown; use 'placeholder'")
+    need(s.plant_scene.kind in ("placeholder", "procedural"),
+         f"plant_scene.kind '{s.plant_scene.kind}' unknown; use 'procedural' or 'placeholder'")
+    need(0.0 <= s.plant_scene.occlusion <= 1.0, "plant_scene.occlusion must be in [0, 1]")
+    need(s.plant_scene.leaf.shape in ("ovate", "elliptic"),
+         "plant_scene.leaf.shape must be 'ovate' or 'elliptic'")
+    need(0.06 <= s.plant_scene.leaf.length <= 0.16,
+         "plant_scene.leaf.length must be in [0.06, 0.16] m")
     need(s.perception.segmenter in ("label", "color_depth", "grounded_sam"),
          f"perception.segmenter '{s.perception.segmenter}' unknown")
     need(s.planner.method in ("lmap", "random", "upward", "min_overlap"),
@@ -333,10 +498,3 @@ def Validate(s: Scenario) -> None:
 def DumpScenario(s: Scenario, filename: str | Path) -> None:
     """Writes the resolved scenario (all fields) as YAML."""
     Path(filename).write_text(yaml_dump_typed(s, schema=Scenario))
-
-
-# Imported last: with an eager lmap_drake/station/__init__.py, importing
-# hardware_config at the top would import this module half-initialised.
-# Drake's yaml reads the dataclass field's type object, hence the fix-up.
-from lmap_drake.station.hardware_config import HardwareConfig  # noqa: E402
-Scenario.__dataclass_fields__["hardware"].type = HardwareConfig

@@ -60,3 +60,19 @@ def TcpPose(plant: MultibodyPlant, q: np.ndarray, gripper_half_opening: float = 
     plant.SetPositions(context, np.concatenate([q, [gripper_half_opening] * 2]))
     return plant.CalcRelativeTransform(context, plant.world_frame(),
                                        plant.GetFrameByName("tcp"))
+
+
+def SolveTcpIkMultiStart(plant: MultibodyPlant, X_WT: RigidTransform, q_seed: np.ndarray,
+                         num_random: int = 12, seed: int = 0,
+                         gripper_half_opening: float = 0.0425) -> IkResult:
+    """``SolveTcpIk`` from ``q_seed``, then from seeded random starts (within
+    +-pi) until one succeeds; returns the first success or the last failure."""
+    result = SolveTcpIk(plant, X_WT, q_seed, gripper_half_opening=gripper_half_opening)
+    rng = np.random.default_rng(seed)
+    for _ in range(num_random):
+        if result.success:
+            break
+        start = np.asarray(q_seed, float) + rng.uniform(-np.pi, np.pi, 6)
+        start[2] = np.clip(start[2], -np.pi + 0.1, np.pi - 0.1)
+        result = SolveTcpIk(plant, X_WT, start, gripper_half_opening=gripper_half_opening)
+    return result

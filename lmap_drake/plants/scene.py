@@ -55,3 +55,111 @@ def AddPlaceholderPlant(plant: MultibodyPlant, cfg: PlantSceneConfig) -> dict:
                             cfg.fruit_color, EncodeLabel(FRUIT, 0))
     return {"fruit_center_W": center, "fruit_volume": float(mesh.volume),
             "fruit_mesh_W": mesh.copy().apply_translation(center)}
+
+
+# --- procedural plant with an FEM leaf -------------------------------------
+
+def _CylinderBetween(p0, p1) -> tuple[RigidTransform, float]:
+    """Pose (z along p0->p1, centred) and length of a cylinder between points."""
+    from pydrake.math import RotationMatrix
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    d = p1 - p0
+    length = float(np.linalg.norm(d))
+    R = RotationMatrix.MakeFromOneVector(d / length, 2)
+    return RigidTransform(R, (p0 + p1) / 2), length
+
+
+def _ObjMesh(mesh, name: str) -> Mesh:
+    data = InMemoryMesh()
+    data.mesh_file = MemoryFile(MeshToObjText(mesh), ".obj", name + ".obj")
+    return Mesh(data)
+
+
+def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConfig,
+                       with_leaf: bool = True) -> dict:
+    """Adds ``model`` (a ``PlantModel``) to ``plant``: the branch as a rigid
+    body welded to the world, the fruit welded to the world, and the leaf as
+    a Drake FEM deformable body fixed to the branch at the petiole.
+
+    ``with_leaf=False`` leaves the leaf out (for the unoccluded view).
+    Returns handles: ``branch_body``, ``leaf_body_id``, ``leaf_geometry_id``,
+    ``fruit_geometry_ids``."""
+    from pydrake.geometry import (AddContactMaterial, CollisionFilterDeclaration,
+                                  GeometrySet)
+    from pydrake.multibody.fem import DeformableBodyConfig
+    from pydrake.multibody.tree import SpatialInertia
+
+    from lmap_drake.plants.leaf import TetMeshToVtk
+
+    world = plant.world_body()
+    instance = plant.AddModelInstance("plant_world")
+    branch_body = plant.AddRigidBody("branch", instance, SpatialInertia.SolidCylinderWithMass(
+        0.05, cfg.branch.radius, cfg.branch.length, [0, 0, 1]))
+    plant.WeldFrames(plant.world_frame(), branch_body.body_frame(), RigidTransform())
+    pts = model.branch_points_W
+    for i in range(len(pts) - 1):
+        X, length = _CylinderBetween(pts[i], pts[i + 1])
+        RegisterLabeledGeometry(plant, branch_body, X, Cylinder(model.branch_radius, length),
+                                f"branch_{i}", cfg.branch.color, EncodeLabel(BRANCH, 0))
+    X, length = _CylinderBetween(*model.stalk_W)
+    RegisterLabeledGeometry(plant, branch_body, X,
+                            Cylinder(cfg.fruit.peduncle_radius, length + 0.004), "peduncle",
+                            cfg.branch.color, EncodeLabel(BRANCH, 0), collision=False)
+
+    fruit = model.fruit_mesh_W
+    fruit_ids = []
+    stripes = model.fruit_stripe_faces
+    parts = [(fruit.submesh([~stripes], append=True) if stripes.any() else fruit,
+              cfg.fruit.color, "fruit")]
+    if stripes.any():
+        parts.append((fruit.submesh([stripes], append=True), cfg.fruit.stripe_color,
+                      "fruit_stripes"))
+    for mesh, color, name in parts:
+        RegisterLabeledGeometry(plant, world, RigidTransform(), _ObjMesh(mesh, name), name,
+                                color, EncodeLabel(FRUIT, 0), collision=False)
+    # Collision geometry: the (closed) fruit mesh, for contact and queries.
+    fruit_ids.append(plant.RegisterCollisionGeometry(
+        world, RigidTransform(), _ObjMesh(fruit, "fruit_collision"), "fruit_collision",
+        CoulombFriction(0.5, 0.5)))
+
+    if not with_leaf:
+        return {"branch_body": branch_body, "leaf_body_id": None, "leaf_geometry_id": None,
+                "fruit_geometry_ids": fruit_ids}
+    leaf_cfg = cfg.leaf
+    vtk = InMemoryMesh()
+    vtk.mesh_file = MemoryFile(TetMeshToVtk(model.leaf_rest_W, model.leaf_tets), ".vtk",
+                               "leaf.vtk")
+    gi = GeometryInstance(RigidTransform(), Mesh(vtk), "leaf")
+    prox = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(0.8, 0.8), properties=prox)
+    gi.set_proximity_properties(prox)
+    ill = IllustrationProperties()
+    ill.AddProperty("phong", "diffuse", leaf_cfg.color)
+    gi.set_illustration_properties(ill)
+    per = PerceptionProperties()
+    per.AddProperty("phong", "diffuse", leaf_cfg.color)
+    per.AddProperty("label", "id", RenderLabel(EncodeLabel(LEAF, 0)))
+    gi.set_perception_properties(per)
+    body_cfg = DeformableBodyConfig()
+    body_cfg.set_youngs_modulus(leaf_cfg.youngs_modulus)
+    body_cfg.set_poissons_ratio(leaf_cfg.poissons_ratio)
+    body_cfg.set_mass_density(leaf_cfg.mass_density)
+    body_cfg.set_stiffness_damping_coefficient(leaf_cfg.stiffness_damping)
+    body_cfg.set_mass_damping_coefficient(leaf_cfg.mass_damping)
+    dm = plant.mutable_deformable_model()
+    leaf_id = dm.RegisterDeformableBody(gi, body_cfg, 1.0)
+    fixed = model.leaf_rest_W[model.leaf_fixed]
+    center = fixed.mean(axis=0)
+    radius = float(np.linalg.norm(fixed - center, axis=1).max()) + 2e-4
+    from pydrake.geometry import Sphere
+    # The branch is welded to the world (identity), so fix the petiole to the
+    # world body: Drake rejects constraints to a welded body's zero-dof clique.
+    dm.AddFixedConstraint(leaf_id, world, RigidTransform(), Sphere(radius),
+                          RigidTransform(center))
+    leaf_gid = dm.GetGeometryId(leaf_id)
+    branch_gids = plant.GetCollisionGeometriesForBody(branch_body)
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(leaf_gid),
+                                                    GeometrySet(branch_gids)))
+    return {"branch_body": branch_body, "leaf_body_id": leaf_id,
+            "leaf_geometry_id": leaf_gid, "fruit_geometry_ids": fruit_ids}

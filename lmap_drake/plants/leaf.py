@@ -1,0 +1,157 @@
+"""Leaf geometry: a 2D blade + petiole outline, its triangulation, and a
+two-layer tetrahedral mesh bent into 3D (metres).
+
+Leaf coordinates: ``u`` runs along the midrib from the blade base (u = 0)
+to the tip (u = length); the petiole occupies u in [-petiole_length, 0];
+``v`` is the lateral coordinate (v = 0 on the midrib).
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+from matplotlib.path import Path as _MplPath
+from scipy.spatial import Delaunay
+
+
+@dc.dataclass
+class LeafShape:
+    """Blade outline and thickness (m). ``shape`` is 'ovate' (widest near the
+    base) or 'elliptic' (widest in the middle)."""
+    length: float = 0.12
+    width: float = 0.065
+    shape: str = "ovate"
+    petiole_length: float = 0.03
+    petiole_width: float = 0.006
+    thickness: float = 0.002
+    element_size: float = 0.008
+
+
+def HalfWidth(shape: LeafShape, u: np.ndarray) -> np.ndarray:
+    """Blade half-width at midrib coordinate ``u`` (0 outside the blade)."""
+    t = np.clip(np.asarray(u, float) / shape.length, 0.0, 1.0)
+    a, b = {"ovate": (0.6, 1.0), "elliptic": (1.0, 1.0)}[shape.shape]
+    t_max = a / (a + b)
+    peak = t_max ** a * (1 - t_max) ** b
+    w = 0.5 * shape.width * (t ** a) * ((1 - t) ** b) / peak
+    return np.maximum(w, 0.5 * shape.petiole_width * (t < 0.5))
+
+
+def Outline(shape: LeafShape, spacing: float) -> np.ndarray:
+    """Closed outline polygon (K, 2) of petiole + blade in (u, v), CCW."""
+    if shape.shape not in ("ovate", "elliptic"):
+        raise ValueError(f"leaf shape must be 'ovate' or 'elliptic', got {shape.shape!r}")
+    n_blade = max(8, int(np.ceil(2.2 * shape.length / spacing)))
+    u_blade = shape.length * (1 - np.cos(np.linspace(0, np.pi, n_blade))) / 2
+    n_pet = max(2, int(np.ceil(shape.petiole_length / spacing)) + 1)
+    u_pet = np.linspace(-shape.petiole_length, 0.0, n_pet)[:-1]
+    hw_pet = 0.5 * shape.petiole_width
+    right = np.concatenate([np.c_[u_pet, -np.full_like(u_pet, hw_pet)],
+                            np.c_[u_blade, -HalfWidth(shape, u_blade)]])
+    left = right[::-1].copy()
+    left[:, 1] *= -1
+    poly = np.concatenate([right[:-1], left[:-1]])  # tip point once
+    return poly
+
+
+def TriangulateLeaf(shape: LeafShape) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle mesh (uv (N, 2), faces (F, 3)) of the leaf outline with
+    elements of about ``shape.element_size``."""
+    h = shape.element_size
+    poly = Outline(shape, h)
+    # Resample the boundary at spacing ~h.
+    seg = np.diff(np.vstack([poly, poly[:1]]), axis=0)
+    pts = [poly[i] + seg[i] * f for i in range(len(poly))
+           for f in np.arange(0, 1, h / max(np.linalg.norm(seg[i]), 1e-9))]
+    boundary = np.array(pts)
+    # Interior: a hexagonal grid kept at least 0.45 h from the boundary.
+    u0, u1 = poly[:, 0].min(), poly[:, 0].max()
+    v0, v1 = poly[:, 1].min(), poly[:, 1].max()
+    rows = np.arange(u0, u1 + h, h * np.sqrt(3) / 2)
+    grid = [np.c_[np.full(len(vs), u), vs]
+            for k, u in enumerate(rows)
+            for vs in [np.arange(v0 + (h / 2) * (k % 2), v1, h)]]
+    grid = np.vstack(grid)
+    path = _MplPath(poly)
+    inside = path.contains_points(grid)
+    grid = grid[inside]
+    if len(grid):
+        d = np.min(np.linalg.norm(grid[:, None, :] - boundary[None, :, :], axis=2), axis=1)
+        grid = grid[d > 0.45 * h]
+    uv = np.vstack([boundary, grid])
+    tri = Delaunay(uv)
+    faces = tri.simplices
+    centroids = uv[faces].mean(axis=1)
+    keep = path.contains_points(centroids, radius=-1e-9) | path.contains_points(centroids)
+    faces = faces[keep]
+    used = np.unique(faces)
+    remap = -np.ones(len(uv), int)
+    remap[used] = np.arange(len(used))
+    return uv[used], remap[faces]
+
+
+def ExtrudeToTets(uv: np.ndarray, faces: np.ndarray, layers: int = 2
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Layered prisms split into 3 tetrahedra each (conforming split by vertex
+    index). Returns (nodes (N*(layers+1), 3) as (u, v, layer), tets (T, 4))."""
+    n = len(uv)
+    nodes = np.vstack([np.c_[uv, np.full(n, k)] for k in range(layers + 1)]).astype(float)
+    tets = []
+    sorted_faces = np.sort(faces, axis=1)
+    for k in range(layers):
+        lo, hi = k * n, (k + 1) * n
+        a, b, c = sorted_faces[:, 0], sorted_faces[:, 1], sorted_faces[:, 2]
+        tets.append(np.c_[a + lo, b + lo, c + lo, a + hi])
+        tets.append(np.c_[b + lo, c + lo, a + hi, b + hi])
+        tets.append(np.c_[c + lo, a + hi, b + hi, c + hi])
+    return nodes, np.vstack(tets)
+
+
+def OrientTets(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Reorders tets so that every signed volume is positive."""
+    p = vertices[tets]
+    vol = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]),
+                    p[:, 3] - p[:, 0])
+    out = tets.copy()
+    neg = vol < 0
+    out[neg, 1], out[neg, 2] = tets[neg, 2], tets[neg, 1]
+    return out
+
+
+def TetVolumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    p = vertices[tets]
+    return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]),
+                     p[:, 3] - p[:, 0]) / 6.0
+
+
+def BoundaryTriangles(tets: np.ndarray) -> np.ndarray:
+    """Outward-oriented surface triangles of a (positively oriented) tet mesh."""
+    local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+    tris = tets[:, local].reshape(-1, 3)
+    key = np.sort(tris, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return tris[counts[inv.ravel()] == 1]
+
+
+def TetMeshToVtk(vertices: np.ndarray, tets: np.ndarray) -> str:
+    """Legacy ASCII VTK unstructured grid (cell type 10 = tetra)."""
+    lines = ["# vtk DataFile Version 3.0", "leaf", "ASCII", "DATASET UNSTRUCTURED_GRID",
+             f"POINTS {len(vertices)} double"]
+    lines += [f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices]
+    lines.append(f"CELLS {len(tets)} {5 * len(tets)}")
+    lines += [f"4 {a} {b} {c} {d}" for a, b, c, d in tets]
+    lines.append(f"CELL_TYPES {len(tets)}")
+    lines += ["10"] * len(tets)
+    return "\n".join(lines) + "\n"
+
+
+def MaxPrincipalStretch(rest: np.ndarray, current: np.ndarray, tets: np.ndarray
+                        ) -> np.ndarray:
+    """Per-tet largest singular value of the deformation gradient F = Ds Dm^-1."""
+    def edges(x):
+        p = x[tets]
+        return np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
+    Dm = edges(rest)
+    Ds = edges(current)
+    F = Ds @ np.linalg.inv(Dm)
+    return np.linalg.svd(F, compute_uv=False)[:, 0]

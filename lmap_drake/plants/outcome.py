@@ -1,0 +1,90 @@
+"""Ground-truth outcome measures computed from the simulator's state (never
+from the planner's model). World frame, metres, newtons."""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+
+from lmap_drake.labels import FRUIT, DecodeLabels
+from lmap_drake.plants.leaf import MaxPrincipalStretch
+
+
+@dc.dataclass
+class OutcomeSample:
+    """Measures at one instant."""
+    strain_percentile: float
+    petiole_force: float
+    fruit_penetration: float      # max depth (m) of leaf vertices / robot inside the fruit
+    fruit_contact_force: float    # N, contact force on the fruit geometry
+
+
+@dc.dataclass
+class Outcome:
+    """The episode's outcome (``outcome.json``): booleans for the safety
+    flags, floats for the visibilities and the worst strain measure."""
+    leaf_damage: bool
+    plant_hazard: bool
+    fruit_collision: bool
+    visibility_initial: float
+    visibility_final: float
+    max_strain_percentile: float
+    max_petiole_force: float
+    max_fruit_penetration: float
+    max_fruit_contact_force: float
+
+    def to_dict(self) -> dict:
+        return {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
+                for k, v in dc.asdict(self).items()}
+
+
+def ConstrainedTetMask(tets: np.ndarray, constrained_vertices: np.ndarray) -> np.ndarray:
+    """Tets touching any constrained vertex (bool per tet)."""
+    mask = np.zeros(int(tets.max()) + 1, bool)
+    mask[np.asarray(constrained_vertices, int)] = True
+    return mask[tets].any(axis=1)
+
+
+def StrainPercentile(rest: np.ndarray, current: np.ndarray, tets: np.ndarray,
+                     excluded: np.ndarray, percentile: float) -> float:
+    """``percentile`` of per-tet max principal stretch over tets not in
+    ``excluded`` (the maximum always sits next to a constraint)."""
+    stretch = MaxPrincipalStretch(rest, current, tets)
+    keep = ~excluded
+    return float(np.percentile(stretch[keep] if keep.any() else stretch, percentile))
+
+
+def PetioleForce(rest: np.ndarray, current: np.ndarray, tets: np.ndarray,
+                 attach_tets: np.ndarray, youngs_modulus: float,
+                 cross_section: float) -> float:
+    """Axial force estimate (N) in the petiole at the branch: E * A * (s - 1)
+    with s the median max principal stretch of the tets at the attachment
+    (a linear-elastic bar of the petiole's cross-section)."""
+    stretch = MaxPrincipalStretch(rest, current[None] if current.ndim == 1 else current,
+                                  tets[attach_tets])
+    return float(youngs_modulus * cross_section * max(0.0, np.median(stretch) - 1.0))
+
+
+def VisibilityFraction(label_image, unoccluded_fruit_pixels: int) -> float:
+    """Fruit pixels in a label image over the fruit's pixels with the leaf and
+    robot removed (clipped to [0, 1])."""
+    if unoccluded_fruit_pixels <= 0:
+        return 0.0
+    cls, _ = DecodeLabels(np.asarray(getattr(label_image, "data", label_image)))
+    return float(min(1.0, (cls == FRUIT).sum() / unoccluded_fruit_pixels))
+
+
+def Summarize(samples: list[OutcomeSample], cfg, visibility_initial: float,
+              visibility_final: float) -> Outcome:
+    """Applies the thresholds of ``cfg`` (an ``OutcomeConfig``) to the worst
+    values seen over the episode."""
+    s = max((x.strain_percentile for x in samples), default=1.0)
+    f = max((x.petiole_force for x in samples), default=0.0)
+    pen = max((x.fruit_penetration for x in samples), default=0.0)
+    fc = max((x.fruit_contact_force for x in samples), default=0.0)
+    return Outcome(
+        leaf_damage=s > cfg.tear_stretch, plant_hazard=f > cfg.petiole_max_force,
+        fruit_collision=(pen > cfg.fruit_penetration) or (fc > cfg.fruit_contact_force),
+        visibility_initial=visibility_initial, visibility_final=visibility_final,
+        max_strain_percentile=s, max_petiole_force=f, max_fruit_penetration=pen,
+        max_fruit_contact_force=fc)

@@ -1,0 +1,474 @@
+"""The simulated plant world as one object: the station Diagram, its
+Simulator, joint-space motions, the grasp mechanism and the ground-truth
+monitors.
+
+Grasping: Drake cannot switch a deformable fixed constraint on or off during
+a run, so when the gripper has closed on the leaf, ``Grasp()`` rebuilds the
+station with a fixed constraint between the gripper base and the leaf
+vertices lying between the pads, and carries the whole state (time, rigid and
+deformable positions and velocities, servo states) over to the new Diagram.
+The constraint's reference placement is the rigid fit of those vertices'
+reference positions to their current ones, so the grasp does not jolt the
+leaf. ``Release()`` rebuilds without it.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses as dc
+from typing import Callable
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.systems.analysis import Simulator
+from pydrake.trajectories import PiecewisePolynomial
+
+from lmap_drake.plants.generator import MeshSignedDistance
+from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
+                                       StrainPercentile, VisibilityFraction)
+from lmap_drake.scenario import Scenario
+from lmap_drake.station.robot import GRIPPER_MAX_WIDTH, UR5_VELOCITY_LIMIT, MakeControllerPlant
+from lmap_drake.station.station import LeafGrasp, GetPlantModel, MakeStation
+
+
+def _Kabsch(P: np.ndarray, Q: np.ndarray) -> RigidTransform:
+    """Rigid transform T minimising |T P - Q| (rows are points)."""
+    cp, cq = P.mean(0), Q.mean(0)
+    H = (P - cp).T @ (Q - cq)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return RigidTransform(RotationMatrix(R), cq - R @ cp)
+
+
+def UnoccludedFruitPixels(scenario: Scenario) -> int:
+    """camera0's fruit pixel count with the leaf and robot removed (fruit and
+    branch only): the denominator of the visibility fraction."""
+    from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.sensors import RgbdSensor
+
+    from lmap_drake.labels import FRUIT, DecodeLabels
+    from lmap_drake.plants.scene import AddProceduralPlant
+
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
+    AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
+                       with_leaf=False)
+    plant.Finalize()
+    cam = scenario.cameras["camera0"]
+    sg.AddRenderer(cam.renderer_name, MakeRenderEngineVtk(RenderEngineVtkParams()))
+    color, depth = cam.MakeCameras()
+    sensor = builder.AddSystem(RgbdSensor(sg.world_frame_id(), cam.X_PB.GetDeterministicValue(),
+                                          color, depth))
+    builder.Connect(sg.get_query_output_port(), sensor.query_object_input_port())
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    label = sensor.label_image_output_port().Eval(sensor.GetMyContextFromRoot(ctx))
+    cls, _ = DecodeLabels(label.data)
+    return int((cls == FRUIT).sum())
+
+
+@dc.dataclass
+class GraspState:
+    grasp: LeafGrasp
+    vertices: np.ndarray  # leaf vertex indices held by the gripper
+
+
+class PlantWorldSim:
+    """Simulated UR5 + FEM-leaf plant, driven through the station's ports.
+
+    ``progress`` receives short status strings. Times in seconds, joint
+    angles in radians, openings in metres."""
+
+    def __init__(self, scenario: Scenario, meshcat=None,
+                 progress: Callable[[str], None] | None = None):
+        if scenario.plant_scene.kind != "procedural":
+            raise ValueError("PlantWorldSim needs plant_scene.kind: procedural")
+        self.scenario = scenario
+        self.meshcat = meshcat
+        self.model = GetPlantModel(scenario)
+        self.progress = progress or (lambda msg: None)
+        self.X_WB = scenario.robot.X_WB.GetDeterministicValue()
+        self.controller_plant, _, _ = MakeControllerPlant(self.X_WB)
+        self.q_cmd = np.asarray(scenario.robot.initial_q, float)
+        self.width_cmd = float(scenario.robot.initial_gripper_width)
+        self.samples: list[OutcomeSample] = []
+        self.grasp_state: GraspState | None = None
+        self._unoccluded: int | None = None
+        # The petiole's force is read one ring of tets away from the fixed
+        # vertices (the ring that touches them is a stress singularity).
+        tets = self.model.leaf_tets
+        ring1 = ConstrainedTetMask(tets, np.flatnonzero(self.model.leaf_fixed))
+        self._petiole_tets = ConstrainedTetMask(tets, np.unique(tets[ring1])) & ~ring1
+        self._build(None, None)
+
+    # --- building and state carry-over ----------------------------------
+    def _build(self, grasp: LeafGrasp | None, old_context) -> None:
+        self.station = MakeStation(self.scenario, self.meshcat, leaf_grasp=grasp)
+        self.simulator = Simulator(self.station)
+        self.simulator.set_target_realtime_rate(0.0)
+        self.context = self.simulator.get_mutable_context()
+        if old_context is not None:
+            self._CopyState(old_context, self.context)
+        self.plant = self.station.GetSubsystemByName("plant")
+        self.scene_graph = self.station.GetSubsystemByName("scene_graph")
+        self.deformable = self.plant.deformable_model()
+        self.leaf_id = self.deformable.GetBodyByName("leaf").body_id()
+        self._fix_inputs()
+        self.simulator.Initialize()
+
+    @staticmethod
+    def _CopyState(src, dst) -> None:
+        """Copies time and every discrete/abstract state group (the two
+        stations differ only by a constraint, so their layouts match)."""
+        if src.num_discrete_state_groups() != dst.num_discrete_state_groups():
+            raise RuntimeError("station state layouts differ; cannot carry the state over")
+        dst.SetTime(src.get_time())
+        for i in range(src.num_discrete_state_groups()):
+            dst.SetDiscreteState(i, src.get_discrete_state(i).value())
+        for i in range(src.num_abstract_states()):
+            dst.get_mutable_abstract_state(i).SetFrom(src.get_abstract_state(i))
+
+    def _fix_inputs(self) -> None:
+        self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
+        self.station.GetInputPort("gripper.position").FixValue(self.context, [self.width_cmd])
+
+    @property
+    def plant_context(self):
+        return self.plant.GetMyContextFromRoot(self.context)
+
+    @property
+    def time(self) -> float:
+        return self.context.get_time()
+
+    # --- reading the world ------------------------------------------------
+    def LeafVertices(self) -> np.ndarray:
+        """Current leaf vertex positions (N, 3), world frame."""
+        return self.deformable.GetPositions(self.plant_context, self.leaf_id).T.copy()
+
+    def q(self) -> np.ndarray:
+        return self.station.GetOutputPort("ur5.position_measured").Eval(self.context).copy()
+
+    def GripperWidth(self) -> float:
+        return float(self.station.GetOutputPort("gripper.state_measured").Eval(self.context)[0])
+
+    def X_WG(self) -> RigidTransform:
+        """Current pose of the gripper base (robotiq_base) in the world."""
+        return self.plant.CalcRelativeTransform(
+            self.plant_context, self.plant.world_frame(), self.plant.GetFrameByName("robotiq_base"))
+
+    def X_WT(self) -> RigidTransform:
+        return self.plant.CalcRelativeTransform(
+            self.plant_context, self.plant.world_frame(), self.plant.GetFrameByName("tcp"))
+
+    def Images(self) -> dict:
+        out = {}
+        for name in ("rgb_image", "depth_image", "label_image"):
+            out[name] = self.station.GetOutputPort(f"camera0.{name}").Eval(self.context)
+        return out
+
+    def Visibility(self) -> float:
+        if self._unoccluded is None:
+            self._unoccluded = UnoccludedFruitPixels(self.scenario)
+        label = self.station.GetOutputPort("camera0.label_image").Eval(self.context)
+        return VisibilityFraction(label, self._unoccluded)
+
+    def Sample(self) -> OutcomeSample:
+        """Ground-truth measures now (see ``OutcomeConfig``)."""
+        cfg = self.scenario.plant_scene
+        V = self.LeafVertices()
+        rest, tets = self.model.leaf_rest_W, self.model.leaf_tets
+        constrained = np.flatnonzero(self.model.leaf_fixed)
+        if self.grasp_state is not None:
+            constrained = np.union1d(constrained, self.grasp_state.vertices)
+        strain = StrainPercentile(rest, V, tets, ConstrainedTetMask(tets, constrained),
+                                  cfg.outcome.strain_percentile)
+        force = PetioleForce(rest, V, tets, self._petiole_tets, cfg.leaf.youngs_modulus,
+                             cfg.leaf.petiole_width * cfg.leaf.thickness)
+        pen = max(0.0, -float(MeshSignedDistance(self.model.fruit_mesh_W, V).min()))
+        pen = max(pen, self._RobotFruitPenetration())
+        return OutcomeSample(strain, force, pen, self._FruitContactForce())
+
+    def _fruit_ids(self) -> set:
+        inspector = self.scene_graph.model_inspector()
+        return {g for g in inspector.GetAllGeometryIds()
+                if inspector.GetName(g).endswith("fruit_collision")}
+
+    def _RobotFruitPenetration(self) -> float:
+        query = self.scene_graph.get_query_output_port().Eval(
+            self.scene_graph.GetMyContextFromRoot(self.context))
+        fruit = self._fruit_ids()
+        inspector = query.inspector()
+        worst = 0.0
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=0.005):
+            ids = {pair.id_A, pair.id_B}
+            if ids & fruit and pair.distance < 0:
+                other = (ids - fruit).pop()
+                frame = inspector.GetFrameId(other)
+                body = self.plant.GetBodyFromFrameId(frame)
+                if body is not None and body.name() != "branch":
+                    worst = max(worst, -pair.distance)
+        return worst
+
+    def _FruitContactForce(self) -> float:
+        results = self.plant.get_contact_results_output_port().Eval(self.plant_context)
+        fruit = self._fruit_ids()
+        total = 0.0
+        for i in range(results.num_deformable_contacts()):
+            info = results.deformable_contact_info(i)
+            if {info.id_A(), info.id_B()} & fruit:
+                total += float(np.linalg.norm(info.F_Ac_W().translational()))
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            ids = {info.point_pair().id_A, info.point_pair().id_B}
+            if ids & fruit:
+                total += float(np.linalg.norm(info.contact_force()))
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            ids = {info.contact_surface().id_M(), info.contact_surface().id_N()}
+            if ids & fruit:
+                total += float(np.linalg.norm(info.F_Ac_W().translational()))
+        return total
+
+    # --- acting -----------------------------------------------------------
+    def AdvanceTo(self, t: float, q_traj: PiecewisePolynomial | None = None,
+                  step: float = 0.01) -> None:
+        """Simulates to time ``t``, streaming ``q_traj`` (if given) as the joint
+        command every ``step`` s and sampling the monitors."""
+        period = self.scenario.plant_scene.outcome.sample_period
+        next_sample = self.time
+        while self.time < t - 1e-9:
+            t_next = min(t, self.time + step)
+            if q_traj is not None:
+                self.q_cmd = q_traj.value(t_next).ravel()
+                self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
+            self.simulator.AdvanceTo(t_next)
+            if self.time >= next_sample - 1e-9:
+                self.samples.append(self.Sample())
+                next_sample = self.time + period
+
+    def Hold(self, duration: float) -> None:
+        self.AdvanceTo(self.time + duration)
+
+    def MoveJoints(self, waypoints: list[np.ndarray], min_duration: float = 0.5,
+                   speed_fraction: float = 0.5) -> None:
+        """Joint-space motion through ``waypoints`` from the current command,
+        each segment timed so no joint exceeds ``speed_fraction`` of the UR5
+        velocity limit (cubic, zero end velocities)."""
+        qs = [self.q_cmd] + [np.asarray(q, float) for q in waypoints]
+        times = [self.time]
+        for a, b in zip(qs[:-1], qs[1:]):
+            dq = float(np.abs(b - a).max())
+            times.append(times[-1] + max(min_duration * 0.5,
+                                         1.5 * dq / (speed_fraction * UR5_VELOCITY_LIMIT)))
+        traj = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
+            times, np.array(qs).T, np.zeros(6), np.zeros(6))
+        self.AdvanceTo(times[-1], traj)
+
+    def SetGripper(self, width: float, duration: float = 0.6) -> None:
+        self.width_cmd = float(np.clip(width, 0.0, GRIPPER_MAX_WIDTH))
+        self.station.GetInputPort("gripper.position").FixValue(self.context, [self.width_cmd])
+        self.Hold(duration)
+
+    def CloseOnLeaf(self, timeout: float = 1.0) -> float:
+        """Closes the pads toward the leaf's thickness and stops as soon as
+        they have closed on it (opening within 1.5 mm of the thickness) or
+        stalled; returns the opening (m)."""
+        thickness = self.scenario.plant_scene.leaf.thickness
+        self.width_cmd = max(0.0, thickness - 0.0005)
+        self.station.GetInputPort("gripper.position").FixValue(self.context, [self.width_cmd])
+        t_end, last = self.time + timeout, self.GripperWidth()
+        while self.time < t_end:
+            self.Hold(0.02)
+            width = self.GripperWidth()
+            if width <= thickness + 0.0015 or abs(width - last) < 1e-5:
+                break
+            last = width
+        return self.GripperWidth()
+
+    def Grasp(self) -> GraspState:
+        """Rebuilds the station with the leaf region between the pads fixed to
+        the gripper (see the module docstring). Raises if no leaf vertex lies
+        between the pads."""
+        from lmap_drake.plants.generator import _unit  # noqa: F401  (shared helper)
+        width = self.GripperWidth()
+        X_WG = self.X_WG()
+        X_GT = X_WG.inverse() @ self.X_WT()
+        pad = np.array([0.022, max(width, 0.001) + 0.004, 0.038])
+        V = self.LeafVertices()
+        p_G = (X_WG.inverse().GetAsMatrix4() @ np.c_[V, np.ones(len(V))].T).T[:, :3]
+        rel = np.abs(p_G - X_GT.translation())
+        inside = np.flatnonzero(np.all(rel <= pad / 2, axis=1))
+        if len(inside) < 3:
+            raise RuntimeError(f"grasp failed: {len(inside)} leaf vertices between the pads "
+                               f"(opening {width * 1000:.1f} mm)")
+        T = _Kabsch(self.model.leaf_rest_W[inside], V[inside])
+        grasp = LeafGrasp(X_GA=X_WG.inverse() @ T, p_GR=X_GT.translation(), size=pad)
+        old_simulator = self.simulator  # keep the old context alive while copying
+        old_context = self.context
+        self._build(grasp, old_context)
+        del old_simulator
+        self.grasp_state = GraspState(grasp, inside)
+        self.progress(f"grasped {len(inside)} leaf vertices")
+        return self.grasp_state
+
+    def Fork(self) -> "PlantWorldSim":
+        """An independent copy that continues from the current state (same
+        Diagram, cloned Context), e.g. to try several pulls from one grasp."""
+        other = copy.copy(self)
+        other.context = self.context.Clone()
+        other.simulator = Simulator(self.station, other.context)
+        other.simulator.set_target_realtime_rate(0.0)
+        other.samples = list(self.samples)
+        other.q_cmd = self.q_cmd.copy()
+        other.simulator.Initialize()
+        return other
+
+    def Release(self) -> None:
+        old_simulator, old_context = self.simulator, self.context
+        self._build(None, old_context)
+        del old_simulator
+        self.grasp_state = None
+
+
+def LeafPoint(world: PlantWorldSim, u: float, v: float) -> tuple[int, np.ndarray]:
+    """Index and current position of the leaf mid-surface vertex nearest to
+    leaf coordinates (u, v)."""
+    uv = world.model.leaf_uv
+    n = len(uv) // 3
+    idx = int(np.argmin(np.linalg.norm(uv[n:2 * n] - [u, v], axis=1))) + n
+    return idx, world.LeafVertices()[idx]
+
+
+def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float) -> RigidTransform:
+    """``X_WT`` for a grasp ``from_tip`` (m) from the blade tip, ``v`` (m) to
+    the side of the midrib: pads closing across the blade (TCP y = current
+    blade normal), approaching within the blade plane along the direction
+    from the robot's shoulder to the grasp point (the natural reach)."""
+    length = world.scenario.plant_scene.leaf.length
+    u = length - from_tip
+    _, p = LeafPoint(world, u, v)
+    _, p_a = LeafPoint(world, u - 0.02, v)
+    _, p_b = LeafPoint(world, u - 0.01, v + 0.01)
+    n = np.cross(p_a - p, p_b - p)
+    n /= np.linalg.norm(n)
+    if n @ world.model.leaf_normal_W < 0:
+        n = -n
+    p_shoulder = world.X_WB.multiply(np.array([0.0, 0.0, 0.089159]))
+    z = p - p_shoulder
+    z -= (z @ n) * n
+    z /= np.linalg.norm(z)
+    x = np.cross(n, z)
+    return RigidTransform(RotationMatrix(np.c_[x, n, z]), p)
+
+
+def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
+                  ) -> list[RigidTransform]:
+    """Poses from X0 (excluded) to X1 (included), straight line and slerp,
+    spaced about ``step`` (m) or 10 deg apart."""
+    from scipy.spatial.transform import Rotation, Slerp
+    d = float(np.linalg.norm(X1.translation() - X0.translation()))
+    angle = X0.rotation().InvertAndCompose(X1.rotation()).ToAngleAxis().angle()
+    n = max(1, int(np.ceil(max(d / step, angle / np.deg2rad(10)))))
+    slerp = Slerp([0, 1], Rotation.from_matrix([X0.rotation().matrix(),
+                                                X1.rotation().matrix()]))
+    out = []
+    for k in range(1, n + 1):
+        f = k / n
+        out.append(RigidTransform(RotationMatrix(slerp(f).as_matrix()),
+                                  (1 - f) * X0.translation() + f * X1.translation()))
+    return out
+
+
+def _IkPath(world: PlantWorldSim, poses: list[RigidTransform], seed: np.ndarray,
+            opening: float) -> list[np.ndarray]:
+    from lmap_drake.planning.ik import SolveTcpIkMultiStart
+    out = []
+    for X in poses:
+        r = SolveTcpIkMultiStart(world.controller_plant, X, seed,
+                                 gripper_half_opening=opening / 2)
+        if not r.success:
+            raise RuntimeError(f"IK failed for the TCP pose at {X.translation().round(3)}: "
+                               f"{r.reason}")
+        out.append(r.q)
+        seed = r.q
+    return out
+
+
+def ApproachAndGrasp(world: PlantWorldSim, pull) -> RigidTransform:
+    """Moves to the pre-grasp pose, approaches, closes on the leaf and builds
+    the grasp (``pull`` is a ``ScriptedPullConfig``). Returns the grasp
+    ``X_WT``."""
+    X_WT_grasp = TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v)
+    z = X_WT_grasp.rotation().col(2)
+
+    def back(d):
+        return RigidTransform(X_WT_grasp.rotation(), X_WT_grasp.translation() - d * z)
+    world.progress("planning the approach (IK)")
+    # IK backwards from the grasp (seeded by the current joints), so the whole
+    # approach stays on one IK branch: grasp <- pre-grasp <- ready <- via
+    # (12 cm in front of the leaf, camera side). Then: joints to the via
+    # point, Cartesian lines from there on.
+    X_ready = back(pull.pregrasp_distance + 0.08)
+    X_via = RigidTransform(X_ready.rotation(),
+                           X_ready.translation() + 0.12 * world.model.leaf_normal_W)
+    X_pre = back(pull.pregrasp_distance)
+    approach_poses = CartesianPath(X_pre, X_WT_grasp, 0.0125)
+    ready_poses = CartesianPath(X_via, X_ready, 0.02)
+    pre_poses = CartesianPath(X_ready, X_pre, 0.02)
+    chain = _IkPath(world, ([X_WT_grasp] + approach_poses[::-1][1:] + [X_pre]
+                            + pre_poses[::-1][1:] + [X_ready] + ready_poses[::-1][1:]
+                            + [X_via]), world.q_cmd, pull.pregrasp_opening)[::-1]
+    n_r, n_p = len(ready_poses), len(pre_poses)
+    world.progress("moving to the pre-grasp pose")
+    world.SetGripper(pull.pregrasp_opening, 0.0)
+    world.MoveJoints([chain[0]], speed_fraction=0.8)
+    world.MoveJoints(chain[1:1 + n_r], speed_fraction=0.5)
+    world.MoveJoints(chain[1 + n_r:1 + n_r + n_p], speed_fraction=0.5)
+    world.progress("approaching")
+    world.MoveJoints(chain[1 + n_r + n_p:], speed_fraction=0.15)
+    world.progress("closing the gripper")
+    world.CloseOnLeaf()
+    world.Grasp()
+    return X_WT_grasp
+
+
+def Pull(world: PlantWorldSim, direction_W, distance: float, duration: float,
+         hold: float = 0.0) -> None:
+    """Moves the TCP in a straight line by ``distance`` (m) along
+    ``direction_W`` in ``duration`` (s), keeping its orientation, then holds."""
+    X0 = world.X_WT()
+    d = np.asarray(direction_W, float)
+    d /= np.linalg.norm(d)
+    n = max(4, int(np.ceil(distance / 0.01)))
+    path = [RigidTransform(X0.rotation(), X0.translation() + d * distance * k / n)
+            for k in range(1, n + 1)]
+    q_path = _IkPath(world, path, world.q_cmd, world.GripperWidth())
+    world.progress(f"pulling {distance * 100:.0f} cm")
+    times = world.time + np.linspace(0.0, duration, n + 1)
+    traj = PiecewisePolynomial.CubicShapePreserving(
+        times, np.array([world.q_cmd] + q_path).T, True)
+    world.AdvanceTo(times[-1], traj)
+    if hold > 0:
+        world.Hold(hold)
+
+
+def RunScriptedPull(world: PlantWorldSim, settle: float = 0.3) -> dict:
+    """Settle, observe, approach, grasp, pull and observe again with the
+    scenario's ``plant_scene.pull``. Returns images before/after, the grasp
+    and the outcome (``Outcome``)."""
+    from lmap_drake.plants.outcome import Summarize
+
+    cfg = world.scenario.plant_scene
+    pull = cfg.pull
+    world.progress("settling the plant")
+    world.Hold(settle)
+    before = world.Images()
+    vis0 = world.Visibility()
+    X_WT_grasp = ApproachAndGrasp(world, pull)
+    Pull(world, pull.direction_W, pull.distance, pull.duration, pull.hold)
+    after = world.Images()
+    vis1 = world.Visibility()
+    outcome = Summarize(world.samples, cfg.outcome, vis0, vis1)
+    return {"before": before, "after": after, "outcome": outcome, "X_WT_grasp": X_WT_grasp}
