@@ -161,7 +161,7 @@ class ScriptedPullConfig:
     grasp_v: float = 0.0
     pregrasp_distance: float = 0.05
     pregrasp_opening: float = 0.02
-    direction_W: list[float] = dc.field(default_factory=lambda: [-0.8, 0.0, 0.6])
+    direction_W: list[float] = dc.field(default_factory=lambda: [-0.57, 0.0, 0.82])
     distance: float = 0.07
     duration: float = 2.0
     hold: float = 0.5

@@ -1,0 +1,78 @@
+"""The FEM plant world in Drake: grasp, pulls and the ground-truth outcome
+measures. One approach-and-grasp is simulated once; each test forks it."""
+import numpy as np
+import pytest
+
+from lmap_drake.paths import DEFAULT_SCENARIO_FILE
+from lmap_drake.plants.outcome import Summarize
+from lmap_drake.plants.simworld import ApproachAndGrasp, PlantWorldSim, Pull
+from lmap_drake.scenario import LoadScenario
+
+
+@pytest.fixture(scope="module")
+def grasped():
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    world = PlantWorldSim(scenario)
+    world.Hold(0.3)
+    vis0 = world.Visibility()
+    X_WT = ApproachAndGrasp(world, scenario.plant_scene.pull)
+    return world, vis0, X_WT
+
+
+def _outcome(world, vis0=0.0):
+    return Summarize(world.samples, world.scenario.plant_scene.outcome, vis0, vis0)
+
+
+def test_grasped_region_follows_the_pads(grasped):
+    world = grasped[0].Fork()
+    held = world.grasp_state.vertices
+    assert len(held) >= 3
+
+    def in_gripper():
+        X_GW = world.X_WG().inverse().GetAsMatrix4()
+        V = world.LeafVertices()[held]
+        return (X_GW @ np.c_[V, np.ones(len(V))].T).T[:, :3]
+    ref = in_gripper()
+    p0 = world.X_WT().translation()
+    worst = 0.0
+    direction = np.asarray(world.scenario.plant_scene.pull.direction_W)
+    for k in range(6):  # 6 cm in 1 cm steps
+        Pull(world, direction, 0.01, 0.3)
+        worst = max(worst, np.linalg.norm(in_gripper() - ref, axis=1).max())
+    assert np.linalg.norm(world.X_WT().translation() - p0) > 0.055
+    assert worst < 0.005
+
+
+def test_pulling_aside_reveals_the_fruit_safely(grasped):
+    world, vis0, _ = grasped
+    world = world.Fork()
+    pull = world.scenario.plant_scene.pull
+    Pull(world, pull.direction_W, pull.distance, pull.duration, 0.3)
+    vis1 = world.Visibility()
+    assert vis1 > vis0 + 0.3
+    out = _outcome(world)
+    assert not (out.leaf_damage or out.plant_hazard or out.fruit_collision), out
+
+
+def test_gentle_pull_is_not_flagged(grasped):
+    world = grasped[0].Fork()
+    Pull(world, world.scenario.plant_scene.pull.direction_W, 0.02, 1.0, 0.2)
+    out = _outcome(world)
+    assert not (out.leaf_damage or out.plant_hazard or out.fruit_collision), out
+
+
+def test_pulling_far_away_from_the_branch_is_flagged(grasped):
+    world = grasped[0].Fork()
+    away = world.X_WT().translation() - world.model.leaf_attach_W
+    away[2] = 0.0
+    Pull(world, away, 0.15, 2.0, 0.2)
+    out = _outcome(world)
+    assert out.leaf_damage or out.plant_hazard, out
+
+
+def test_pushing_into_the_fruit_is_flagged(grasped):
+    world = grasped[0].Fork()
+    toward = world.model.fruit_center_W - world.X_WT().translation()
+    Pull(world, toward, 0.06, 1.5, 0.2)
+    out = _outcome(world)
+    assert out.fruit_collision, out
