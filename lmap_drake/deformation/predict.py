@@ -1,0 +1,91 @@
+"""Deformation prediction for a set of actions: graph per grasp, one ARAP
+factorisation per grasp, all (direction, distance) actions of the grasp
+solved together, dense interpolation. World frame W, metres."""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+
+from lmap_drake.deformation.action import Action, DeformationError, GroupActionsByGrasp
+from lmap_drake.deformation.arap import ArapProblem
+from lmap_drake.deformation.graph import (
+    FIXED, HANDLE, BuildGraspGraph, BuildLeafGraph, GraspGraph, LeafGraph)
+from lmap_drake.deformation.interpolate import DenseInterpolator
+from lmap_drake.scenario import DeformationConfig
+
+
+@dc.dataclass
+class PredictedDeformation:
+    """Predicted leaf state after ``action``. ``nodes_W`` (n, 3) rest graph
+    nodes and ``node_kind`` (n,) (0 leaf, 1 fixed, 2 handle) are shared by
+    the actions of one grasp; ``deformed_nodes_W`` (n, 3); ``leaf_points_W``
+    (N, 3) every input leaf point deformed (None if dense output was not
+    asked for); ``energy`` the minimised ARAP energy (m^2, weighted);
+    ``iterations`` global-local iterations; ``converged`` the relative
+    tolerance was met before the iteration cap."""
+    action: Action
+    nodes_W: np.ndarray
+    node_kind: np.ndarray
+    deformed_nodes_W: np.ndarray
+    leaf_points_W: np.ndarray | None
+    energy: float
+    iterations: int
+    converged: bool
+
+
+@dc.dataclass
+class GraspSolution:
+    """Everything built once per grasp pose (a heavy object: keep it as a
+    system attribute, never in a Context)."""
+    graph: GraspGraph
+    problem: ArapProblem
+    interpolator: DenseInterpolator
+
+
+def PrepareGrasp(leaf_graph: LeafGraph, p_WG: np.ndarray, R_WG: np.ndarray,
+                 config: DeformationConfig, factorization: str = "inverse") -> GraspSolution:
+    """Grasp graph, factorised ARAP problem and dense weights for one grasp."""
+    g = BuildGraspGraph(leaf_graph, p_WG, R_WG, config)
+    problem = ArapProblem(g.nodes_W, g.edges, g.weights, g.num_free, factorization)
+    kept = np.zeros(len(leaf_graph.nodes_W), dtype=bool)
+    kept[g.base_index[g.base_index >= 0]] = True
+    interp = DenseInterpolator(leaf_graph.leaf_points_W, g.nodes_W,
+                               kept[leaf_graph.point_node], config.interpolation_neighbors,
+                               config.interpolation_radius, config.interpolation_sigma)
+    return GraspSolution(g, problem, interp)
+
+
+def SolveGrasp(prep: GraspSolution, actions: list[Action], config: DeformationConfig,
+               dense: bool = True) -> list[PredictedDeformation]:
+    """Solves all ``actions`` (sharing ``prep``'s grasp) in one batch: fixed
+    nodes stay, handle nodes move by each action's dp_W."""
+    g = prep.graph
+    dp = np.array([a.dp_W for a in actions]).reshape(len(actions), 1, 3)
+    u_c = np.zeros((len(actions), g.num_constrained, 3))
+    u_c[:, g.num_fixed:] = dp
+    res = prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance)
+    dense_W = (prep.interpolator.Apply(g.nodes_W, res.positions_W, res.rotations)
+               if dense else [None] * len(actions))
+    return [PredictedDeformation(action=a, nodes_W=g.nodes_W, node_kind=g.kind,
+                                  deformed_nodes_W=res.positions_W[i], leaf_points_W=dense_W[i],
+                                  energy=float(res.energy[i]), iterations=int(res.iterations[i]),
+                                  converged=bool(res.converged[i]))
+            for i, a in enumerate(actions)]
+
+
+def PredictDeformations(leaf_points_W: np.ndarray, branch_points_W: np.ndarray,
+                        actions: list[Action], config: DeformationConfig,
+                        dense: bool = True) -> list[PredictedDeformation]:
+    """Predictions for ``actions`` (any order, any number of grasps), in
+    the order given. Raises DeformationError on unusable input."""
+    if not actions:
+        return []
+    leaf_graph = BuildLeafGraph(leaf_points_W, branch_points_W, config)
+    out: list[PredictedDeformation | None] = [None] * len(actions)
+    for idx in GroupActionsByGrasp(actions):
+        a0 = actions[idx[0]]
+        prep = PrepareGrasp(leaf_graph, a0.p_WG, a0.R_WG, config)
+        for i, p in zip(idx, SolveGrasp(prep, [actions[i] for i in idx], config, dense)):
+            out[i] = p
+    return out
