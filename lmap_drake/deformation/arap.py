@@ -69,8 +69,8 @@ def MatrixToQuaternion(R: np.ndarray) -> np.ndarray:
     return q / np.sqrt((q * q).sum(axis=0))
 
 
-def PolarRotationQuaternion(M: np.ndarray, q: np.ndarray, max_iterations: int = 3,
-                            tolerance: float = 1e-8, fallback_tolerance: float = 1e-5
+def PolarRotationQuaternion(M: np.ndarray, q: np.ndarray, max_iterations: int = 4,
+                            tolerance: float = 1e-8, fallback_tolerance: float = 1e-3
                             ) -> tuple[np.ndarray, np.ndarray]:
     """Rotation maximising tr(R^T M) for every M (3, 3, ...) (component-first
     layout): up to ``max_iterations`` Mueller et al. (2016) steps from the
@@ -133,7 +133,7 @@ class ArapProblem:
     "splu" sparse LU, "cholesky" dense Cholesky, "inverse" dense inverse)."""
 
     def __init__(self, rest_W: np.ndarray, edges: np.ndarray, weights: np.ndarray,
-                 num_free: int, factorization: str = "inverse", polar_iterations: int = 3):
+                 num_free: int, factorization: str = "inverse", polar_iterations: int = 4):
         rest = np.asarray(rest_W, dtype=float)
         n = len(rest)
         nf = int(num_free)
