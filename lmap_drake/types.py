@@ -64,7 +64,12 @@ class FruitEstimate:
 
 @dc.dataclass
 class SceneEstimate:
-    """What shape completion hands to the planner."""
+    """What shape completion hands to the planner. ``leaf_attachment_W``
+    (K, 3): points that tie the observed leaf to the branch where its
+    petiole was not seen (a virtual petiole; see
+    ``lmap_drake.planning.lmap.AttachLeaf``), part of the leaf for the
+    deformation model."""
     semantic: SemanticScene
     branch: BranchEstimate | None = None
     fruit: FruitEstimate | None = None
+    leaf_attachment_W: np.ndarray = dc.field(default_factory=_empty3)

@@ -472,3 +472,27 @@ def RunScriptedPull(world: PlantWorldSim, settle: float = 0.3) -> dict:
     vis1 = world.Visibility()
     outcome = Summarize(world.samples, cfg.outcome, vis0, vis1)
     return {"before": before, "after": after, "outcome": outcome, "X_WT_grasp": X_WT_grasp}
+
+
+def OracleSceneEstimate(world: PlantWorldSim, semantic) -> "SceneEstimate":
+    """A ``SceneEstimate`` whose fruit and branch are the simulator's ground
+    truth (exact mesh, SDF, pose), around an observed ``semantic`` scene: for
+    planner tests and oracle ablations, never for the pipeline itself."""
+    import trimesh
+
+    from lmap_drake.types import BranchEstimate, FruitEstimate, SceneEstimate
+
+    m = world.model
+    fruit = m.fruit_mesh_W
+    est = FruitEstimate(vertices_W=np.asarray(fruit.vertices), faces=np.asarray(fruit.faces),
+                        X_WO=m.X_WO, latent=np.zeros(0), center_W=m.fruit_center_W,
+                        peduncle_axis_W=m.peduncle_axis_W,
+                        sdf_W=lambda p: MeshSignedDistance(fruit, p))
+    pts = m.branch_points_W
+    tubes = [trimesh.creation.cylinder(m.branch_radius, segment=pts[i:i + 2], sections=16)
+             for i in range(len(pts) - 1)]
+    tube = trimesh.util.concatenate(tubes)
+    samples, _ = trimesh.sample.sample_surface_even(tube, 3000, seed=0)
+    branch = BranchEstimate(vertices_W=np.asarray(tube.vertices), faces=np.asarray(tube.faces),
+                            samples_W=samples, axis_W=m.branch_axis_W)
+    return SceneEstimate(semantic=semantic, branch=branch, fruit=est)

@@ -42,9 +42,11 @@ from lmap_drake.types import SceneEstimate, SemanticScene
 
 def SceneDeformationPoints(scene: SceneEstimate) -> tuple[np.ndarray, np.ndarray]:
     """(leaf_points_W, branch_points_W) the deformation graph is built from:
-    the segmented leaf, and the segmented branch plus the completed
-    branch's surface samples when present."""
-    leaf = np.asarray(scene.semantic.leaf_points_W, float).reshape(-1, 3)
+    the segmented leaf (plus ``leaf_attachment_W``, a virtual petiole, at
+    the end), and the segmented branch plus the completed branch's surface
+    samples when present."""
+    leaf = np.vstack([np.asarray(scene.semantic.leaf_points_W, float).reshape(-1, 3),
+                      np.asarray(scene.leaf_attachment_W, float).reshape(-1, 3)])
     branch = [np.asarray(scene.semantic.branch_points_W, float).reshape(-1, 3)]
     if scene.branch is not None:
         branch.append(np.asarray(scene.branch.samples_W, float).reshape(-1, 3))

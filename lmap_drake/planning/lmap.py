@@ -1,0 +1,434 @@
+"""Leaf Manipulation Action Planning (paper Sec. III-C): candidates, IK and
+collision checks, deformation prediction, visibility prediction and the
+score argmax(norm N_vis - lambda norm E) over feasible actions; plus the
+Random, Upward and Min-Overlap baselines. World frame W, metres, seconds."""
+from __future__ import annotations
+
+import dataclasses as dc
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+
+from lmap_drake.deformation.action import Action, PullDirections
+from lmap_drake.deformation.predict import PredictDeformations
+from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
+from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
+                                           RobotCollisionReason)
+from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.planning.visibility import CountNewlySeen, VisibilityModel
+from lmap_drake.scenario import DeformationConfig, PlannerConfig
+from lmap_drake.types import SceneEstimate
+
+STATUSES = ("ok", "no_action_needed", "no_feasible_action", "no_fruit")
+
+
+@dc.dataclass
+class Candidate:
+    """One (grasp, direction, distance) action with its checks and scores."""
+    action: Action
+    distance_id: int
+    q_pregrasp: np.ndarray | None = None
+    q_grasp: np.ndarray | None = None
+    q_pulled: np.ndarray | None = None
+    reason: str = ""              # empty = feasible
+    energy: float = float("nan")
+    n_vis: int = -1
+    seen: int = -1
+    score: float = float("nan")
+    deformed_leaf_W: np.ndarray | None = None
+
+    @property
+    def feasible(self) -> bool:
+        return self.reason == ""
+
+    def Row(self) -> dict:
+        a = self.action
+        return {"grasp_id": a.grasp_id, "direction_id": a.direction_id,
+                "distance": round(a.distance, 4), "p_WG": a.p_WG.round(4).tolist(),
+                "dp_W": a.dp_W.round(4).tolist(), "feasible": self.feasible,
+                "reason": self.reason, "energy": None if np.isnan(self.energy) else self.energy,
+                "n_vis": self.n_vis, "seen": self.seen,
+                "score": None if np.isnan(self.score) else self.score}
+
+
+@dc.dataclass
+class PlanResult:
+    """The planner's answer. ``status`` is one of ``STATUSES``; ``chosen``
+    is set when status is 'ok'. Visibility counts are 3 mm fruit voxels."""
+    status: str
+    method: str
+    chosen: Candidate | None = None
+    candidates: list[Candidate] = dc.field(default_factory=list)
+    dropped_grasps: list[dict] = dc.field(default_factory=list)
+    seen_init: int = 0
+    seen_max: int = 0
+    timings: dict = dc.field(default_factory=dict)
+    message: str = ""
+
+    def Summary(self) -> dict:
+        out = {"status": self.status, "method": self.method, "message": self.message,
+               "seen_init": self.seen_init, "seen_max": self.seen_max,
+               "timings": self.timings, "num_candidates": len(self.candidates),
+               "num_feasible": sum(c.feasible for c in self.candidates),
+               "dropped_grasps": self.dropped_grasps}
+        if self.chosen is not None:
+            out["chosen"] = self.chosen.Row()
+        return out
+
+    def SaveJson(self, path: str | Path) -> None:
+        data = self.Summary()
+        data["candidates"] = [c.Row() for c in self.candidates]
+        Path(path).write_text(json.dumps(data, indent=1))
+
+
+@dc.dataclass
+class PlanningContext:
+    """Inputs shared by the planners: the scene estimate, the camera pose
+    ``X_WC`` (4x4), the robot model and its current joints."""
+    scene: SceneEstimate
+    X_WC: np.ndarray
+    robot: RobotModel
+    q_current: np.ndarray
+
+    def __post_init__(self):
+        sem = self.scene.semantic
+        self.leaf_W = np.asarray(sem.leaf_points_W, float)
+        self.branch_obs_W = np.asarray(sem.branch_points_W, float)
+        branch = self.scene.branch
+        self.branch_all_W = (np.vstack([self.branch_obs_W, branch.samples_W])
+                             if branch is not None and len(branch.samples_W) else self.branch_obs_W)
+        self.branch_distance = (BranchDistance(branch.vertices_W, branch.faces)
+                                if branch is not None and len(branch.faces) else None)
+        fruit = self.scene.fruit
+        self.fruit_sdf = fruit.sdf_W if fruit is not None else None
+        self.fruit_box = ((fruit.vertices_W.min(0), fruit.vertices_W.max(0))
+                          if fruit is not None else None)
+        self.branch_box = ((branch.vertices_W.min(0), branch.vertices_W.max(0))
+                           if branch is not None and len(branch.vertices_W) else None)
+        self.p_WC = np.asarray(self.X_WC, float)[:3, 3]
+
+
+def _FruitSurface(scene: SceneEstimate) -> np.ndarray:
+    import trimesh
+    f = scene.fruit
+    mesh = trimesh.Trimesh(f.vertices_W, f.faces, process=False)
+    pts, _ = trimesh.sample.sample_surface_even(mesh, 6000, seed=0)
+    return np.vstack([pts, f.vertices_W])
+
+
+def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
+                      actions: list[Action]) -> list[Candidate]:
+    """IK for pre-grasp, grasp and each pulled pose (warm-started along each
+    direction's distances) and robot-vs-fruit/branch checks."""
+    robot = ctx.robot
+    R = RotationMatrix(grasp.R_WG)
+    z = grasp.R_WG[:, 2]
+    half_open = 0.5 * cfg.pregrasp_opening
+    X_grasp = RigidTransform(R, grasp.p_WG)
+    X_pre = RigidTransform(R, grasp.p_WG - cfg.pregrasp_distance * z)
+    r_g = robot.Ik(X_grasp, ctx.q_current, half_open, multistart=True)
+    cands = [Candidate(a, int(round(a.distance / 0.02)) - 1) for a in actions]
+    if not r_g.success:
+        for c in cands:
+            c.reason = "IK failed (grasp)"
+        return cands
+    r_p = robot.Ik(X_pre, r_g.q, half_open)
+    if not r_p.success:
+        for c in cands:
+            c.reason = "IK failed (pre-grasp)"
+        return cands
+    for q, what in ((r_p.q, "pre-grasp"), (r_g.q, "grasp")):
+        why = RobotCollisionReason(robot.SurfacePoints(q, half_open), ctx.fruit_sdf,
+                                   ctx.branch_distance, cfg.collision_margin,
+                                   ctx.fruit_box, ctx.branch_box)
+        if why:
+            for c in cands:
+                c.reason = f"{why} at {what}"
+            return cands
+    seeds: dict[int, np.ndarray] = {}
+    for c in sorted(cands, key=lambda c: (c.action.direction_id, c.action.distance)):
+        c.q_pregrasp, c.q_grasp = r_p.q, r_g.q
+        seed = seeds.get(c.action.direction_id, r_g.q)
+        r = robot.Ik(RigidTransform(R, grasp.p_WG + c.action.dp_W), seed, 0.0)
+        if not r.success:
+            c.reason = "IK failed (pulled pose)"
+            continue
+        seeds[c.action.direction_id] = r.q
+        c.q_pulled = r.q
+        why = RobotCollisionReason(robot.SurfacePoints(r.q, 0.0), ctx.fruit_sdf,
+                                   ctx.branch_distance, cfg.collision_margin,
+                                   ctx.fruit_box, ctx.branch_box)
+        if why:
+            c.reason = why
+    return cands
+
+
+def _Normalize(x: np.ndarray) -> np.ndarray:
+    lo, hi = np.nanmin(x), np.nanmax(x)
+    return np.zeros_like(x) if hi - lo < 1e-12 else (x - lo) / (hi - lo)
+
+
+def SelectAction(feasible: list[Candidate], energy_weight: float) -> Candidate:
+    """Paper Eq. (7): argmax of N_vis - lambda * E, both min-max normalised
+    over the feasible actions; sets each candidate's ``score``."""
+    if not feasible:
+        raise PlanningError("no feasible action to select from")
+    nv = _Normalize(np.array([c.n_vis for c in feasible], float))
+    ne = _Normalize(np.array([c.energy for c in feasible], float))
+    for c, a, b in zip(feasible, nv, ne):
+        c.score = float(a - energy_weight * b)
+    return max(feasible, key=lambda c: c.score)
+
+
+def AttachLeaf(scene: SceneEstimate, dcfg: DeformationConfig) -> tuple[SceneEstimate, str]:
+    """The scene with ``leaf_attachment_W`` set: if the observed leaf is
+    farther from the branch than the leaf-branch edge radius (its petiole
+    unseen), a virtual petiole (points one voxel apart from the nearest leaf
+    point to the nearest branch point) ties it to the branch. Returns the
+    scene and a message ('' if nothing was added)."""
+    from scipy.spatial import cKDTree
+    leaf = np.asarray(scene.semantic.leaf_points_W, float).reshape(-1, 3)
+    branch = [np.asarray(scene.semantic.branch_points_W, float).reshape(-1, 3)]
+    if scene.branch is not None:
+        branch.append(scene.branch.samples_W)
+    branch = np.vstack(branch)
+    if len(branch) == 0 or len(leaf) == 0:
+        return scene, ""
+    d, j = cKDTree(branch).query(leaf)
+    i = int(np.argmin(d))
+    if d[i] < dcfg.leaf_branch_edge_radius - dcfg.voxel_size:
+        return scene, ""
+    a, b = leaf[i], branch[j[i]]
+    n = int(np.ceil(d[i] / dcfg.voxel_size))
+    line = a + np.outer(np.linspace(0, 1, n + 1)[1:-1], b - a)
+    return (dc.replace(scene, leaf_attachment_W=line),
+            f"leaf seen {d[i] * 100:.1f} cm from the branch (petiole unseen): "
+            f"attached by a virtual petiole of {len(line)} points")
+
+
+@dc.dataclass
+class CandidateSet:
+    """Stage 1 output: candidates with IK and robot checks done, the
+    visibility model and the initial/maximum visibility, or an early
+    status ('no_action_needed', 'no_feasible_action', 'no_fruit')."""
+    status: str
+    scene: SceneEstimate
+    candidates: list[Candidate] = dc.field(default_factory=list)
+    dropped_grasps: list[dict] = dc.field(default_factory=list)
+    visibility: VisibilityModel | None = None
+    seen_init_mask: np.ndarray | None = None
+    timings: dict = dc.field(default_factory=dict)
+    message: str = ""
+
+    def LiveActions(self) -> list[Action]:
+        """Actions still feasible after IK and robot checks (for deformation)."""
+        return [c.action for c in self.candidates if c.feasible]
+
+
+def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
+                       progress=None) -> CandidateSet:
+    """Paper Sec. III-C-1 (generation and collision checking) plus the
+    initial and maximum visibility. Never raises on a bad scene."""
+    progress = progress or (lambda m: None)
+    timings = {"generation_collision_s": 0.0, "visibility_s": 0.0}
+    if ctx.scene.fruit is None:
+        return CandidateSet("no_fruit", ctx.scene, timings=timings,
+                            message="no fruit estimate: nothing to reveal")
+    t0 = time.perf_counter()
+    vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel)
+    seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.branch_obs_W]))
+    timings["visibility_s"] += time.perf_counter() - t0
+    out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
+                       timings=timings)
+    n_init, n_max = int(seen_init.sum()), int(vis.max_seen.sum())
+    if n_init >= cfg.early_stop_fraction * n_max:
+        out.status, out.message = "no_action_needed", f"fruit already {n_init / n_max:.0%} visible"
+        return out
+    if len(ctx.leaf_W) < 10:
+        out.status, out.message = "no_feasible_action", "no leaf points to grasp"
+        return out
+    t0 = time.perf_counter()
+    try:
+        grasps, out.dropped_grasps = GraspCandidates(
+            ctx.leaf_W, ctx.branch_all_W, ctx.p_WC, cfg.num_grasps, cfg.grasp_inset,
+            cfg.min_branch_distance)
+    except (PlanningError, ValueError) as err:
+        out.status, out.message = "no_feasible_action", f"no grasp candidates: {err}"
+        return out
+    all_dirs = PullDirections()[:cfg.num_directions]
+    for g in grasps:
+        dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W, cfg.max_branch_angle_deg,
+                                           all_dirs)
+        actions = [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
+                   for u, j in zip(dirs, dir_ids) for s in cfg.distances]
+        out.candidates += _IkAndRobotChecks(ctx, g, cfg, actions)
+    timings["generation_collision_s"] += time.perf_counter() - t0
+    out.scene, msg = AttachLeaf(ctx.scene, dcfg)
+    out.message = msg
+    progress(f"{len(out.candidates)} candidates from {len(grasps)} grasps, "
+             f"{len(out.LiveActions())} pass IK and robot checks")
+    return out
+
+
+def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions: list,
+                          cfg: PlannerConfig, method: str = "lmap") -> PlanResult:
+    """Paper Sec. III-C-2/3: leaf-fruit checks, visibility with early stop
+    along the distances, and the score. ``predictions`` are aligned with
+    ``cset.LiveActions()`` (``PredictedDeformation``: ``energy``,
+    ``leaf_points_W`` dense, the observed leaf first)."""
+    # Work on copies: ``cset`` may be a cached Drake output (never mutate it).
+    cands = [dc.replace(c) for c in cset.candidates]
+    result = PlanResult(cset.status, method, candidates=cands,
+                        dropped_grasps=cset.dropped_grasps, timings=dict(cset.timings),
+                        message=cset.message)
+    if cset.visibility is not None:
+        result.seen_init = int(cset.seen_init_mask.sum())
+        result.seen_max = int(cset.visibility.max_seen.sum())
+    if cset.status != "ok":
+        return result
+    live = [c for c in cands if c.feasible]
+    if len(predictions) != len(live):
+        raise PlanningError(f"{len(predictions)} predictions for {len(live)} live actions")
+    n_leaf = len(ctx.leaf_W)
+    for c, p in zip(live, predictions):
+        c.energy = float(p.energy)
+        c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
+    vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
+    t0 = time.perf_counter()
+    by_dir: dict[tuple, list[Candidate]] = {}
+    for c in cands:
+        by_dir.setdefault((c.action.grasp_id, c.action.direction_id), []).append(c)
+    for dir_cands in by_dir.values():
+        reached = False
+        for c in sorted(dir_cands, key=lambda c: c.action.distance):
+            if reached and c.feasible:
+                c.reason = "beyond the distance that reaches 95 % visibility"
+            if not c.feasible:
+                continue
+            why = LeafFruitCollisionReason(ctx.leaf_W, c.deformed_leaf_W, ctx.fruit_sdf,
+                                           cfg.collision_margin)
+            if why:
+                c.reason = why
+                continue
+            seen = vis.Seen(np.vstack([c.deformed_leaf_W, ctx.branch_obs_W,
+                                       ctx.robot.SurfacePoints(c.q_pulled)]))
+            c.seen = int(seen.sum())
+            c.n_vis = CountNewlySeen(seen, seen_init)
+            if c.seen >= cfg.early_stop_fraction * n_max:
+                reached = True
+    result.timings["visibility_s"] = result.timings.get("visibility_s", 0.0) + \
+        time.perf_counter() - t0
+    feasible = [c for c in cands if c.feasible]
+    if not feasible:
+        reasons: dict[str, int] = {}
+        for c in cands:
+            k = c.reason.split(" (")[0]
+            reasons[k] = reasons.get(k, 0) + 1
+        result.status = "no_feasible_action"
+        result.message = "no feasible action: " + ", ".join(
+            f"{k}: {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+        return result
+    result.chosen = SelectAction(feasible, cfg.energy_weight)
+    return result
+
+
+def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
+             progress=None) -> PlanResult:
+    """The LMAP planner, all three stages (the Diagram wires the same
+    stages as ActionCandidates -> DeformationPrediction -> ActionSelection).
+    Never raises on a bad scene: returns a status."""
+    cset = GenerateCandidates(ctx, cfg, dcfg, progress)
+    predictions = []
+    t0 = time.perf_counter()
+    if cset.status == "ok" and cset.LiveActions():
+        leaf = np.vstack([ctx.leaf_W, cset.scene.leaf_attachment_W])
+        try:
+            predictions = PredictDeformations(leaf, ctx.branch_all_W, cset.LiveActions(), dcfg)
+        except ValueError as err:
+            cset.status, cset.message = "no_feasible_action", f"deformation model: {err}"
+    cset.timings["deformation_s"] = time.perf_counter() - t0
+    result = SelectFromPredictions(ctx, cset, predictions, cfg)
+    result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
+    return result
+
+
+# --- baselines ----------------------------------------------------------
+
+def _BaselineCandidates(ctx: PlanningContext, cfg: PlannerConfig, distance: float,
+                        directions: np.ndarray) -> list[tuple]:
+    """IK-feasible (grasp, direction) actions at one ``distance``, without
+    the LMAP checks. Returns (grasp, Candidate) pairs."""
+    grasps, _ = GraspCandidates(ctx.leaf_W, np.zeros((0, 3)), ctx.p_WC, cfg.num_grasps,
+                                cfg.grasp_inset, 0.0)
+    out = []
+    for g in grasps:
+        actions = [Action(g.p_WG, g.R_WG, distance * u, grasp_id=g.grasp_id, direction_id=j)
+                   for j, u in enumerate(directions)]
+        cfg_nocheck = dc.replace(cfg, collision_margin=-np.inf)
+        for c in _IkAndRobotChecks(ctx, g, cfg_nocheck, actions):
+            if c.q_pulled is not None and not c.reason:
+                out.append((g, c))
+    return out
+
+
+def PlanBaseline(ctx: PlanningContext, cfg: PlannerConfig, method: str, distance: float,
+                 seed: int = 0) -> PlanResult:
+    """``random``: uniform over IK-feasible candidates (any grasp, any of the
+    14 directions) at ``distance``. ``upward`` / ``min_overlap``: drop
+    actions whose robot comes within the margin of visible fruit or branch
+    points, take the grasp farthest from the branch, and pull along +z
+    (upward) or along the direction whose projected robot overlaps the
+    projected leaf least (min_overlap)."""
+    t0 = time.perf_counter()
+    if ctx.scene.semantic.leaf_points_W.shape[0] < 10:
+        return PlanResult("no_feasible_action", method, message="no leaf points")
+    if method == "random":
+        cands = _BaselineCandidates(ctx, cfg, distance, PullDirections())
+        if not cands:
+            return PlanResult("no_feasible_action", method, message="no IK-feasible action")
+        rng = np.random.default_rng(seed)
+        chosen = cands[int(rng.integers(len(cands)))][1]
+        return PlanResult("ok", method, chosen=chosen, candidates=[c for _, c in cands],
+                          timings={"total_s": time.perf_counter() - t0})
+    if method not in ("upward", "min_overlap"):
+        raise ValueError(f"unknown baseline {method!r}")
+    dirs = np.array([[0.0, 0.0, 1.0]]) if method == "upward" else PullDirections()
+    cands = _BaselineCandidates(ctx, cfg, distance, dirs)
+    plant_pts = np.vstack([ctx.scene.semantic.fruit_points_W, ctx.branch_obs_W])
+    from scipy.spatial import cKDTree
+    tree = cKDTree(plant_pts) if len(plant_pts) else None
+    safe = []
+    for g, c in cands:
+        pts = ctx.robot.SurfacePoints(c.q_pulled)
+        if tree is not None and tree.query(pts, distance_upper_bound=cfg.collision_margin)[0].min() \
+                < cfg.collision_margin:
+            c.reason = "robot near visible plant points"
+            continue
+        safe.append((g, c))
+    if not safe:
+        return PlanResult("no_feasible_action", method, candidates=[c for _, c in cands],
+                          message="every action comes near visible plant points")
+    if len(ctx.branch_obs_W):
+        far = lambda g: cKDTree(ctx.branch_obs_W).query(g.p_WG)[0]
+    else:
+        far = lambda g: 0.0
+    best_grasp = max({id(g): g for g, _ in safe}.values(), key=far)
+    mine = [c for g, c in safe if g is best_grasp]
+    if method == "upward":
+        chosen = mine[0]
+    else:
+        vis_cam = np.linalg.inv(np.asarray(ctx.X_WC, float))
+        f = 300.0
+
+        def pixels(p):
+            p_C = p @ vis_cam[:3, :3].T + vis_cam[:3, 3]
+            uv = np.round(f * p_C[:, :2] / np.maximum(p_C[:, 2:3], 1e-3)).astype(int)
+            return set(map(tuple, uv))
+        leaf_pix = pixels(ctx.leaf_W)
+        chosen = min(mine, key=lambda c: len(pixels(ctx.robot.SurfacePoints(c.q_pulled))
+                                             & leaf_pix))
+    return PlanResult("ok", method, chosen=chosen, candidates=[c for _, c in cands],
+                      timings={"total_s": time.perf_counter() - t0})

@@ -1,0 +1,108 @@
+"""The planner's robot: the UR5 + 2F-85 controller MultibodyPlant (with its
+SceneGraph) used for IK, forward kinematics and surface samples of the
+robot's collision geometry (for SDF collision checks and visibility)."""
+from __future__ import annotations
+
+import numpy as np
+from pydrake.geometry import Box, Capsule, Cylinder, Role, SceneGraph
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import MultibodyPlant
+
+from lmap_drake.planning.ik import IkResult, SolveTcpIk, SolveTcpIkMultiStart
+from lmap_drake.station.robot import AddUr5AndGripper
+
+
+def _SampleShape(shape, spacing: float) -> np.ndarray:
+    """Surface points (N, 3) of a Drake shape in its own frame."""
+    if isinstance(shape, Box):
+        ext = np.array([shape.width(), shape.depth(), shape.height()]) / 2
+        pts = []
+        for axis in range(3):
+            others = [a for a in range(3) if a != axis]
+            g = [np.linspace(-ext[a], ext[a], max(2, int(np.ceil(2 * ext[a] / spacing)) + 1))
+                 for a in others]
+            u, v = np.meshgrid(*g, indexing="ij")
+            for sign in (-1, 1):
+                p = np.zeros((u.size, 3))
+                p[:, others[0]], p[:, others[1]] = u.ravel(), v.ravel()
+                p[:, axis] = sign * ext[axis]
+                pts.append(p)
+        return np.vstack(pts)
+    r = shape.radius()
+    length = shape.length()
+    n_ring = max(8, int(np.ceil(2 * np.pi * r / spacing)))
+    th = np.linspace(0, 2 * np.pi, n_ring, endpoint=False)
+    zs = np.linspace(-length / 2, length / 2, max(2, int(np.ceil(length / spacing)) + 1))
+    side = np.stack([np.repeat(np.cos(th)[None], len(zs), 0) * r,
+                     np.repeat(np.sin(th)[None], len(zs), 0) * r,
+                     np.repeat(zs[:, None], n_ring, 1)], -1).reshape(-1, 3)
+    if isinstance(shape, Capsule):
+        phis = np.linspace(0, np.pi / 2, max(2, int(np.ceil(np.pi / 2 * r / spacing))))
+        caps = []
+        for sign in (-1, 1):
+            for phi in phis:
+                rr = r * np.cos(phi)
+                k = max(1, int(np.ceil(2 * np.pi * rr / spacing)))
+                t = np.linspace(0, 2 * np.pi, k, endpoint=False)
+                caps.append(np.c_[rr * np.cos(t), rr * np.sin(t),
+                                  np.full(k, sign * (length / 2 + r * np.sin(phi)))])
+        return np.vstack([side] + caps)
+    # cylinder: add end discs
+    discs = []
+    for sign in (-1, 1):
+        for rr in np.arange(0, r, spacing):
+            k = max(1, int(np.ceil(2 * np.pi * rr / spacing)))
+            t = np.linspace(0, 2 * np.pi, k, endpoint=False)
+            discs.append(np.c_[rr * np.cos(t), rr * np.sin(t), np.full(k, sign * length / 2)])
+    return np.vstack([side] + discs)
+
+
+class RobotModel:
+    """UR5 + gripper for planning. ``X_WB``: robot base in the world.
+    Joint vectors ``q`` are the 6 UR5 angles (rad); the gripper half-opening
+    is fixed per query (m)."""
+
+    def __init__(self, X_WB: RigidTransform, spacing: float = 0.01):
+        self.plant = MultibodyPlant(0.0)
+        self.scene_graph = SceneGraph()
+        self.plant.RegisterAsSourceForSceneGraph(self.scene_graph)
+        self.ur5, self.gripper = AddUr5AndGripper(self.plant, X_WB)
+        self.plant.Finalize()
+        self.context = self.plant.CreateDefaultContext()
+        self.tcp = self.plant.GetFrameByName("tcp")
+        inspector = self.scene_graph.model_inspector()
+        self._bodies, self._points = [], []
+        for gid in inspector.GetAllGeometryIds(Role.kProximity):
+            shape = inspector.GetShape(gid)
+            if not isinstance(shape, (Box, Capsule, Cylinder)):
+                continue
+            body = self.plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+            X_BG = inspector.GetPoseInFrame(gid)
+            p = _SampleShape(shape, spacing)
+            self._bodies.append(body)
+            self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
+        self.num_points = int(sum(len(p) for p in self._points))
+
+    def SetQ(self, q: np.ndarray, half_opening: float = 0.0) -> None:
+        self.plant.SetPositions(self.context, np.r_[np.asarray(q, float),
+                                                     half_opening, half_opening])
+
+    def SurfacePoints(self, q: np.ndarray, half_opening: float = 0.0) -> np.ndarray:
+        """Samples of the robot's collision surfaces at ``q`` (N, 3), world."""
+        self.SetQ(q, half_opening)
+        out = []
+        for body, p in zip(self._bodies, self._points):
+            X = self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
+            out.append(p @ X[:3, :3].T + X[:3, 3])
+        return np.vstack(out)
+
+    def TcpPose(self, q: np.ndarray, half_opening: float = 0.0) -> RigidTransform:
+        self.SetQ(q, half_opening)
+        return self.plant.CalcRelativeTransform(self.context, self.plant.world_frame(),
+                                                self.tcp)
+
+    def Ik(self, X_WT: RigidTransform, q_seed: np.ndarray, half_opening: float = 0.0,
+           multistart: bool = False) -> IkResult:
+        """Drake IK (joint limits) for the TCP at ``X_WT``, warm-started."""
+        solve = SolveTcpIkMultiStart if multistart else SolveTcpIk
+        return solve(self.plant, X_WT, q_seed, gripper_half_opening=half_opening)

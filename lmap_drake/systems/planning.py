@@ -1,0 +1,102 @@
+"""The LMAP planner as Drake LeafSystems (thin shells around
+``lmap_drake.planning.lmap``), wired as in the paper's data flow:
+
+    ShapeCompletion -> ActionCandidates -> DeformationPrediction -> ActionSelection
+
+``ActionCandidates``
+  inputs:  ``scene_estimate`` (abstract SceneEstimate, world frame W, m),
+           ``ur5.position`` (6, rad; the IK seed).
+  outputs: ``candidate_set`` (abstract CandidateSet: candidates with IK and
+           robot collision checks, visibility model, statuses),
+           ``actions`` (abstract list[Action]: the live candidates' actions),
+           ``scene_estimate`` (the input scene with its leaf tied to the
+           branch, ``leaf_attachment_W``; what the deformation model uses).
+``ActionSelection``
+  inputs:  ``candidate_set``, ``predictions`` (abstract
+           list[PredictedDeformation], aligned with ``actions``).
+  output:  ``plan`` (abstract PlanResult: status, chosen action with its
+           joint solutions, the candidate table, per-stage seconds).
+
+All outputs are computed on demand and cached by Drake until an input
+changes. The robot model (a MultibodyPlant for IK) is an attribute.
+"""
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, PlanningContext,
+                                      PlanResult, SelectFromPredictions)
+from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.scenario import Scenario
+from lmap_drake.types import SceneEstimate, SemanticScene
+
+
+def _ScenarioCameraPose(scenario: Scenario) -> np.ndarray:
+    return scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
+
+
+class ActionCandidates(LeafSystem):
+    """See the module docstring."""
+
+    def __init__(self, scenario: Scenario, robot: RobotModel | None = None):
+        super().__init__()
+        self._scenario = scenario
+        self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
+        self._X_WC = _ScenarioCameraPose(scenario)
+        self.DeclareAbstractInputPort(
+            "scene_estimate", AbstractValue.Make(SceneEstimate(semantic=SemanticScene())))
+        self.DeclareVectorInputPort("ur5.position", 6)
+        set_port = self.DeclareAbstractOutputPort(
+            "candidate_set", lambda: AbstractValue.Make(
+                CandidateSet("no_fruit", SceneEstimate(semantic=SemanticScene()))),
+            self._calc_set)
+        self.DeclareAbstractOutputPort(
+            "actions", lambda: AbstractValue.Make(list()),
+            lambda ctx, out: out.set_value(set_port.Eval(ctx).LiveActions()))
+        self.DeclareAbstractOutputPort(
+            "scene_estimate", lambda: AbstractValue.Make(SceneEstimate(semantic=SemanticScene())),
+            lambda ctx, out: out.set_value(set_port.Eval(ctx).scene))
+
+    @property
+    def robot(self) -> RobotModel:
+        return self._robot
+
+    def Context(self, scene: SceneEstimate, q: np.ndarray) -> PlanningContext:
+        return PlanningContext(scene, self._X_WC, self._robot, np.asarray(q, float))
+
+    def _calc_set(self, context, output) -> None:
+        scene = self.get_input_port(0).Eval(context)
+        q = self.get_input_port(1).Eval(context)
+        output.set_value(GenerateCandidates(self.Context(scene, q), self._scenario.planner,
+                                            self._scenario.deformation))
+
+
+class ActionSelection(LeafSystem):
+    """See the module docstring."""
+
+    def __init__(self, scenario: Scenario, candidates: ActionCandidates):
+        super().__init__()
+        self._scenario = scenario
+        self._candidates = candidates
+        self.DeclareAbstractInputPort(
+            "candidate_set", AbstractValue.Make(
+                CandidateSet("no_fruit", SceneEstimate(semantic=SemanticScene()))))
+        self.DeclareAbstractInputPort("predictions", AbstractValue.Make(list()))
+        self.DeclareVectorInputPort("ur5.position", 6)
+        self.DeclareAbstractOutputPort(
+            "plan", lambda: AbstractValue.Make(PlanResult("no_fruit", "lmap")), self._calc)
+
+    def _calc(self, context, output) -> None:
+        import time
+        cset = self.get_input_port(0).Eval(context)
+        t0 = time.perf_counter()
+        predictions = self.get_input_port(1).Eval(context) if cset.status == "ok" else []
+        deformation_s = time.perf_counter() - t0
+        q = self.get_input_port(2).Eval(context)
+        ctx = self._candidates.Context(cset.scene, q)
+        result = SelectFromPredictions(ctx, cset, list(predictions), self._scenario.planner)
+        result.timings["deformation_s"] = deformation_s
+        result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
+        output.set_value(result)

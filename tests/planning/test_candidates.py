@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+from lmap_drake.deformation.action import PullDirections
+from lmap_drake.planning.candidates import (DirectionsForGrasp, GraspCandidates, LeafPca,
+                                            PlanningError)
+
+
+def _flat_leaf(n=3000, a=0.06, b=0.03, seed=0):
+    """Points of an elliptical leaf in the plane y = -0.1 (normal -y toward a
+    camera at y = -0.6), centred at (0.5, -0.1, 0.3)."""
+    rng = np.random.default_rng(seed)
+    r, t = np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    return np.c_[0.5 + a * r * np.cos(t), np.full(n, -0.1), 0.3 + b * r * np.sin(t)]
+
+
+P_WC = np.array([0.5, -0.6, 0.3])
+
+
+def test_grasps_on_a_flat_leaf():
+    leaf = _flat_leaf()
+    grasps, dropped = GraspCandidates(leaf, np.zeros((0, 3)), P_WC, num_grasps=15, inset=0.01)
+    assert len(grasps) == 15 and not dropped
+    frame = LeafPca(leaf, P_WC)
+    hull = ConvexHull(frame.To2d(leaf))
+    for g in grasps:
+        R = g.R_WG
+        np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-9)
+        assert np.linalg.det(R) > 0
+        np.testing.assert_allclose(R[:, 1], [0, -1, 0], atol=1e-3)  # closing across the leaf
+        assert abs(R[:, 2] @ [0, 1, 0]) < 1e-3                     # approach in the plane
+        # ~1 cm inside the hull, approach pointing inward
+        uv = frame.To2d(g.p_WG[None])[0]
+        depth = -np.max(hull.equations[:, :2] @ uv + hull.equations[:, 2])
+        assert 0.006 < depth < 0.014
+        inward = frame.To2d((g.p_WG + 0.01 * R[:, 2])[None])[0]
+        assert np.linalg.norm(inward) < np.linalg.norm(uv)
+
+
+def test_grasps_near_the_branch_are_dropped():
+    leaf = _flat_leaf()
+    branch = np.c_[np.full(50, 0.44), np.full(50, -0.1), np.linspace(0.2, 0.4, 50)]
+    grasps, dropped = GraspCandidates(leaf, branch, P_WC, 15, 0.01, min_branch_distance=0.03)
+    assert len(grasps) + len(dropped) == 15 and dropped
+    for g in grasps:
+        assert np.linalg.norm(branch - g.p_WG, axis=1).min() >= 0.03
+
+
+def test_branch_angle_rule():
+    p = np.array([0.55, -0.1, 0.3])
+    branch = np.array([[0.45, -0.1, 0.3]])  # branch toward -x
+    dirs, ids = DirectionsForGrasp(p, branch, 120.0)
+    to_branch = np.array([-1.0, 0, 0])
+    assert np.all(np.degrees(np.arccos(np.clip(dirs @ to_branch, -1, 1))) < 120.0)
+    assert 0 < len(dirs) < 14 and not np.any(np.all(dirs == [1.0, 0, 0], axis=1))
+    np.testing.assert_array_equal(PullDirections()[ids], dirs)
+
+
+def test_too_few_leaf_points():
+    with pytest.raises(PlanningError):
+        GraspCandidates(np.zeros((3, 3)), np.zeros((0, 3)), P_WC)

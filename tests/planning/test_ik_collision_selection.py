@@ -1,0 +1,65 @@
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RotationMatrix
+
+from lmap_drake.deformation.action import Action
+from lmap_drake.planning.collision import LeafFruitCollisionReason, RobotCollisionReason
+from lmap_drake.planning.lmap import Candidate, SelectAction
+from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.scenario import RobotConfig
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return RobotModel(RobotConfig().X_WB.GetDeterministicValue())
+
+
+def test_ik_reaches_poses(robot):
+    rng = np.random.default_rng(3)
+    q0 = np.array(RobotConfig().initial_q)
+    for _ in range(10):
+        q_true = q0 + rng.uniform(-0.4, 0.4, 6)
+        X = robot.TcpPose(q_true)
+        r = robot.Ik(X, q0)
+        assert r.success, r.reason
+        X_got = robot.TcpPose(r.q)
+        assert np.linalg.norm(X_got.translation() - X.translation()) < 0.002
+        assert X_got.rotation().InvertAndCompose(X.rotation()).ToAngleAxis().angle() < 0.02
+
+
+def test_gripper_through_the_fruit_is_rejected(robot):
+    # TCP in front of the plant, approaching along +x with the pads closing
+    # along y; a fruit-sized sphere 10 cm ahead of the TCP.
+    R = RotationMatrix(np.array([[0.0, 0, 1], [0, -1, 0], [1, 0, 0]]))
+    X = RigidTransform(R, [0.40, -0.07, 0.31])
+    r0 = robot.Ik(X, np.array(RobotConfig().initial_q), multistart=True)
+    assert r0.success, r0.reason
+    center, radius = X.translation() + [0.10, 0, 0], 0.03
+    sdf = lambda p: np.linalg.norm(p - center, axis=1) - radius  # noqa: E731
+    assert RobotCollisionReason(robot.SurfacePoints(r0.q), sdf, None, 0.005) == ""
+    # drive the TCP 8 cm forward, into the fruit
+    r = robot.Ik(RigidTransform(R, X.translation() + [0.08, 0, 0]), r0.q)
+    assert r.success
+    why = RobotCollisionReason(robot.SurfacePoints(r.q), sdf, None, 0.005)
+    assert why.startswith("robot-fruit")
+
+
+def test_leaf_pushed_into_the_fruit_is_rejected():
+    center, radius = np.zeros(3), 0.035
+    sdf = lambda p: np.linalg.norm(p - center, axis=1) - radius  # noqa: E731
+    leaf = np.c_[np.linspace(-0.02, 0.02, 20), np.full(20, -0.06), np.zeros(20)]
+    assert LeafFruitCollisionReason(leaf, leaf + [0, 0, 0.02], sdf, 0.005) == ""
+    assert LeafFruitCollisionReason(leaf, leaf + [0, 0.03, 0], sdf, 0.005).startswith("leaf")
+
+
+def _cand(n_vis, energy):
+    a = Action(np.zeros(3), np.eye(3), np.array([0.02, 0, 0]))
+    return Candidate(a, 0, n_vis=n_vis, energy=energy)
+
+
+def test_energy_weight_changes_the_choice():
+    """The most revealing action stretches the leaf hard: lambda = 0 takes
+    it, lambda = 1 prefers a gentler action that reveals almost as much."""
+    hard, gentle, useless = _cand(500, 0.05), _cand(430, 0.005), _cand(50, 0.001)
+    assert SelectAction([hard, gentle, useless], 0.0) is hard
+    assert SelectAction([hard, gentle, useless], 1.0) is gentle

@@ -1,0 +1,89 @@
+"""ActionCandidates -> DeformationPrediction -> ActionSelection wired in a
+Diagram on a synthetic scene: a leaf plate hanging from a branch in front of
+a spherical fruit (the fruit estimate is exact)."""
+import numpy as np
+import pytest
+import trimesh
+from pydrake.systems.framework import DiagramBuilder
+
+from lmap_drake.scenario import Scenario
+from lmap_drake.systems.deformation import DeformationPrediction
+from lmap_drake.systems.planning import ActionCandidates, ActionSelection
+from lmap_drake.types import BranchEstimate, FruitEstimate, SceneEstimate, SemanticScene
+
+CENTER = np.array([0.44, 0.0, 0.32])
+
+
+def _scene(leaf_offset=np.zeros(3)) -> SceneEstimate:
+    g = np.arange(-0.04, 0.04, 0.003)
+    u, v = np.meshgrid(g, np.arange(-0.035, 0.035, 0.003))
+    leaf = np.c_[CENTER[0] + u.ravel(), np.full(u.size, -0.065), CENTER[2] + v.ravel()]
+    leaf = leaf + leaf_offset
+    z = np.arange(0.15, 0.55, 0.004)
+    branch = np.c_[np.full(len(z), 0.5), np.full(len(z), -0.006), z]
+    # petiole: leaf top edge to the branch
+    t = np.linspace(0, 1, 15)[:, None]
+    petiole = (1 - t) * (leaf[np.argmax(leaf[:, 0] + leaf[:, 2])]) + t * [0.5, -0.006, 0.37]
+    sphere = trimesh.creation.icosphere(3, radius=0.035).apply_translation(CENTER)
+    fruit = FruitEstimate(vertices_W=sphere.vertices, faces=sphere.faces, X_WO=np.eye(4),
+                          latent=np.zeros(0), center_W=CENTER, peduncle_axis_W=np.array([0, 0, 1.]),
+                          sdf_W=lambda p: np.linalg.norm(p - CENTER, axis=1) - 0.035)
+    cyl = trimesh.creation.cylinder(0.006, segment=[[0.5, 0, 0.1], [0.5, 0, 0.6]])
+    branch_est = BranchEstimate(cyl.vertices, cyl.faces, branch, np.array([0, 0, 1.0]))
+    sem = SemanticScene(branch_points_W=branch, leaf_points_W=np.vstack([leaf, petiole]),
+                        fruit_points_W=sphere.vertices[sphere.vertices[:, 1] < -0.02],
+                        X_WC=_X_WC())
+    return SceneEstimate(semantic=sem, branch=branch_est, fruit=fruit)
+
+
+def _X_WC():
+    s = Scenario()
+    return s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
+
+
+def _plan(scene, energy_weight=1.0):
+    s = Scenario()
+    s.planner.num_grasps = 6
+    s.planner.distances = [0.04, 0.08]
+    s.planner.energy_weight = energy_weight
+    b = DiagramBuilder()
+    cand = b.AddNamedSystem("action_candidates", ActionCandidates(s))
+    deform = b.AddNamedSystem("deformation_prediction", DeformationPrediction(s.deformation))
+    select = b.AddNamedSystem("action_selection", ActionSelection(s, cand))
+    b.Connect(cand.GetOutputPort("scene_estimate"), deform.GetInputPort("scene_estimate"))
+    b.Connect(cand.GetOutputPort("actions"), deform.GetInputPort("actions"))
+    b.Connect(cand.GetOutputPort("candidate_set"), select.GetInputPort("candidate_set"))
+    b.Connect(deform.GetOutputPort("predictions"), select.GetInputPort("predictions"))
+    b.ExportInput(cand.GetInputPort("scene_estimate"), "scene_estimate")
+    q = b.ExportInput(cand.GetInputPort("ur5.position"), "q")
+    b.ConnectInput(q, select.GetInputPort("ur5.position"))
+    b.ExportOutput(select.GetOutputPort("plan"), "plan")
+    d = b.Build()
+    ctx = d.CreateDefaultContext()
+    d.GetInputPort("scene_estimate").FixValue(ctx, scene)
+    d.GetInputPort("q").FixValue(ctx, s.robot.initial_q)
+    return d.GetOutputPort("plan").Eval(ctx)
+
+
+def test_diagram_plans_an_action_that_reveals_the_fruit():
+    plan = _plan(_scene())
+    assert plan.status == "ok", plan.message
+    c = plan.chosen
+    assert c.feasible and c.q_pulled is not None and np.isfinite(c.energy)
+    assert c.seen > plan.seen_init + 0.5 * (plan.seen_max - plan.seen_init)
+    rows = [x.Row() for x in plan.candidates]
+    assert any(not r["feasible"] for r in rows) and all("reason" in r for r in rows)
+    assert set(plan.timings) >= {"generation_collision_s", "deformation_s", "visibility_s"}
+
+
+def test_no_action_needed_when_the_leaf_is_aside():
+    plan = _plan(_scene(leaf_offset=np.array([-0.2, 0, 0])))
+    assert plan.status == "no_action_needed"
+    assert plan.chosen is None
+
+
+def test_no_fruit():
+    scene = _scene()
+    scene.fruit = None
+    plan = _plan(scene)
+    assert plan.status == "no_fruit" and plan.chosen is None
