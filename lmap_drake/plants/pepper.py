@@ -36,7 +36,11 @@ class PepperShape:
     ``lobe_depth`` rotated by ``lobe_phase`` (rad); ``shoulder`` flattens the
     top around the peduncle, ``taper`` narrows the blossom end radially and
     ``cone`` narrows the lower half in x-y (0 = none, 0.45 = strongly
-    conical); ``asymmetry`` bulges one side (direction ``asymmetry_phase``).
+    conical); ``asymmetry`` bulges one side (direction ``asymmetry_phase``);
+    ``dimple`` sinks the top around the peduncle (relative depth of the
+    cavity the peduncle sits in); ``lobe_bottom`` (0-1) carries the lobes
+    down to the blossom end (bumps at the bottom). The last two default to
+    0, which keeps ``MakePepperMesh``'s original shapes.
     """
     size: tuple[float, float, float] = (0.075, 0.075, 0.085)
     lobes: int = 4
@@ -49,6 +53,8 @@ class PepperShape:
     lobe_phase: float = 0.0
     asymmetry: float = 0.0
     asymmetry_phase: float = 0.0
+    dimple: float = 0.0
+    lobe_bottom: float = 0.0
 
     def validate(self) -> None:
         if self.lobes < 0 or not 0.0 <= self.lobe_depth < 0.5:
@@ -61,6 +67,8 @@ class PepperShape:
                 and 0 <= self.cone < 0.8 and 0 <= self.asymmetry < 0.3):
             raise ValueError("shoulder/taper in [0, 0.5), cone in [0, 0.8), "
                              "asymmetry in [0, 0.3)")
+        if not (0 <= self.dimple <= 0.3 and 0 <= self.lobe_bottom <= 1):
+            raise ValueError("dimple in [0, 0.3], lobe_bottom in [0, 1]")
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {VARIANTS}")
 
@@ -82,13 +90,20 @@ def _radius(d: np.ndarray, s: PepperShape) -> np.ndarray:
          + np.abs(d[:, 2] / c) ** p) ** (-1.0 / p)
     phi = np.arctan2(d[:, 1], d[:, 0])
     equator = 1.0 - d[:, 2] ** 2
+    lobe_w = equator
+    if s.lobe_bottom > 0:  # fuller lobes in the lower half, down to the bottom
+        low = d[:, 2] < 0
+        lobe_w = np.where(low, np.clip(equator, 0, 1) ** (1.0 - 0.8 * s.lobe_bottom), equator)
     r = r * (1.0 - s.lobe_depth * 0.5 * (1.0 - np.cos(s.lobes * (phi - s.lobe_phase)))
-             * equator)
+             * lobe_w)
     # Shoulders near the peduncle are flatter, the blossom end tapered.
     r = r * (1.0 - s.shoulder * np.clip(d[:, 2], 0, 1) ** 6
              - s.taper * np.clip(-d[:, 2], 0, 1) ** 2)
     if s.asymmetry > 0:
         r = r * (1.0 + s.asymmetry * np.cos(phi - s.asymmetry_phase) * equator)
+    if s.dimple > 0:  # cavity around the peduncle (polar angle < ~25 deg)
+        polar = np.arccos(np.clip(d[:, 2], -1, 1))
+        r = r * (1.0 - s.dimple * np.exp(-(polar / 0.3) ** 2))
     return r
 
 
@@ -162,17 +177,17 @@ def SamplePepperShape(rng: np.random.Generator, variant: str | None = None) -> P
         w = u(0.065, 0.09)
         size = (w, w * u(0.9, 1.1), w * u(0.85, 1.15))
         sq, cone, taper = u(2.2, 3.0), u(0.0, 0.1), u(0.0, 0.08)
-        lobe_depth = u(0.04, 0.12)
+        lobe_depth, dimple, lobe_bottom = u(0.06, 0.18), u(0.15, 0.3), u(0.4, 1.0)
     elif variant == "elongated":
         w = u(0.05, 0.07)
         size = (w, w * u(0.9, 1.1), w * u(1.3, 1.8))
         sq, cone, taper = u(2.0, 2.5), u(0.05, 0.2), u(0.05, 0.15)
-        lobe_depth = u(0.03, 0.10)
+        lobe_depth, dimple, lobe_bottom = u(0.04, 0.12), u(0.08, 0.2), u(0.0, 0.6)
     elif variant == "conical":
         w = u(0.06, 0.085)
         size = (w, w * u(0.9, 1.1), w * u(1.0, 1.4))
         sq, cone, taper = u(2.0, 2.6), u(0.25, 0.45), u(0.02, 0.1)
-        lobe_depth = u(0.03, 0.10)
+        lobe_depth, dimple, lobe_bottom = u(0.04, 0.14), u(0.1, 0.25), u(0.2, 0.8)
     else:
         raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
     return PepperShape(
@@ -180,7 +195,8 @@ def SamplePepperShape(rng: np.random.Generator, variant: str | None = None) -> P
         lobe_depth=float(lobe_depth), variant=variant, squareness=float(sq),
         shoulder=float(u(0.05, 0.15)), taper=float(taper), cone=float(cone),
         lobe_phase=float(u(0, 2 * np.pi)), asymmetry=float(u(0.0, 0.05)),
-        asymmetry_phase=float(u(0, 2 * np.pi)))
+        asymmetry_phase=float(u(0, 2 * np.pi)), dimple=float(dimple),
+        lobe_bottom=float(lobe_bottom))
 
 
 def MeshToObjText(mesh: trimesh.Trimesh) -> str:
