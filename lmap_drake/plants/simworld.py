@@ -26,7 +26,7 @@ from lmap_drake.plants.generator import MeshSignedDistance
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
                                        StrainPercentile, VisibilityFraction)
 from lmap_drake.scenario import Scenario
-from lmap_drake.station.robot import GRIPPER_MAX_WIDTH, UR5_VELOCITY_LIMIT, MakeControllerPlant
+from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.station.station import LeafGrasp, GetPlantModel, MakeStation
 
 
@@ -82,15 +82,20 @@ class PlantWorldSim:
     angles in radians, openings in metres."""
 
     def __init__(self, scenario: Scenario, meshcat=None,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Callable[[str], None] | None = None, make_diagram=None):
+        """``make_diagram(scenario, meshcat, leaf_grasp) -> (root, station)``
+        builds the simulated Diagram (default: the station alone, driven
+        through its input ports by this object)."""
         if scenario.plant_scene.kind != "procedural":
             raise ValueError("PlantWorldSim needs plant_scene.kind: procedural")
         self.scenario = scenario
         self.meshcat = meshcat
+        self._make_diagram = make_diagram
         self.model = GetPlantModel(scenario)
         self.progress = progress or (lambda msg: None)
         self.X_WB = scenario.robot.X_WB.GetDeterministicValue()
-        self.controller_plant, _, _ = MakeControllerPlant(self.X_WB)
+        from lmap_drake.planning.robot_model import RobotModel
+        self.robot = RobotModel(self.X_WB)
         self.q_cmd = np.asarray(scenario.robot.initial_q, float)
         self.width_cmd = float(scenario.robot.initial_gripper_width)
         self.samples: list[OutcomeSample] = []
@@ -105,8 +110,12 @@ class PlantWorldSim:
 
     # --- building and state carry-over ----------------------------------
     def _build(self, grasp: LeafGrasp | None, old_context) -> None:
-        self.station = MakeStation(self.scenario, self.meshcat, leaf_grasp=grasp)
-        self.simulator = Simulator(self.station)
+        if self._make_diagram is None:
+            self.station = MakeStation(self.scenario, self.meshcat, leaf_grasp=grasp)
+            self.diagram = self.station
+        else:
+            self.diagram, self.station = self._make_diagram(self.scenario, self.meshcat, grasp)
+        self.simulator = Simulator(self.diagram)
         self.simulator.set_target_realtime_rate(0.0)
         self.context = self.simulator.get_mutable_context()
         if old_context is not None:
@@ -130,9 +139,20 @@ class PlantWorldSim:
         for i in range(src.num_abstract_states()):
             dst.get_mutable_abstract_state(i).SetFrom(src.get_abstract_state(i))
 
+    @property
+    def drives_ports(self) -> bool:
+        """True when this object commands the station (no controller)."""
+        return self.diagram is self.station
+
     def _fix_inputs(self) -> None:
-        self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
-        self.station.GetInputPort("gripper.position").FixValue(self.context, [self.width_cmd])
+        if self.drives_ports:
+            self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
+            self.station.GetInputPort("gripper.position").FixValue(self.context,
+                                                                   [self.width_cmd])
+
+    @property
+    def station_context(self):
+        return self.station.GetMyContextFromRoot(self.context)
 
     @property
     def plant_context(self):
@@ -148,10 +168,10 @@ class PlantWorldSim:
         return self.deformable.GetPositions(self.plant_context, self.leaf_id).T.copy()
 
     def q(self) -> np.ndarray:
-        return self.station.GetOutputPort("ur5.position_measured").Eval(self.context).copy()
+        return self.station.GetOutputPort("ur5.position_measured").Eval(self.station_context).copy()
 
     def GripperWidth(self) -> float:
-        return float(self.station.GetOutputPort("gripper.state_measured").Eval(self.context)[0])
+        return float(self.station.GetOutputPort("gripper.state_measured").Eval(self.station_context)[0])
 
     def X_WG(self) -> RigidTransform:
         """Current pose of the gripper base (robotiq_base) in the world."""
@@ -165,13 +185,13 @@ class PlantWorldSim:
     def Images(self) -> dict:
         out = {}
         for name in ("rgb_image", "depth_image", "label_image"):
-            out[name] = self.station.GetOutputPort(f"camera0.{name}").Eval(self.context)
+            out[name] = self.station.GetOutputPort(f"camera0.{name}").Eval(self.station_context)
         return out
 
     def Visibility(self) -> float:
         if self._unoccluded is None:
             self._unoccluded = UnoccludedFruitPixels(self.scenario)
-        label = self.station.GetOutputPort("camera0.label_image").Eval(self.context)
+        label = self.station.GetOutputPort("camera0.label_image").Eval(self.station_context)
         return VisibilityFraction(label, self._unoccluded)
 
     def Sample(self) -> OutcomeSample:
@@ -241,6 +261,8 @@ class PlantWorldSim:
         while self.time < t - 1e-9:
             t_next = min(t, self.time + step)
             if q_traj is not None:
+                if not self.drives_ports:
+                    raise RuntimeError("a controller drives this diagram; no q_traj")
                 self.q_cmd = q_traj.value(t_next).ravel()
                 self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
             self.simulator.AdvanceTo(t_next)
@@ -251,20 +273,12 @@ class PlantWorldSim:
     def Hold(self, duration: float) -> None:
         self.AdvanceTo(self.time + duration)
 
-    def MoveJoints(self, waypoints: list[np.ndarray], min_duration: float = 0.5,
-                   speed_fraction: float = 0.5) -> None:
-        """Joint-space motion through ``waypoints`` from the current command,
-        each segment timed so no joint exceeds ``speed_fraction`` of the UR5
-        velocity limit (cubic, zero end velocities)."""
-        qs = [self.q_cmd] + [np.asarray(q, float) for q in waypoints]
-        times = [self.time]
-        for a, b in zip(qs[:-1], qs[1:]):
-            dq = float(np.abs(b - a).max())
-            times.append(times[-1] + max(min_duration * 0.5,
-                                         1.5 * dq / (speed_fraction * UR5_VELOCITY_LIMIT)))
-        traj = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
-            times, np.array(qs).T, np.zeros(6), np.zeros(6))
-        self.AdvanceTo(times[-1], traj)
+    def MoveJoints(self, waypoints: list[np.ndarray], speed_fraction: float = 0.5) -> None:
+        """Joint-space motion through ``waypoints`` from the current command
+        (see ``planning.motion.TimeJointPath``)."""
+        from lmap_drake.planning.motion import TimeJointPath
+        traj = TimeJointPath(self.time, self.q_cmd, waypoints, speed_fraction)
+        self.AdvanceTo(traj.end_time(), traj)
 
     def SetGripper(self, width: float, duration: float = 0.6) -> None:
         self.width_cmd = float(np.clip(width, 0.0, GRIPPER_MAX_WIDTH))
@@ -306,8 +320,7 @@ class PlantWorldSim:
         T = _Kabsch(self.model.leaf_rest_W[inside], V[inside])
         grasp = LeafGrasp(X_GA=X_WG.inverse() @ T, p_GR=X_GT.translation(), size=pad)
         old_simulator = self.simulator  # keep the old context alive while copying
-        old_context = self.context
-        self._build(grasp, old_context)
+        self._build(grasp, self.context)
         del old_simulator
         self.grasp_state = GraspState(grasp, inside)
         self.progress(f"grasped {len(inside)} leaf vertices")
@@ -318,7 +331,7 @@ class PlantWorldSim:
         Diagram, cloned Context), e.g. to try several pulls from one grasp."""
         other = copy.copy(self)
         other.context = self.context.Clone()
-        other.simulator = Simulator(self.station, other.context)
+        other.simulator = Simulator(self.diagram, other.context)
         other.simulator.set_target_realtime_rate(0.0)
         other.samples = list(self.samples)
         other.q_cmd = self.q_cmd.copy()
@@ -363,71 +376,22 @@ def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float) -> RigidTransf
     return RigidTransform(RotationMatrix(np.c_[x, n, z]), p)
 
 
-def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
-                  ) -> list[RigidTransform]:
-    """Poses from X0 (excluded) to X1 (included), straight line and slerp,
-    spaced about ``step`` (m) or 10 deg apart."""
-    from scipy.spatial.transform import Rotation, Slerp
-    d = float(np.linalg.norm(X1.translation() - X0.translation()))
-    angle = X0.rotation().InvertAndCompose(X1.rotation()).ToAngleAxis().angle()
-    n = max(1, int(np.ceil(max(d / step, angle / np.deg2rad(10)))))
-    slerp = Slerp([0, 1], Rotation.from_matrix([X0.rotation().matrix(),
-                                                X1.rotation().matrix()]))
-    out = []
-    for k in range(1, n + 1):
-        f = k / n
-        out.append(RigidTransform(RotationMatrix(slerp(f).as_matrix()),
-                                  (1 - f) * X0.translation() + f * X1.translation()))
-    return out
-
-
-def _IkPath(world: PlantWorldSim, poses: list[RigidTransform], seed: np.ndarray,
-            opening: float) -> list[np.ndarray]:
-    from lmap_drake.planning.ik import SolveTcpIkMultiStart
-    out = []
-    for X in poses:
-        r = SolveTcpIkMultiStart(world.controller_plant, X, seed,
-                                 gripper_half_opening=opening / 2)
-        if not r.success:
-            raise RuntimeError(f"IK failed for the TCP pose at {X.translation().round(3)}: "
-                               f"{r.reason}")
-        out.append(r.q)
-        seed = r.q
-    return out
-
-
 def ApproachAndGrasp(world: PlantWorldSim, pull) -> RigidTransform:
     """Moves to the pre-grasp pose, approaches, closes on the leaf and builds
     the grasp (``pull`` is a ``ScriptedPullConfig``). Returns the grasp
     ``X_WT``."""
+    from lmap_drake.planning.motion import PlanApproach
     X_WT_grasp = TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v)
-    z = X_WT_grasp.rotation().col(2)
-
-    def back(d):
-        return RigidTransform(X_WT_grasp.rotation(), X_WT_grasp.translation() - d * z)
     world.progress("planning the approach (IK)")
-    # IK backwards from the grasp (seeded by the current joints), so the whole
-    # approach stays on one IK branch: grasp <- pre-grasp <- ready <- via
-    # (12 cm in front of the leaf, camera side). Then: joints to the via
-    # point, Cartesian lines from there on.
-    X_ready = back(pull.pregrasp_distance + 0.08)
-    X_via = RigidTransform(X_ready.rotation(),
-                           X_ready.translation() + 0.12 * world.model.leaf_normal_W)
-    X_pre = back(pull.pregrasp_distance)
-    approach_poses = CartesianPath(X_pre, X_WT_grasp, 0.0125)
-    ready_poses = CartesianPath(X_via, X_ready, 0.02)
-    pre_poses = CartesianPath(X_ready, X_pre, 0.02)
-    chain = _IkPath(world, ([X_WT_grasp] + approach_poses[::-1][1:] + [X_pre]
-                            + pre_poses[::-1][1:] + [X_ready] + ready_poses[::-1][1:]
-                            + [X_via]), world.q_cmd, pull.pregrasp_opening)[::-1]
-    n_r, n_p = len(ready_poses), len(pre_poses)
+    plan = PlanApproach(world.robot, X_WT_grasp, world.q_cmd, world.model.leaf_normal_W,
+                        pull.pregrasp_distance, pull.pregrasp_opening)
     world.progress("moving to the pre-grasp pose")
     world.SetGripper(pull.pregrasp_opening, 0.0)
-    world.MoveJoints([chain[0]], speed_fraction=0.8)
-    world.MoveJoints(chain[1:1 + n_r], speed_fraction=0.5)
-    world.MoveJoints(chain[1 + n_r:1 + n_r + n_p], speed_fraction=0.5)
+    world.MoveJoints([plan.via], speed_fraction=0.8)
+    world.MoveJoints(plan.to_ready, speed_fraction=0.5)
+    world.MoveJoints(plan.to_pregrasp, speed_fraction=0.5)
     world.progress("approaching")
-    world.MoveJoints(chain[1 + n_r + n_p:], speed_fraction=0.15)
+    world.MoveJoints(plan.to_grasp, speed_fraction=0.15)
     world.progress("closing the gripper")
     world.CloseOnLeaf()
     world.Grasp()
@@ -438,18 +402,13 @@ def Pull(world: PlantWorldSim, direction_W, distance: float, duration: float,
          hold: float = 0.0) -> None:
     """Moves the TCP in a straight line by ``distance`` (m) along
     ``direction_W`` in ``duration`` (s), keeping its orientation, then holds."""
-    X0 = world.X_WT()
+    from lmap_drake.planning.motion import PlanPull, TimeJointPath
     d = np.asarray(direction_W, float)
     d /= np.linalg.norm(d)
-    n = max(4, int(np.ceil(distance / 0.01)))
-    path = [RigidTransform(X0.rotation(), X0.translation() + d * distance * k / n)
-            for k in range(1, n + 1)]
-    q_path = _IkPath(world, path, world.q_cmd, world.GripperWidth())
+    q_path = PlanPull(world.robot, world.X_WT(), distance * d, world.q_cmd)
     world.progress(f"pulling {distance * 100:.0f} cm")
-    times = world.time + np.linspace(0.0, duration, n + 1)
-    traj = PiecewisePolynomial.CubicShapePreserving(
-        times, np.array([world.q_cmd] + q_path).T, True)
-    world.AdvanceTo(times[-1], traj)
+    traj = TimeJointPath(world.time, world.q_cmd, q_path, 0.5, 0.01, duration)
+    world.AdvanceTo(traj.end_time(), traj)
     if hold > 0:
         world.Hold(hold)
 

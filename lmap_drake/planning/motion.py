@@ -1,0 +1,125 @@
+"""Joint-space motions for executing an action: the approach (via point in
+front of the leaf -> ready -> pre-grasp -> grasp, Cartesian lines solved by
+IK backwards from the grasp so the whole approach stays on one IK branch),
+the straight pull, and time-parameterisation under the UR5 velocity limit.
+World frame W, metres, radians, seconds."""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.trajectories import PiecewisePolynomial
+
+from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
+
+
+class MotionError(RuntimeError):
+    """No joint path for a requested Cartesian motion (IK failed)."""
+
+
+def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
+                  ) -> list[RigidTransform]:
+    """Poses from X0 (excluded) to X1 (included): straight line and slerp,
+    spaced about ``step`` (m) or 10 deg apart."""
+    from scipy.spatial.transform import Rotation, Slerp
+    d = float(np.linalg.norm(X1.translation() - X0.translation()))
+    angle = X0.rotation().InvertAndCompose(X1.rotation()).ToAngleAxis().angle()
+    n = max(1, int(np.ceil(max(d / step, angle / np.deg2rad(10)))))
+    slerp = Slerp([0, 1], Rotation.from_matrix([X0.rotation().matrix(),
+                                                X1.rotation().matrix()]))
+    out = []
+    for k in range(1, n + 1):
+        f = k / n
+        out.append(RigidTransform(RotationMatrix(slerp(f).as_matrix()),
+                                  (1 - f) * X0.translation() + f * X1.translation()))
+    return out
+
+
+def IkPath(robot, poses: list[RigidTransform], seed: np.ndarray, half_opening: float
+           ) -> list[np.ndarray]:
+    """IK for each pose, each warm-started from the previous solution (the
+    first may use random restarts). Raises MotionError naming the pose."""
+    out = []
+    for k, X in enumerate(poses):
+        r = robot.Ik(X, seed, half_opening, multistart=(k == 0))
+        if not r.success:
+            raise MotionError(f"IK failed for the TCP pose at {X.translation().round(3)}: "
+                              f"{r.reason}")
+        out.append(r.q)
+        seed = r.q
+    return out
+
+
+@dc.dataclass
+class ApproachPlan:
+    """Joint waypoints: ``via`` (joint move from the current joints), then
+    Cartesian segments ``to_ready``, ``to_pregrasp``, ``to_grasp``."""
+    via: np.ndarray
+    to_ready: list[np.ndarray]
+    to_pregrasp: list[np.ndarray]
+    to_grasp: list[np.ndarray]
+
+
+def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
+                 toward_camera_W: np.ndarray, pregrasp_distance: float = 0.05,
+                 pregrasp_opening: float = 0.02, ready_extra: float = 0.08,
+                 via_offset: float = 0.12) -> ApproachPlan:
+    """The approach to a grasp: the pre-grasp sits ``pregrasp_distance``
+    back along the approach axis (TCP z), a ready pose ``ready_extra``
+    further back, and a via point ``via_offset`` from the ready pose toward
+    the camera side of the leaf (``toward_camera_W``)."""
+    R = X_WT_grasp.rotation()
+    z = R.col(2)
+
+    def back(d):
+        return RigidTransform(R, X_WT_grasp.translation() - d * z)
+    X_pre, X_ready = back(pregrasp_distance), back(pregrasp_distance + ready_extra)
+    X_via = RigidTransform(R, X_ready.translation() + via_offset * np.asarray(toward_camera_W))
+    grasp_poses = CartesianPath(X_pre, X_WT_grasp, 0.0125)
+    pre_poses = CartesianPath(X_ready, X_pre, 0.02)
+    ready_poses = CartesianPath(X_via, X_ready, 0.02)
+    backwards = ([X_WT_grasp] + grasp_poses[::-1][1:] + [X_pre] + pre_poses[::-1][1:]
+                 + [X_ready] + ready_poses[::-1][1:] + [X_via])
+    chain = IkPath(robot, backwards, q_current, 0.5 * pregrasp_opening)[::-1]
+    n_r, n_p = len(ready_poses), len(pre_poses)
+    return ApproachPlan(via=chain[0], to_ready=chain[1:1 + n_r],
+                        to_pregrasp=chain[1 + n_r:1 + n_r + n_p],
+                        to_grasp=chain[1 + n_r + n_p:])
+
+
+def PlanPull(robot, X_WT_start: RigidTransform, dp_W: np.ndarray, q_start: np.ndarray,
+             step: float = 0.01) -> list[np.ndarray]:
+    """Joint waypoints moving the TCP by ``dp_W`` in a straight line, same
+    orientation, about ``step`` apart (gripper closed)."""
+    dp = np.asarray(dp_W, float)
+    n = max(2, int(np.ceil(np.linalg.norm(dp) / step)))
+    poses = [RigidTransform(X_WT_start.rotation(), X_WT_start.translation() + dp * k / n)
+             for k in range(1, n + 1)]
+    out, seed = [], q_start
+    for X in poses:
+        r = robot.Ik(X, seed, 0.0)
+        if not r.success:
+            raise MotionError(f"IK failed along the pull at {X.translation().round(3)}")
+        out.append(r.q)
+        seed = r.q
+    return out
+
+
+def TimeJointPath(t0: float, q0: np.ndarray, waypoints: list[np.ndarray],
+                  speed_fraction: float = 0.5, min_segment: float = 0.25,
+                  duration: float | None = None) -> PiecewisePolynomial:
+    """Cubic joint trajectory from ``q0`` through ``waypoints`` starting at
+    ``t0``, each segment long enough that no joint exceeds
+    ``speed_fraction`` x the UR5 velocity limit (cubic peak speed is 1.5x
+    the mean); with ``duration``, the segments are stretched to fill it."""
+    qs = [np.asarray(q0, float)] + [np.asarray(q, float) for q in waypoints]
+    seg = [max(min_segment, 1.5 * float(np.abs(b - a).max())
+               / (speed_fraction * UR5_VELOCITY_LIMIT)) for a, b in zip(qs[:-1], qs[1:])]
+    if duration is not None and sum(seg) < duration:
+        seg = [s * duration / sum(seg) for s in seg]
+    times = t0 + np.r_[0.0, np.cumsum(seg)]
+    if len(qs) == 2:
+        return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
+            times, np.array(qs).T, np.zeros(6), np.zeros(6))
+    return PiecewisePolynomial.CubicShapePreserving(times, np.array(qs).T, True)
