@@ -329,7 +329,10 @@ class PlannerConfig:
     distances: list[float] = dc.field(default_factory=lambda: [0.02, 0.04, 0.06, 0.08])
     early_stop_fraction: float = 0.95
     pregrasp_distance: float = 0.05
-    pregrasp_opening: float = 0.02
+    pregrasp_opening: float = 0.035
+    grasp_close_width: float = 0.0015
+    gripper_close_speed: float = 0.05
+    grasp_attach_opening: float = 0.006
     min_branch_distance: float = 0.06
     visibility_voxel: float = 0.003
     collision_margin: float = 0.005

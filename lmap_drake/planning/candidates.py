@@ -82,11 +82,27 @@ def GraspCandidates(leaf_points_W: np.ndarray, branch_points_W: np.ndarray,
             dropped.append({"grasp_id": k, "reason": "within "
                             f"{min_branch_distance * 100:.0f} cm of the branch"})
             continue
-        z = -(frame.axes[:, :2] @ n_out)  # approach: inward, in the leaf plane
-        y = frame.axes[:, 2]
+        # Pads close across the leaf where it is grasped: the local normal
+        # (PCA of the leaf points within 2 cm), approach inward in that plane.
+        y = _LocalNormal(leaf_points_W, p_W, frame.axes[:, 2])
+        z = -(frame.axes[:, :2] @ n_out)
+        z = z - (z @ y) * y
+        z /= np.linalg.norm(z)
         x = np.cross(y, z)
         grasps.append(Grasp(p_W, np.c_[x, y, z], k))
     return grasps, dropped
+
+
+def _LocalNormal(points: np.ndarray, p: np.ndarray, toward: np.ndarray,
+                 radius: float = 0.02) -> np.ndarray:
+    """Unit normal of the points within ``radius`` of ``p`` (least-variance
+    direction), oriented like ``toward``; ``toward`` if too few points."""
+    near = points[np.linalg.norm(points - p, axis=1) < radius]
+    if len(near) < 8:
+        return toward
+    _, _, Vt = np.linalg.svd(near - near.mean(axis=0), full_matrices=False)
+    n = Vt[2]
+    return n if n @ toward >= 0 else -n
 
 
 def DirectionsForGrasp(p_WG: np.ndarray, branch_points_W: np.ndarray,

@@ -33,6 +33,7 @@ class Candidate:
     q_pregrasp: np.ndarray | None = None
     q_grasp: np.ndarray | None = None
     q_pulled: np.ndarray | None = None
+    approach: object = None       # planning.motion.ApproachPlan
     reason: str = ""              # empty = feasible
     energy: float = float("nan")
     n_vis: int = -1
@@ -119,39 +120,69 @@ def _FruitSurface(scene: SceneEstimate) -> np.ndarray:
     return np.vstack([pts, f.vertices_W])
 
 
+def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_open: float
+                       ) -> str:
+    """Robot checks along the whole approach: the joint move from the current
+    joints to the via point (sampled), the Cartesian waypoints to the ready
+    and pre-grasp poses and the final approach: fruit, branch and the
+    observed leaf points all keep the margin from the robot (in the final
+    approach the leaf must therefore pass between the open pads)."""
+    from scipy.spatial import cKDTree
+    robot = ctx.robot
+    free = [ctx.q_current + f * (approach.via - ctx.q_current) for f in np.linspace(0, 1, 8)[1:]]
+    free += list(approach.to_ready) + list(approach.to_pregrasp)
+    leaf_tree = cKDTree(ctx.leaf_W) if len(ctx.leaf_W) else None
+    for q in free:
+        pts = robot.SurfacePoints(q, half_open)
+        why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
+                                   cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+        if why:
+            return f"{why} on the way to the pre-grasp"
+        if leaf_tree is not None and leaf_tree.query(pts)[0].min() < cfg.collision_margin:
+            return "robot-leaf on the way to the pre-grasp"
+    for q in approach.to_grasp:
+        pts = robot.SurfacePoints(q, half_open)
+        why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
+                                   cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+        if why:
+            return f"{why} during the approach"
+        # The leaf must pass between the open pads: every observed leaf point
+        # keeps the margin from the robot, pads included.
+        if leaf_tree is not None and leaf_tree.query(pts)[0].min() < cfg.collision_margin:
+            return "robot-leaf during the approach (leaf not between the pads)"
+    return ""
+
+
 def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
                       actions: list[Action]) -> list[Candidate]:
-    """IK for pre-grasp, grasp and each pulled pose (warm-started along each
-    direction's distances) and robot-vs-fruit/branch checks."""
+    """The approach (IK chain via, ready, pre-grasp, grasp; see
+    ``planning.motion.PlanApproach``) with robot checks along it, then IK for
+    each pulled pose (warm-started along each direction's distances) and
+    robot-vs-fruit/branch checks there."""
+    from lmap_drake.planning.motion import MotionError, PlanApproach
     robot = ctx.robot
     R = RotationMatrix(grasp.R_WG)
-    z = grasp.R_WG[:, 2]
     half_open = 0.5 * cfg.pregrasp_opening
-    X_grasp = RigidTransform(R, grasp.p_WG)
-    X_pre = RigidTransform(R, grasp.p_WG - cfg.pregrasp_distance * z)
-    r_g = robot.Ik(X_grasp, ctx.q_current, half_open, multistart=True)
     cands = [Candidate(a, int(round(a.distance / 0.02)) - 1) for a in actions]
-    if not r_g.success:
+    try:
+        approach = PlanApproach(robot, RigidTransform(R, grasp.p_WG), ctx.q_current,
+                                grasp.R_WG[:, 1], cfg.pregrasp_distance, cfg.pregrasp_opening)
+    except MotionError as err:
         for c in cands:
-            c.reason = "IK failed (grasp)"
+            c.reason = f"IK failed (approach): {err}"
         return cands
-    r_p = robot.Ik(X_pre, r_g.q, half_open)
-    if not r_p.success:
-        for c in cands:
-            c.reason = "IK failed (pre-grasp)"
-        return cands
-    for q, what in ((r_p.q, "pre-grasp"), (r_g.q, "grasp")):
-        why = RobotCollisionReason(robot.SurfacePoints(q, half_open), ctx.fruit_sdf,
-                                   ctx.branch_distance, cfg.collision_margin,
-                                   ctx.fruit_box, ctx.branch_box)
+    if np.isfinite(cfg.collision_margin):
+        why = _ApproachCollision(ctx, cfg, approach, half_open)
         if why:
             for c in cands:
-                c.reason = f"{why} at {what}"
+                c.reason = why
             return cands
+    q_grasp = approach.to_grasp[-1]
     seeds: dict[int, np.ndarray] = {}
     for c in sorted(cands, key=lambda c: (c.action.direction_id, c.action.distance)):
-        c.q_pregrasp, c.q_grasp = r_p.q, r_g.q
-        seed = seeds.get(c.action.direction_id, r_g.q)
+        c.approach = approach
+        c.q_pregrasp, c.q_grasp = approach.to_pregrasp[-1], q_grasp
+        seed = seeds.get(c.action.direction_id, q_grasp)
         r = robot.Ik(RigidTransform(R, grasp.p_WG + c.action.dp_W), seed, 0.0)
         if not r.success:
             c.reason = "IK failed (pulled pose)"

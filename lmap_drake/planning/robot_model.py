@@ -62,7 +62,11 @@ class RobotModel:
     Joint vectors ``q`` are the 6 UR5 angles (rad); the gripper half-opening
     is fixed per query (m)."""
 
-    def __init__(self, X_WB: RigidTransform, spacing: float = 0.01):
+    def __init__(self, X_WB: RigidTransform, spacing: float = 0.01,
+                 gripper_spacing: float = 0.004):
+        """Collision surfaces are sampled every ``spacing`` (m) on the arm and
+        every ``gripper_spacing`` on the gripper (the part that comes close
+        to the leaf and fruit)."""
         self.plant = MultibodyPlant(0.0)
         self.scene_graph = SceneGraph()
         self.plant.RegisterAsSourceForSceneGraph(self.scene_graph)
@@ -78,7 +82,9 @@ class RobotModel:
                 continue
             body = self.plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
             X_BG = inspector.GetPoseInFrame(gid)
-            p = _SampleShape(shape, spacing)
+            on_gripper = self.plant.GetModelInstanceName(body.model_instance()) == \
+                self.plant.GetModelInstanceName(self.gripper)
+            p = _SampleShape(shape, gripper_spacing if on_gripper else spacing)
             self._bodies.append(body)
             self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
         self.num_points = int(sum(len(p) for p in self._points))

@@ -183,9 +183,14 @@ class PlantWorldSim:
             self.plant_context, self.plant.world_frame(), self.plant.GetFrameByName("tcp"))
 
     def Images(self) -> dict:
+        """Copies of camera0's current images (Eval returns cache entries
+        that later evaluations overwrite)."""
         out = {}
         for name in ("rgb_image", "depth_image", "label_image"):
-            out[name] = self.station.GetOutputPort(f"camera0.{name}").Eval(self.station_context)
+            image = self.station.GetOutputPort(f"camera0.{name}").Eval(self.station_context)
+            copy_ = type(image)(image.width(), image.height())
+            copy_.mutable_data[:] = image.data
+            out[name] = copy_
         return out
 
     def Visibility(self) -> float:

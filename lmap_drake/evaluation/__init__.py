@@ -1,0 +1,1 @@
+"""Episodes and the paper's tables."""

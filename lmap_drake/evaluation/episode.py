@@ -1,0 +1,126 @@
+"""One full LMAP episode in simulation: the complete Diagram on the FEM plant
+world, the simulated grasp, ground-truth outcome measures and shape metrics.
+World frame W, metres, seconds."""
+from __future__ import annotations
+
+import dataclasses as dc
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from lmap_drake.diagram import EpisodeResources, MakeEpisodeDiagram
+from lmap_drake.plants.outcome import Summarize
+from lmap_drake.plants.simworld import PlantWorldSim
+from lmap_drake.scenario import Scenario
+
+
+def ShapeErrors(estimate, model) -> dict | None:
+    """Table I metrics of a fruit estimate against the ground truth: Chamfer
+    (cm), volume error (cm^3), centre error (cm), peduncle-axis angle (deg)."""
+    from lmap_drake.shape.metrics import ShapeMetrics
+    if estimate is None or estimate.fruit is None:
+        return None
+    f = estimate.fruit
+    gt = model.fruit_mesh_W
+    return {k: float(v) for k, v in ShapeMetrics(
+        f.vertices_W, f.faces, f.peduncle_axis_W, np.asarray(gt.vertices),
+        np.asarray(gt.faces), model.peduncle_axis_W, n=10000).items()}
+
+
+@dc.dataclass
+class EpisodeResult:
+    """What ``RunEpisode`` returns (and writes as ``episode.json``)."""
+    record: dict
+    world: PlantWorldSim
+    images_before: dict
+    images_after: dict
+    status: object
+
+
+def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None] | None = None,
+               max_time: float = 40.0, resources: EpisodeResources | None = None
+               ) -> EpisodeResult:
+    """Simulates one episode until the controller is done or aborted (or
+    ``max_time`` simulated seconds)."""
+    progress = progress or (lambda m: None)
+    wall0 = time.perf_counter()
+    resources = resources or EpisodeResources.Make(scenario, progress)
+    resources.progress = progress
+
+    def make(s, m, grasp):
+        return MakeEpisodeDiagram(s, resources, m, grasp)
+    world = PlantWorldSim(scenario, meshcat, progress, make_diagram=make)
+
+    def controller():
+        c = world.diagram.GetSubsystemByName("arm_controller")
+        return c, c.GetMyContextFromRoot(world.context)
+    world.AdvanceTo(0.25)
+    before = world.Images()
+    vis0 = world.Visibility()
+    sim_wall = 0.0
+    grasp_error = ""
+    while world.time < max_time:
+        t0 = time.perf_counter()
+        world.AdvanceTo(world.time + 0.05)
+        sim_wall += time.perf_counter() - t0
+        c, cctx = controller()
+        st = c.Status(cctx)
+        if st.finished:
+            break
+        # The simulated grasp is made as the pads close on the leaf (opening
+        # at most ``grasp_attach_opening``), before a fast squeeze can push
+        # the thin FEM leaf out from between them; see simworld.Grasp.
+        closing = st.mode == "close_gripper" and world.GripperWidth() <= \
+            scenario.planner.grasp_attach_opening
+        if (closing or st.mode == "grasp_wait") and not st.grasp_acknowledged:
+            try:
+                world.Grasp()
+            except RuntimeError as err:
+                grasp_error = str(err)
+                progress(f"aborted: {err}")
+                break
+            c, cctx = controller()
+            c.AcknowledgeGrasp(cctx)
+    c, cctx = controller()
+    st = c.Status(cctx)
+    after = world.Images()
+    vis1 = world.Visibility()
+    outcome = Summarize(world.samples, scenario.plant_scene.outcome, vis0, vis1)
+    plan = st.plan
+    chosen = plan.chosen.Row() if plan is not None and plan.chosen is not None else None
+    record = {
+        "scenario": scenario.plant_scene.name or "default",
+        "method": scenario.planner.method,
+        "energy_weight": scenario.planner.energy_weight,
+        "status": "aborted" if grasp_error else st.mode,
+        "message": grasp_error or st.message,
+        "plan_status": plan.status if plan is not None else None,
+        "chosen_action": chosen,
+        "outcome": outcome.to_dict(),
+        "shape_initial": ShapeErrors(st.initial_estimate, world.model),
+        "shape_final": ShapeErrors(st.final_estimate, world.model),
+        "stage_seconds": st.stage_seconds,
+        "simulated_seconds": world.time,
+        "simulation_wall_seconds": sim_wall,
+        "wall_seconds": time.perf_counter() - wall0,
+        "mode_log": st.mode_log,
+    }
+    return EpisodeResult(record, world, before, after, st)
+
+
+def SaveEpisode(result: EpisodeResult, out: Path) -> list[str]:
+    """Writes ``episode.json``, before/after images with the segmentation
+    overlaid, the plan table, and the shape pictures."""
+    from lmap_drake.evaluation.figures import SaveEpisodeFigures
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "episode.json").write_text(json.dumps(result.record, indent=2, default=float))
+    files = ["episode.json"]
+    if result.status.plan is not None:
+        result.status.plan.SaveJson(out / "candidates.json")
+        files.append("candidates.json")
+    files += SaveEpisodeFigures(result, out)
+    return files

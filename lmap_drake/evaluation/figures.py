@@ -1,0 +1,75 @@
+"""Pictures of an episode: RGB with the segmentation overlaid (before and
+after), the chosen action with the predicted deformation, and the initial
+and final shape estimates against the ground truth (matplotlib PNGs)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from lmap_drake.viz import ColorizeLabels, RgbArray
+
+
+def Overlay(rgb, label, alpha: float = 0.45) -> np.ndarray:
+    """RGB with the class colours blended over labelled pixels."""
+    base = RgbArray(rgb).astype(float)
+    colors = ColorizeLabels(label).astype(float)
+    mask = colors.sum(axis=2) > 0
+    base[mask] = (1 - alpha) * base[mask] + alpha * colors[mask]
+    return base.astype(np.uint8)
+
+
+def SaveEpisodeFigures(result, out: Path) -> list[str]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    for tag, images in (("before", result.images_before), ("after", result.images_after)):
+        Image.fromarray(Overlay(images["rgb_image"], images["label_image"])).save(
+            out / f"rgb_{tag}_segmented.png")
+        files.append(f"rgb_{tag}_segmented.png")
+    st = result.status
+    model = result.world.model
+    plan = st.plan
+    fig = plt.figure(figsize=(12, 5))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    est = st.initial_estimate
+    if est is not None:
+        leaf = est.semantic.leaf_points_W
+        ax.scatter(*leaf.T, s=1, c="green", label="observed leaf")
+        ax.scatter(*est.semantic.branch_points_W.T, s=1, c="saddlebrown", label="branch")
+        if est.fruit is not None:
+            ax.plot_trisurf(*est.fruit.vertices_W.T, triangles=est.fruit.faces, color="red",
+                            alpha=0.3)
+    if plan is not None and plan.chosen is not None:
+        c = plan.chosen
+        if c.deformed_leaf_W is not None:
+            ax.scatter(*c.deformed_leaf_W.T, s=1, c="lime", label="predicted leaf")
+        p, dp = c.action.p_WG, c.action.dp_W
+        ax.quiver(*p, *dp, color="blue", linewidth=2, label="pull")
+        ax.set_title(f"chosen action: {c.action.distance * 100:.0f} cm, "
+                     f"E={c.energy:.2e}, N_vis={c.n_vis}")
+    ax.legend(loc="upper left", fontsize=7)
+    ax.set_box_aspect((1, 1, 1))
+    ax2 = fig.add_subplot(1, 2, 2, projection="3d")
+    gt = model.fruit_mesh_W
+    ax2.plot_trisurf(*np.asarray(gt.vertices).T, triangles=np.asarray(gt.faces), color="gray",
+                     alpha=0.25)
+    for e, color, name in ((st.initial_estimate, "orange", "initial"),
+                           (st.final_estimate, "blue", "final")):
+        if e is not None and e.fruit is not None:
+            v = e.fruit.vertices_W
+            ax2.scatter(*v[::3].T, s=1, c=color, label=f"{name} estimate")
+            ax2.quiver(*e.fruit.center_W, *(0.05 * e.fruit.peduncle_axis_W), color=color)
+    ax2.quiver(*model.fruit_center_W, *(0.05 * model.peduncle_axis_W), color="black",
+               label="ground-truth axis")
+    ax2.set_title("fruit estimates vs ground truth (gray)")
+    ax2.legend(loc="upper left", fontsize=7)
+    ax2.set_box_aspect((1, 1, 1))
+    fig.tight_layout()
+    fig.savefig(out / "action_and_shapes.png", dpi=110)
+    plt.close(fig)
+    files.append("action_and_shapes.png")
+    return files
