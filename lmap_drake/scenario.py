@@ -300,7 +300,12 @@ class DeformationConfig:
     ``handle_fallback_neighbors`` nearest leaf nodes. Dense points follow
     their ``interpolation_neighbors`` nearest nodes (within
     ``interpolation_radius``) with Gaussian RBF weights of width
-    ``interpolation_sigma``, each node applying its ARAP rotation."""
+    ``interpolation_sigma``, each node applying its ARAP rotation.
+    ``arap_method``: "lbfgs" (L-BFGS with the Laplacian as initial Hessian,
+    longer pulls of a direction starting from the shorter one's solution;
+    the default) or "plain" (textbook global-local iterations from the
+    Laplacian solve); both stop when the relative energy decrease of an
+    iteration falls below ``relative_tolerance``."""
     voxel_size: float = 0.005
     edge_radius: float = 0.008
     vein_distance: float = 0.012
@@ -310,6 +315,7 @@ class DeformationConfig:
     fixed_branch_distance: float = 0.05
     max_iterations: int = 300
     relative_tolerance: float = 1e-5
+    arap_method: str = "lbfgs"
     leaf_branch_edge_radius: float = 0.016
     leaf_branch_weight: float = 100.0
     max_grasp_distance: float = 0.02

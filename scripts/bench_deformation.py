@@ -8,7 +8,8 @@ blade, 1 mm sampling, 2 mm depth-like noise, petiole on a vertical branch),
 about 1000 graph nodes at 5 mm voxels. Actions: 15 grasps spread along the
 leaf boundary (convex hull of the PCA-projected leaf, 1 cm inward) x 14
 directions x 4 distances (2, 4, 6, 8 cm). Times graph building,
-factorisation and the ARAP solves (wall clock); dense interpolation is
+factorisation and the ARAP solves (wall clock; ``cpu_seconds`` is the
+process CPU time of the same part, useful on a shared machine); dense interpolation is
 timed separately (``dense_seconds``) and not part of ``total_seconds``.
 """
 from __future__ import annotations
@@ -59,6 +60,10 @@ def main(argv=None):
                     help="npz with leaf_points_W and branch_points_W (W, m)")
     ap.add_argument("--factorization", default="inverse", choices=["splu", "cholesky", "inverse"])
     ap.add_argument("--no-dense", action="store_true", help="skip the dense interpolation")
+    ap.add_argument("--method", default=None, choices=["lbfgs", "plain"],
+                    help="ARAP solver (default: DeformationConfig.arap_method)")
+    ap.add_argument("--relative-tolerance", type=float, default=None,
+                    help="override DeformationConfig.relative_tolerance")
     args = ap.parse_args(argv)
     if args.leaf_npz:
         data = np.load(args.leaf_npz)
@@ -66,11 +71,16 @@ def main(argv=None):
     else:
         leaf, branch = OvateLeaf(spacing=0.001, noise=0.002, p_WL=[0.5, -0.1, 0.35])
     config = DeformationConfig()
+    if args.relative_tolerance is not None:
+        config.relative_tolerance = args.relative_tolerance
+    if args.method is not None:
+        config.arap_method = args.method
     grasps = BoundaryGrasps(leaf, 15, 0.01)
     directions = PullDirections()
     distances = [0.02, 0.04, 0.06, 0.08]
 
     t0 = time.perf_counter()
+    c0 = time.process_time()
     leaf_graph = BuildLeafGraph(leaf, branch, config)
     per_grasp, iters, energies, n_nodes, n_edges, solved = [], [], [], [], [], []
     for p_WG, R_WG in grasps:
@@ -80,7 +90,8 @@ def main(argv=None):
         g = prep.graph
         u_c = np.zeros((len(actions), g.num_constrained, 3))
         u_c[:, g.num_fixed:] = np.array([a.dp_W for a in actions])[:, None]
-        res = prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance)
+        res = prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance,
+                                 method=config.arap_method)
         per_grasp.append(time.perf_counter() - tg)
         iters += res.iterations.tolist()
         energies += res.energy.tolist()
@@ -88,6 +99,7 @@ def main(argv=None):
         n_edges.append(len(g.edges))
         solved.append((prep, res))
     total = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     dense_seconds = 0.0
     if not args.no_dense:
         td = time.perf_counter()
@@ -96,6 +108,9 @@ def main(argv=None):
         dense_seconds = time.perf_counter() - td
     result = dict(
         total_seconds=round(total, 4),
+        cpu_seconds=round(cpu, 4),
+        method=config.arap_method,
+        relative_tolerance=config.relative_tolerance,
         num_actions=len(iters),
         num_nodes=int(leaf_graph.nodes_W.shape[0]),
         num_edges=int(len(leaf_graph.edges)),

@@ -11,19 +11,78 @@ displacements. Global step: L_ff u_f = b_f - L_fc u_c, with the weighted
 graph Laplacian L factorised once per graph and all actions solved as
 right-hand sides of one solve. Local step: per node and action, R_i = the
 rotation maximising tr(R^T M_i), M_i = sum_j w_ij e'_ij e_ij^T, by
-warm-started quaternion iterations (Mueller et al. 2016), vectorised over
-all nodes and actions; the result is always a proper rotation, so the
-reflection case is handled by construction (same answer as the SVD with
-the sign fix, see ``PolarRotationSvd``).
+warm-started Newton steps on SO(3) (``PolarRotationQuaternion``),
+vectorised over all nodes and actions; the result is always a proper
+rotation, so the reflection case is handled by construction (same answer
+as the SVD with the sign fix, see ``PolarRotationSvd``).
+
+Solvers (``ArapProblem.Solve(method=...)``), same energy, constraints,
+start (R = I, i.e. the first iterate is the Laplacian solve) and stopping
+rule (relative energy decrease of one iteration below a tolerance):
+
+- "plain": the textbook alternation of local and global steps. It is a
+  descent method with the Laplacian as a fixed preconditioner: the global
+  step from x is x - L_ff^-1 grad E(x) / 4 (grad E(x) = 4 (L_ff x - b(R(x)))
+  with the rotations optimal for x).
+- "lbfgs" (default): L-BFGS on E(x) = min_R E(x, R) with L_ff as the
+  initial Hessian (Liu, Bouaziz & Kavan 2017), Armijo backtracking, and the
+  plain step whenever the L-BFGS direction is not a descent direction. One
+  global solve (L_ff^-1 on the two-loop vector) and one local step per
+  iteration, as the plain solver, but far fewer iterations for the same
+  energy. Rotations are kept only for the free nodes and the constrained
+  nodes with a free neighbour; the other constrained nodes have a constant
+  covariance per action, so their rotations and energy share are computed
+  once per solve.
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import dataclasses as dc
+import glob
+import os
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+
+def _OpenBlasLocalThreads() -> list:
+    """``openblas_set_num_threads_local`` (thread count for the calling
+    thread only) of the OpenBLAS copies bundled with numpy and scipy."""
+    import scipy
+    out = []
+    for pkg in (np, scipy):
+        for path in sorted(glob.glob(os.path.join(os.path.dirname(pkg.__file__) + ".libs",
+                                                  "*openblas*"))):
+            try:
+                fn = getattr(ctypes.CDLL(path), "openblas_set_num_threads_local", None)
+            except OSError:
+                fn = None
+            if fn is not None:
+                fn.argtypes, fn.restype = [ctypes.c_int], ctypes.c_int
+                out.append(fn)
+    return out
+
+
+_SET_LOCAL_THREADS = _OpenBlasLocalThreads()
+
+
+@contextlib.contextmanager
+def SingleThreadBlas():
+    """Runs the block with one BLAS thread in the calling thread. The
+    solver's products (~600 x 600 times ~600 x 170) and factorisations are
+    too small to gain from threads, and on a shared machine OpenBLAS worker
+    threads waiting for a core made them 3-100x slower (measured: the
+    dense inverse of one grasp 4 s instead of 0.04 s). No-op where the
+    bundled OpenBLAS lacks per-thread settings."""
+    prev = [fn(1) for fn in _SET_LOCAL_THREADS]
+    try:
+        yield
+    finally:
+        for fn, p in zip(_SET_LOCAL_THREADS, prev):
+            fn(p)
 
 
 def PolarRotationSvd(M: np.ndarray) -> np.ndarray:
@@ -69,47 +128,106 @@ def MatrixToQuaternion(R: np.ndarray) -> np.ndarray:
     return q / np.sqrt((q * q).sum(axis=0))
 
 
+def _NewtonStep(R, M, max_angle=1.0):
+    """Rotation vector theta (3, N) of one Newton step for max tr(R'^T M) over
+    R' = exp(theta^) R, flat (3, 3, N) arrays. With B = M R^T,
+    f(theta) ~ tr B + theta.g - theta^T H theta / 2, g = axial(B - B^T),
+    H = tr(B) I - sym(B). Where H is not positive definite (far from the
+    optimum) the Mueller et al. (2016) step g / |tr B| is taken instead."""
+    m = M
+    r = R
+    # B[i, j] = sum_c M[i, c] R[j, c]
+    B = [[m[i, 0] * r[j, 0] + m[i, 1] * r[j, 1] + m[i, 2] * r[j, 2] for j in range(3)]
+         for i in range(3)]
+    gx, gy, gz = B[2][1] - B[1][2], B[0][2] - B[2][0], B[1][0] - B[0][1]
+    tr = B[0][0] + B[1][1] + B[2][2]
+    h00, h11, h22 = tr - B[0][0], tr - B[1][1], tr - B[2][2]
+    h01, h02, h12 = -0.5 * (B[0][1] + B[1][0]), -0.5 * (B[0][2] + B[2][0]), -0.5 * (B[1][2] + B[2][1])
+    c00 = h11 * h22 - h12 * h12
+    c01 = h02 * h12 - h01 * h22
+    c02 = h01 * h12 - h02 * h11
+    c11 = h00 * h22 - h02 * h02
+    c12 = h01 * h02 - h00 * h12
+    c22 = h00 * h11 - h01 * h01
+    det = h00 * c00 + h01 * c01 + h02 * c02
+    pd = (h00 > 0) & (c22 > 0) & (det > 1e-12 * np.abs(tr) ** 3)
+    inv = np.where(pd, 1.0 / np.where(pd, det, 1.0), 0.0)
+    tx = (c00 * gx + c01 * gy + c02 * gz) * inv
+    ty = (c01 * gx + c11 * gy + c12 * gz) * inv
+    tz = (c02 * gx + c12 * gy + c22 * gz) * inv
+    if not pd.all():
+        mu = 1.0 / (np.abs(tr) + 1e-300)
+        tx = np.where(pd, tx, gx * mu)
+        ty = np.where(pd, ty, gy * mu)
+        tz = np.where(pd, tz, gz * mu)
+    ang = np.sqrt(tx * tx + ty * ty + tz * tz)
+    big = ang > max_angle
+    if big.any():
+        sc = np.where(big, max_angle / np.where(big, ang, 1.0), 1.0)
+        tx, ty, tz, ang = tx * sc, ty * sc, tz * sc, np.minimum(ang, max_angle)
+    return tx, ty, tz, ang, pd
+
+
 def PolarRotationQuaternion(M: np.ndarray, q: np.ndarray, max_iterations: int = 4,
-                            tolerance: float = 1e-8, fallback_tolerance: float = 1e-3
+                            tolerance: float = 1e-8, fallback_tolerance: float = 1e-6,
+                            quadratic_tolerance: float = 1e-5
                             ) -> tuple[np.ndarray, np.ndarray]:
     """Rotation maximising tr(R^T M) for every M (3, 3, ...) (component-first
-    layout): up to ``max_iterations`` Mueller et al. (2016) steps from the
-    unit quaternions ``q`` (4, ...) (warm start), then the SVD with the
-    reflection fix for entries whose last step still exceeded
-    ``fallback_tolerance`` rad. Returns (R (3, 3, ...), q)."""
-    q = q.copy()
+    layout): up to ``max_iterations`` Newton steps on SO(3) (``_NewtonStep``;
+    the Mueller et al. 2016 step where the Hessian is not positive definite)
+    from the unit quaternions ``q`` (4, ...) (warm start), then the SVD with
+    the reflection fix for entries whose last step still exceeded
+    ``fallback_tolerance`` rad. An entry stops when its step falls below
+    ``tolerance`` rad, or after applying a Newton step (positive definite
+    Hessian) below ``quadratic_tolerance`` rad, which leaves an error of the
+    order of its square. Entries are independent, so stopping some early
+    gives the same result as iterating all. Returns (R (3, 3, ...), q)."""
+    shape = M.shape[2:]
+    Mf = M.reshape(3, 3, -1)
+    q = np.array(q, dtype=float).reshape(4, -1)
     R = QuaternionToMatrix(q)
+    sel = None                                   # indices still iterating (None: all)
+    Ms, Rs, qs = Mf, R, q
     for it in range(max_iterations + 1):
-        # omega = sum_c R[:, c] x M[:, c] / |sum_c R[:, c] . M[:, c]|
-        ox = (R[1] * M[2] - R[2] * M[1]).sum(axis=0)
-        oy = (R[2] * M[0] - R[0] * M[2]).sum(axis=0)
-        oz = (R[0] * M[1] - R[1] * M[0]).sum(axis=0)
-        dot = np.abs((R * M).sum(axis=(0, 1))) + 1e-300
-        ox /= dot
-        oy /= dot
-        oz /= dot
-        ang = np.sqrt(ox * ox + oy * oy + oz * oz)
-        if not np.any(ang > tolerance):
-            break
+        ox, oy, oz, ang, pd = _NewtonStep(Rs, Ms)
+        moving = ang > tolerance
+        if not moving.all():
+            if not moving.any():
+                break
+            ox, oy, oz, ang, pd = ox[moving], oy[moving], oz[moving], ang[moving], pd[moving]
+            sel = np.flatnonzero(moving) if sel is None else sel[moving]
+            Ms, qs = Mf[:, :, sel], q[:, sel]
         if it == max_iterations:
             bad = ang > fallback_tolerance
             if np.any(bad):
-                Mb = np.moveaxis(M[:, :, bad], -1, 0)
+                sb = sel[bad] if sel is not None else np.flatnonzero(bad)
+                Mb = np.moveaxis(Mf[:, :, sb], -1, 0)
                 Rb = np.moveaxis(PolarRotationSvd(Mb), 0, -1)
-                R[:, :, bad] = Rb
-                q[:, bad] = MatrixToQuaternion(Rb)
+                R[:, :, sb] = Rb
+                q[:, sb] = MatrixToQuaternion(Rb)
             break
         half = 0.5 * ang
-        s = np.sinc(half / np.pi) * 0.5          # sin(ang/2) / ang
-        dw, dx, dy, dz = np.cos(half), ox * s, oy * s, oz * s
-        w, x, y, z = q
-        q = np.stack([dw * w - dx * x - dy * y - dz * z,
-                      dw * x + dx * w + dy * z - dz * y,
-                      dw * y - dx * z + dy * w + dz * x,
-                      dw * z + dx * y - dy * x + dz * w])
-        q /= np.sqrt((q * q).sum(axis=0))
-        R = QuaternionToMatrix(q)
-    return R, q
+        sc = np.sinc(half / np.pi) * 0.5          # sin(ang/2) / ang
+        dw, dx, dy, dz = np.cos(half), ox * sc, oy * sc, oz * sc
+        w, x, y, z = qs
+        qs = np.stack([dw * w - dx * x - dy * y - dz * z,
+                       dw * x + dx * w + dy * z - dz * y,
+                       dw * y - dx * z + dy * w + dz * x,
+                       dw * z + dx * y - dy * x + dz * w])
+        qs /= np.sqrt((qs * qs).sum(axis=0))
+        Rs = QuaternionToMatrix(qs)
+        if sel is None:
+            q, R = qs, Rs
+        else:
+            q[:, sel] = qs
+            R[:, :, sel] = Rs
+        go = ~(pd & (ang <= quadratic_tolerance))
+        if not go.all():
+            if not go.any():
+                break
+            sel = np.flatnonzero(go) if sel is None else sel[go]
+            Ms, qs, Rs = Mf[:, :, sel], q[:, sel], Rs[:, :, go]
+    return R.reshape((3, 3) + shape), q.reshape((4,) + shape)
 
 
 @dc.dataclass
@@ -124,6 +242,33 @@ class ArapResult:
     energy: np.ndarray
     iterations: np.ndarray
     converged: np.ndarray
+
+
+def _DistanceChains(dU_c: np.ndarray):
+    """For actions (A, nc, 3): ``pred`` (A,) the action with the next smaller
+    positive multiple of the same constrained displacements (-1 if none),
+    ``ratio`` (A,) the scale factor from it, and the stages (lists of
+    action indices) in which to solve them so that ``pred`` is solved first."""
+    A = len(dU_c)
+    v = dU_c.reshape(A, -1) if A else np.zeros((0, 1))
+    s = np.linalg.norm(v, axis=1)
+    pred, ratio = np.full(A, -1), np.ones(A)
+    nz = np.flatnonzero(s > 0)
+    if len(nz):
+        d = np.round(v[nz] / s[nz, None], 9)
+        _, grp = np.unique(d, axis=0, return_inverse=True)
+        for g in np.unique(grp):
+            mem = nz[grp.reshape(-1) == g]
+            mem = mem[np.argsort(s[mem], kind="stable")]
+            for a, b in zip(mem[:-1], mem[1:]):
+                r = s[b] / s[a]
+                if r > 1.0 + 1e-9 and np.abs(v[b] - r * v[a]).max() <= 1e-9 * s[b]:
+                    pred[b], ratio[b] = a, r
+    depth = np.zeros(A, dtype=np.int64)
+    for a in np.argsort(s, kind="stable"):
+        if pred[a] >= 0:
+            depth[a] = depth[pred[a]] + 1
+    return pred, ratio, [np.flatnonzero(depth == k) for k in range(depth.max() + 1 if A else 0)]
 
 
 class ArapProblem:
@@ -154,6 +299,11 @@ class ArapProblem:
             raise ValueError("free node without edges")
         L = (sp.diags(deg) - W).tocsr()
         self.L = L
+        with SingleThreadBlas():
+            self._Factorize(L, nf, factorization)
+        self._BuildOperators(n, nf, src, dst, w2, e, rest, L)
+
+    def _Factorize(self, L, nf: int, factorization: str) -> None:
         L_ff = L[:nf, :nf].tocsc()
         self.L_fc = L[:nf, nf:].tocsr()
         self.factorization = factorization
@@ -174,6 +324,8 @@ class ArapProblem:
             self._solve = lambda b: inv @ b
         else:
             raise ValueError(f"unknown factorization '{factorization}'")
+
+    def _BuildOperators(self, n, nf, src, dst, w2, e, rest, L) -> None:
         # K_b[i, j] = w_ij e_ij[b]; Kv = [K_0; K_1; K_2] (3n x n), Kh = [K_0 K_1 K_2].
         self._Kv = sp.csr_matrix(
             (np.concatenate([w2 * e[:, b] for b in range(3)]),
@@ -190,6 +342,52 @@ class ArapProblem:
                                        for b in range(3)]) for k in range(3)])[..., None]
         self._Lp = L @ rest
         self._e2 = float((w2 * (e * e).sum(1)).sum())
+        self._BuildReduced(src, dst, w2, e)
+
+    def _BuildReduced(self, src, dst, w2, e) -> None:
+        """Operators of the accelerated solver. Rotations are kept only for
+        the "active" nodes: the free nodes then the constrained nodes with a
+        free neighbour. A constrained node with only constrained neighbours
+        has a constant covariance per action, so its rotation and its share
+        of the energy are computed once per solve."""
+        n, nf = self.n, self.num_free
+        nc = n - nf
+        cf = np.zeros(n, dtype=bool)
+        cf[dst[(src < nf) & (dst >= nf)]] = True
+        act = np.concatenate([np.arange(nf), np.flatnonzero(cf)])
+        inact = np.flatnonzero(~cf[nf:]) + nf
+        nr = len(act)
+        pos = np.full(n, -1, dtype=np.int64)
+        pos[act] = np.arange(nr)
+        self._act, self._inact, self._nr = act, inact, nr
+        ia = pos[src] >= 0
+        s_r, d_a, w_a, e_a = pos[src[ia]], dst[ia], w2[ia], e[ia]
+
+        def stack_rows(rows, cols, wv, ev, nrow, ncol):
+            return sp.csr_matrix(
+                (np.concatenate([wv * ev[:, b] for b in range(3)]),
+                 (np.concatenate([rows + b * nrow for b in range(3)]), np.tile(cols, 3))),
+                shape=(3 * nrow, ncol))
+
+        fj = d_a < nf
+        # M_i (active i) = M0_i + u_i c_i^T - sum_j w_ij u_j e_ij^T; the sum split
+        # into free j (per iteration) and constrained j (once per solve).
+        self._Kvf = stack_rows(s_r[fj], d_a[fj], w_a[fj], e_a[fj], nr, nf)
+        self._Kvc = stack_rows(s_r[~fj], d_a[~fj] - nf, w_a[~fj], e_a[~fj], nr, nc)
+        self._M0r = np.ascontiguousarray(self._M0[:, :, act])          # (3, 3, nr, 1)
+        self._cr = np.ascontiguousarray(self._cT[:, act])                # (3, nr)
+        self._cf = np.ascontiguousarray(self._c[:nf])                    # (nf, 3)
+        # sum_j w_ij R_j e_ij for free i: every neighbour of a free node is active.
+        fs = src < nf
+        self._Khr = sp.csr_matrix(
+            (np.concatenate([w2[fs] * e[fs, b] for b in range(3)]),
+             (np.tile(src[fs], 3), np.concatenate([pos[dst[fs]] + b * nr for b in range(3)]))),
+            shape=(nf, 3 * nr))
+        self._L_ff = self.L[:nf, :nf].tocsr()
+        self._L_cc = self.L[nf:, nf:].tocsr()
+        ii = ~ia
+        self._Kvi = stack_rows(np.searchsorted(inact, src[ii]), dst[ii] - nf, w2[ii], e[ii],
+                               len(inact), nc)
 
     # ---- pieces of the iteration. Displacements are node-major U (n, A, 3)
     # (for the sparse products); rotations and M are component-first
@@ -223,13 +421,228 @@ class ArapProblem:
         rhs -= (self.L_fc @ U_c.reshape(len(U_c), 3 * A)).reshape(nf, A, 3)
         return np.asarray(self._solve(rhs.reshape(nf, 3 * A))).reshape(nf, A, 3)
 
+    # ---- accelerated solver (same energy, same fixed point; see SolveAccelerated).
+
+    def _FastLocal(self, x: np.ndarray, Mconst: np.ndarray) -> np.ndarray:
+        """Covariances M (3, 3, nr, A) of the active nodes for free displacements x (nf, A, 3)."""
+        nf, A, _ = x.shape
+        nr = self._nr
+        M = Mconst.copy()
+        M[:, :, :nf] += x.transpose(2, 0, 1)[:, None] * self._cr[None, :, :nf, None]
+        M -= (self._Kvf @ x.reshape(nf, 3 * A)).reshape(3, nr, A, 3).transpose(3, 0, 1, 2)
+        return M
+
+    def _FastGlobal(self, R: np.ndarray, rc: np.ndarray) -> np.ndarray:
+        nr, A = R.shape[2:]
+        nf = self.num_free
+        Rstack = R.transpose(1, 2, 3, 0).reshape(3 * nr, 3 * A)
+        rhs = (self._Khr @ Rstack).reshape(nf, A, 3)
+        rhs += np.einsum("kbia,bi->iak", R[:, :, :nf], self._cr[:, :nf])
+        rhs *= 0.5
+        rhs += rc
+        return np.asarray(self._solve(rhs.reshape(nf, 3 * A))).reshape(nf, A, 3)
+
+    def _ApplyInverse(self, v: np.ndarray) -> np.ndarray:
+        """L_ff^-1 applied to vectors v (a, 3 nf) in node-major order."""
+        a_ = v.shape[0]
+        nf = self.num_free
+        b = v.reshape(a_, nf, 3).transpose(1, 0, 2).reshape(nf, 3 * a_)
+        out = np.asarray(self._solve(b)).reshape(nf, a_, 3)
+        return out.transpose(1, 0, 2).reshape(a_, 3 * nf)
+
+    def _FastGrad(self, x: np.ndarray, R: np.ndarray, rc: np.ndarray) -> np.ndarray:
+        """grad E / 4 = L_ff x - rhs(R) as (A, 3 nf), node-major."""
+        nr, A = R.shape[2:]
+        nf = self.num_free
+        Rstack = R.transpose(1, 2, 3, 0).reshape(3 * nr, 3 * A)
+        rhs = (self._Khr @ Rstack).reshape(nf, A, 3)
+        rhs += np.einsum("kbia,bi->iak", R[:, :, :nf], self._cr[:, :nf])
+        rhs *= -0.5
+        rhs -= rc
+        rhs += (self._L_ff @ x.reshape(nf, 3 * A)).reshape(nf, A, 3)
+        return rhs.transpose(1, 0, 2).reshape(A, 3 * nf)
+
+    def _FastEnergy(self, x, R, M, lin, Econst):
+        nf, A, _ = x.shape
+        Lx = (self._L_ff @ x.reshape(nf, 3 * A)).reshape(nf, A, 3)
+        quad = np.einsum("nak,nak->a", x, lin + 2.0 * Lx)
+        tr = np.einsum("kbna,kbna->a", R, M)
+        return np.maximum(Econst + quad - 2.0 * tr, 0.0)
+
+    def SolveAccelerated(self, constrained_displacements: np.ndarray, max_iterations: int = 300,
+                         relative_tolerance: float = 1e-5, history: int = 8,
+                         armijo: float = 1e-4, max_backtracks: int = 3,
+                         warm_start: bool = True) -> ArapResult:
+        """As ``SolvePlain`` (same energy, constraints, start and stopping
+        rule) by L-BFGS on the free displacements (see the module notes):
+        ``history`` (s, y) pairs, Armijo constant ``armijo``, up to
+        ``max_backtracks`` step halvings. ``warm_start``: actions whose
+        constrained displacements are a multiple s > 1 of another action's
+        (the same pull, longer) start from s times that action's solution
+        instead of the Laplacian solve."""
+        dU_c = np.asarray(constrained_displacements, dtype=float)
+        A = dU_c.shape[0]
+        n, nf, nr = self.n, self.num_free, self._nr
+        nc = n - nf
+        if dU_c.shape != (A, nc, 3):
+            raise ValueError(f"constrained_displacements must be ({A}, {nc}, 3)")
+        U_c = np.ascontiguousarray(dU_c.transpose(1, 0, 2))              # (nc, A, 3)
+        Ucf = U_c.reshape(nc, 3 * A)
+        act, inact = self._act, self._inact
+        # Per-solve constants.
+        Mconst = self._M0r - (self._Kvc @ Ucf).reshape(3, nr, A, 3).transpose(3, 0, 1, 2)
+        Mconst[:, :, nf:] += (U_c[act[nf:] - nf].transpose(2, 0, 1)[:, None]
+                              * self._cr[None, :, nf:, None])
+        z = (self.L_fc @ Ucf).reshape(nf, A, 3)
+        rc = -self._cf[:, None, :] - z
+        lin = 4.0 * (self._cf[:, None, :] + z)
+        Lcc = (self._L_cc @ Ucf).reshape(nc, A, 3)
+        # E = sum_i (S_i + s_i - 2 tr(R_i^T M_i)), S_i = sum_j w |e'_ij|^2, s_i = sum_j w |e_ij|^2:
+        # sum_i S_i = e2 + 4 u.c + 2 u'Lu, sum_i s_i = e2; the inactive traces are constant.
+        Econst = (2.0 * self._e2 + 4.0 * np.einsum("nak,nk->a", U_c, self._c[nf:])
+                  + 2.0 * np.einsum("nak,nak->a", U_c, Lcc))
+        R_out = np.zeros((A, n, 3, 3))
+        R_out[:, :, [0, 1, 2], [0, 1, 2]] = 1.0
+        ni = len(inact)
+        if ni:
+            Mi = (self._M0[:, :, inact]
+                  + U_c[inact - nf].transpose(2, 0, 1)[:, None] * self._cT[None, :, inact, None]
+                  - (self._Kvi @ Ucf).reshape(3, ni, A, 3).transpose(3, 0, 1, 2))
+            qi = np.zeros((4, ni, A))
+            qi[0] = 1.0
+            Ri, _ = PolarRotationQuaternion(Mi, qi, self.polar_iterations)
+            Econst -= 2.0 * np.einsum("kbna,kbna->a", Ri, Mi)
+            R_out[:, inact] = Ri.transpose(3, 2, 0, 1)
+        U_out = np.empty((A, n, 3))
+        U_out[:, nf:] = dU_c
+        energy = np.full(A, np.inf)
+        iters = np.zeros(A, dtype=np.int64)
+        converged = np.zeros(A, dtype=bool)
+        floor = 1e-14 * max(self._e2, 1e-30)
+        pred, ratio, stages = (_DistanceChains(dU_c) if warm_start
+                               else (np.full(A, -1), np.ones(A), [np.arange(A)]))
+        Mconst_all, rc_all, lin_all, Econst_all = Mconst, rc, lin, Econst
+        for ids in stages:
+            a_ = len(ids)
+            Mconst, rc = Mconst_all[:, :, :, ids], rc_all[:, ids]
+            lin, Econst = lin_all[:, ids], Econst_all[ids]
+            x0 = None
+            if pred[ids[0]] >= 0:      # scaled solution of the next shorter pull
+                x0 = np.ascontiguousarray(
+                    (ratio[ids, None, None] * U_out[pred[ids], :nf]).transpose(1, 0, 2))
+            R = np.zeros((3, 3, nr, a_))
+            R[0, 0] = R[1, 1] = R[2, 2] = 1.0
+            q = np.zeros((4, nr, a_))
+            q[0] = 1.0
+            if x0 is None:
+                x = self._FastGlobal(R, rc)
+            else:
+                x = x0
+            M = self._FastLocal(x, Mconst)
+            R, q = PolarRotationQuaternion(M, q, self.polar_iterations)
+            E = self._FastEnergy(x, R, M, lin, Econst)
+            # L-BFGS on E(x) = min_R E(x, R) with the Laplacian as initial Hessian
+            # (Liu, Bouaziz & Kavan 2017): grad E / 4 = L_ff x - rhs(R(x)), and the
+            # unit step with no history is exactly the global-local step.
+            m = int(history)
+            D = 3 * nf
+            S = np.zeros((a_, m, D))
+            Y = np.zeros((a_, m, D))
+            rho = np.zeros((a_, m))
+            ring = 0
+            gr = self._FastGrad(x, R, rc)
+            it = 1
+            while True:
+                Ep = energy[ids] if it > 1 else np.full(len(ids), np.inf)
+                done = (E <= floor) | (np.isfinite(Ep)
+                                      & (Ep - E <= relative_tolerance * np.maximum(Ep, floor)))
+                stop = done | (it >= max_iterations)
+                energy[ids] = E
+                iters[ids] = it
+                converged[ids[done]] = True
+                if stop.any():
+                    s_ = ids[stop]
+                    U_out[s_, :nf] = x[:, stop].transpose(1, 0, 2)
+                    R_out[np.ix_(s_, act)] = R[:, :, :, stop].transpose(3, 2, 0, 1)
+                    if stop.all():
+                        break
+                    k_ = ~stop
+                    ids = ids[k_]
+                    x, R, q, E, gr = x[:, k_], R[:, :, :, k_], q[:, :, k_], E[k_], gr[k_]
+                    Mconst, rc, lin, Econst = Mconst[:, :, :, k_], rc[:, k_], lin[:, k_], Econst[k_]
+                    S, Y, rho = S[k_], Y[k_], rho[k_]
+                it += 1
+                a_ = len(ids)
+                # Two-loop recursion, vectors (a, D) in node-major order [i, k].
+                qv = gr.copy()
+                alpha = np.zeros((a_, m))
+                for j in [(ring - 1 - t) % m for t in range(m)] if m else []:
+                    alpha[:, j] = rho[:, j] * np.einsum("ad,ad->a", S[:, j], qv)
+                    qv -= alpha[:, j, None] * Y[:, j]
+                r = self._ApplyInverse(qv)
+                for j in [(ring + t) % m for t in range(m)] if m else []:
+                    beta = rho[:, j] * np.einsum("ad,ad->a", Y[:, j], r)
+                    r += (alpha[:, j] - beta)[:, None] * S[:, j]
+                p = -r
+                slope = np.einsum("ad,ad->a", gr, p)                     # < 0 for descent
+                bad = ~(slope < 0)
+                if bad.any():                                            # plain step, forget history
+                    rho[bad] = 0.0
+                    p[bad] = -self._ApplyInverse(gr[bad])
+                    slope[bad] = np.einsum("ad,ad->a", gr[bad], p[bad])
+                t = np.ones(a_)
+                xn = x + p.reshape(a_, nf, 3).transpose(1, 0, 2)
+                Mn = self._FastLocal(xn, Mconst)
+                Rn, qn = PolarRotationQuaternion(Mn, q, self.polar_iterations)
+                En = self._FastEnergy(xn, Rn, Mn, lin, Econst)
+                for _ in range(max_backtracks):
+                    fail = ~(En <= E + 4.0 * armijo * t * slope)
+                    if not fail.any():
+                        break
+                    t[fail] *= 0.5
+                    xf = x[:, fail] + t[None, fail, None] * p[fail].reshape(-1, nf, 3).transpose(1, 0, 2)
+                    Mf = self._FastLocal(xf, Mconst[:, :, :, fail])
+                    Rf, qf = PolarRotationQuaternion(Mf, q[:, :, fail], self.polar_iterations)
+                    En[fail] = self._FastEnergy(xf, Rf, Mf, lin[:, fail], Econst[fail])
+                    xn[:, fail], Rn[:, :, :, fail], qn[:, :, fail] = xf, Rf, qf
+                fail = ~(En <= E)
+                if fail.any():                                           # keep the old iterate
+                    xn[:, fail], Rn[:, :, :, fail], qn[:, :, fail], En[fail] = (
+                        x[:, fail], R[:, :, :, fail], q[:, :, fail], E[fail])
+                    rho[fail] = 0.0
+                grn = self._FastGrad(xn, Rn, rc)
+                sv = (xn - x).transpose(1, 0, 2).reshape(a_, D)
+                yv = grn - gr
+                sy = np.einsum("ad,ad->a", sv, yv)
+                ok = sy > 1e-12 * np.sqrt(np.einsum("ad,ad->a", sv, sv) * np.einsum("ad,ad->a", yv, yv))
+                if m:
+                    S[:, ring], Y[:, ring] = sv, yv
+                    rho[:, ring] = np.where(ok, 1.0 / np.where(ok, sy, 1.0), 0.0)
+                    ring = (ring + 1) % m
+                x, R, q, E, gr = xn, Rn, qn, En, grn
+        return ArapResult(displacements=U_out, positions_W=self.rest_W[None] + U_out,
+                          rotations=R_out, energy=energy, iterations=iters, converged=converged)
+
     def Solve(self, constrained_displacements: np.ndarray, max_iterations: int = 300,
-              relative_tolerance: float = 1e-5) -> ArapResult:
+              relative_tolerance: float = 1e-5, method: str = "lbfgs") -> ArapResult:
         """Minimises E for every action a given the displacements of the
         constrained nodes, ``constrained_displacements`` (A, n - num_free, 3)
-        m. Starts from R = I; per action, stops when the relative energy
-        decrease of one iteration drops below ``relative_tolerance`` (or the
-        energy is at round-off level)."""
+        m. Starts from R = I (the first global step is the Laplacian solve);
+        per action, stops when the relative energy decrease of one iteration
+        drops below ``relative_tolerance`` (or the energy is at round-off
+        level). ``method``: "lbfgs" (default, ``SolveAccelerated``) or
+        "plain" (textbook global-local iterations, ``SolvePlain``)."""
+        solve = dict(lbfgs=self.SolveAccelerated, plain=self.SolvePlain).get(method)
+        if solve is None:
+            raise ValueError(f"unknown ARAP method '{method}'")
+        with SingleThreadBlas():
+            return solve(constrained_displacements, max_iterations, relative_tolerance)
+
+    def SolvePlain(self, constrained_displacements: np.ndarray, max_iterations: int = 300,
+                   relative_tolerance: float = 1e-5) -> ArapResult:
+        """Reference solver: alternate the local step (optimal rotations) and
+        the global step (linear solve) until the relative energy decrease of
+        one iteration drops below ``relative_tolerance``."""
         dU_c = np.asarray(constrained_displacements, dtype=float)
         A = dU_c.shape[0]
         n, nf = self.n, self.num_free

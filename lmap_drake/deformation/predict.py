@@ -64,7 +64,8 @@ def SolveGrasp(prep: GraspSolution, actions: list[Action], config: DeformationCo
     dp = np.array([a.dp_W for a in actions]).reshape(len(actions), 1, 3)
     u_c = np.zeros((len(actions), g.num_constrained, 3))
     u_c[:, g.num_fixed:] = dp
-    res = prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance)
+    res = prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance,
+                             method=config.arap_method)
     dense_W = (prep.interpolator.Apply(g.nodes_W, res.positions_W, res.rotations)
                if dense else [None] * len(actions))
     return [PredictedDeformation(action=a, nodes_W=g.nodes_W, node_kind=g.kind,
