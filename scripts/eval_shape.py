@@ -74,7 +74,8 @@ def main(argv=None):
     ap.add_argument("--methods", default="supeps,homa,ssc")
     ap.add_argument("--num_cases", type=int, default=12)
     ap.add_argument("--source", choices=("auto", "synthetic", "suite"), default="auto")
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch threads (1 avoids oversubscription on a shared 2-core machine)")
     ap.add_argument("--iterations", type=int, default=None)
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)

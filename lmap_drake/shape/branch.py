@@ -234,10 +234,12 @@ def CompleteBranch(points_W: np.ndarray, camera_W: np.ndarray,
 
 
 def SplitBranchParts(points: np.ndarray, min_points: int = 30, slab: float = 0.01,
-                     max_parts: int = 3) -> list[np.ndarray]:
+                     max_parts: int = 3, min_length: float = 0.015) -> list[np.ndarray]:
     """Splits one branch instance into cylinder-like parts: points farther
     than ``max(3 r, r + 6 mm)`` from the fitted axis of the dominant part
-    (e.g. a peduncle stalk labelled as branch) form further parts."""
+    (e.g. a peduncle stalk labelled as branch) form further parts; those
+    shorter than ``min_length`` (m) or 3 radii are dropped (a few points of
+    a mostly hidden stalk give no reliable cylinder)."""
     parts, rest = [], np.asarray(points, float)
     while len(rest) >= 10 and len(parts) < max_parts:
         centre, axis, _, _, radius = EstimateCylinder(rest, slab)
@@ -248,7 +250,16 @@ def SplitBranchParts(points: np.ndarray, min_points: int = 30, slab: float = 0.0
         rest = rest[~inl]
         if len(rest) < min_points:
             break
-    return [p for p in parts if len(p) >= 10]
+    keep = []
+    for i, p in enumerate(parts):
+        if len(p) < 10:
+            continue
+        if i > 0:  # secondary parts: only clearly elongated ones (a stalk)
+            _, _, s0, s1, r = EstimateCylinder(p, slab)
+            if len(p) < min_points or s1 - s0 < max(min_length, 3 * r):
+                continue
+        keep.append(p)
+    return keep
 
 
 def CompleteBranches(points_W, instance, camera_W, params=None, min_points: int = 30

@@ -18,12 +18,21 @@ the paper's weights 1 / 2 / 0.1 / 1 balance):
   neg  weighted mean over the *active* negative points (inside or within
        ``negative_margin`` of the current surface at the last refresh) of
        relu(-s D / u); weights: leaf, observed branch, free space 1,
-       completed-branch samples ``w_neg_completed_branch``
-  ped  mean over the ``num_peduncle_points`` highest-z points of the
-       template surface (canonical frame, from a coarse 16^3
-       marching-tetrahedra mesh of the current z, refreshed every
+       completed-branch samples ``w_neg_completed_branch``. The active
+       set is re-selected every ``refresh_every`` iterations from a random
+       subset of ``max_negative_candidates`` candidates (within 12 cm of
+       the initial centre), capped at ``max_negative_points``
+  ped  mean over the ``num_peduncle_points`` peduncle points of the
+       template (canonical frame: the highest surface points within 6 mm of
+       the +z axis, see ``PeduncleTemplatePoints``; refreshed every
        ``refresh_every`` iterations) of |(T_WO p_ped - p_cor) / u|^2, p_cor
-       the nearest completed-branch sample
+       the nearest completed-branch sample; pairs farther apart than
+       ``peduncle_max_distance``, or whose branch sample is not within
+       ``peduncle_cone_deg`` of the initial axis R0 e_z seen from the centre
+       t, are left out (a deviation from the paper:
+       when the peduncle stalk is hidden, the nearest branch surface is
+       the main stem several cm to the side, and pulling the fruit top
+       there tilts the fruit)
   reg  |z|^2
 Outside the decoder's training cube (half-side 0.08 m in O) the SDF is
 bounded below by the distance to the cube, so far negative points never
@@ -60,6 +69,9 @@ class SscParams:
     max_surface_points: int = 300
     max_negative_points: int = 300
     negative_margin: float = 0.005
+    max_negative_candidates: int = 4000
+    peduncle_max_distance: float = 0.02
+    peduncle_cone_deg: float = 30.0
     refresh_every: int = 25
     mesh_spacing: float = 0.003
     seed: int = 0
@@ -143,12 +155,30 @@ def TemplateMesh(decoder, z: torch.Tensor, n: int = 16, lo=None, hi=None):
     return MarchingTetrahedra(vals.reshape(n, n, n), lo, (hi - lo) / (n - 1))
 
 
-def PeduncleTemplatePoints(decoder, z: torch.Tensor, k: int = 10) -> np.ndarray:
-    """The k highest-z vertices (O, m) of the coarse template mesh."""
-    v, _ = TemplateMesh(decoder, z, 16)
-    if len(v) == 0:
-        return np.zeros((0, 3))
-    return v[np.argsort(-v[:, 2])[:k]]
+@torch.no_grad()
+def PeduncleTemplatePoints(decoder, z: torch.Tensor, k: int = 10,
+                           axis_radius: float = 0.006, dz: float = 0.001) -> np.ndarray:
+    """The peduncle points (O, m): where ``k`` vertical lines within
+    ``axis_radius`` of the canonical z axis (the axis itself and a ring)
+    leave the template surface at the top, i.e. the k highest surface points
+    near the axis. (The paper takes the 10 highest-z points of the template
+    mesh; its template includes a peduncle stub, ours has the cavity the
+    peduncle sits in, whose shoulders are higher than the attachment.)"""
+    ang = 2 * np.pi * np.arange(k - 1) / max(k - 1, 1)
+    xy = np.vstack([[0.0, 0.0], axis_radius * np.c_[np.cos(ang), np.sin(ang)]])[:k]
+    zs = np.arange(0.0, CUBE_RADIUS, dz)
+    grid = np.concatenate([np.repeat(xy, len(zs), 0), np.tile(zs, len(xy))[:, None]], 1)
+    d = DecoderSdf(decoder, torch.as_tensor(z, dtype=torch.float32),
+                   torch.as_tensor(grid, dtype=torch.float32)).numpy().reshape(len(xy), len(zs))
+    out = []
+    for i in range(len(xy)):
+        inside = np.flatnonzero(d[i] < 0)
+        if len(inside) == 0 or inside[-1] + 1 >= len(zs):
+            continue
+        j = inside[-1]
+        w = d[i, j] / (d[i, j] - d[i, j + 1])
+        out.append([xy[i, 0], xy[i, 1], zs[j] + w * dz])
+    return np.array(out).reshape(-1, 3)
 
 
 def _subsample(p: np.ndarray, n: int, rng) -> np.ndarray:
@@ -181,6 +211,7 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
     z = torch.tensor(np.asarray(init.get("z", mean_latent), np.float32), requires_grad=True)
     log_s = torch.tensor(float(np.log(init.get("s", 1.0))), requires_grad=True)
     R0 = torch.as_tensor(np.asarray(init.get("R", np.eye(3)), np.float32))
+    axis0 = R0.numpy()[:, 2].astype(float)
     w = torch.zeros(3, requires_grad=True)
     t = torch.tensor(t0.astype(np.float32), requires_grad=True)
     opt = Adam([z, log_s, w, t], lr=P.learning_rate)
@@ -221,8 +252,9 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
                         PeduncleTemplatePoints(decoder, z.detach(), P.num_peduncle_points),
                         dtype=torch.float32)
                 if len(neg_all):
-                    d = s * DecoderSdf(decoder, z, to_O(neg_all, s, R))
-                    act = np.flatnonzero(d.numpy() < P.negative_margin)
+                    cand = _subsample(np.arange(len(neg_all)), P.max_negative_candidates, rng)
+                    d = s * DecoderSdf(decoder, z, to_O(neg_all[cand], s, R))
+                    act = cand[np.flatnonzero(d.numpy() < P.negative_margin)]
                     act = _subsample(act, P.max_negative_points, rng)
                     act_x, act_w = neg_all[act], torch.as_tensor(neg_w[act], dtype=torch.float32)
         s, R, tt = pose()
@@ -236,9 +268,18 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
         l_ped = torch.zeros(())
         if use_ped and ped_O is not None and len(ped_O):
             pW = s * ped_O @ R.T + tt
-            _, idx = btree.query(pW.detach().numpy())
+            dist, idx = btree.query(pW.detach().numpy())
             cor = torch.as_tensor(branch_samples_W[idx], dtype=torch.float32)
-            l_ped = (((pW - cor) / u) ** 2).sum(1).mean()
+            # Keep pairs that are close and whose branch sample lies within
+            # ``peduncle_cone_deg`` of the initial peduncle axis R0 e_z (world
+            # up for R0 = I; fixed, so the selection cannot feed back on
+            # the rotation) as seen from the current fruit centre t.
+            off = branch_samples_W[idx] - tt.detach().numpy()
+            up = off @ axis0
+            cone = up >= np.cos(np.radians(P.peduncle_cone_deg)) * np.linalg.norm(off, axis=1)
+            near = torch.as_tensor((dist < P.peduncle_max_distance) & cone)
+            if bool(near.any()):
+                l_ped = (((pW[near] - cor[near]) / u) ** 2).sum(1).mean()
         l_reg = (z ** 2).sum()
         loss = P.w_sur * l_sur + P.w_neg * l_neg + P.w_ped * l_ped + P.w_reg * l_reg
         opt.zero_grad()
