@@ -279,6 +279,9 @@ class ShapeConfig:
     max_surface_points: int = 300
     max_negative_points: int = 300
     negative_margin: float = 0.005
+    max_negative_candidates: int = 4000
+    peduncle_max_distance: float = 0.02
+    peduncle_cone_deg: float = 30.0
     refresh_every: int = 25
     mesh_spacing: float = 0.003
     branch_slab: float = 0.01
