@@ -6,7 +6,7 @@
 PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed
-SYSTEM_LIBS := libusb-1.0-0 libegl1 libegl-mesa0 libgl1-mesa-dri
+SYSTEM_LIBS := libusb-1.0-0 libegl1 libegl-mesa0 libgl1-mesa-dri graphviz
 ARGS ?=
 PYTEST_ARGS ?=
 

@@ -51,9 +51,12 @@ def cmd_run(args) -> int:
         if args.hardware:
             from lmap_drake.station.hardware.run import RunHardwareSnapshot
             files = RunHardwareSnapshot(scenario, out, dry_run=args.dry_run, progress=_stage)
-        elif scenario.plant_scene.kind == "procedural" and scenario.plant_scene.pull.enabled:
+        elif scenario.plant_scene.kind == "procedural" and args.scripted:
             from lmap_drake.episode import RunScriptedPullEpisode
             files = RunScriptedPullEpisode(scenario, out, progress=_stage)
+        elif scenario.plant_scene.kind == "procedural":
+            from lmap_drake.episode import RunLmapEpisode
+            files = RunLmapEpisode(scenario, out, progress=_stage)
         else:
             files = RunStationSnapshot(scenario, out, hardware=False, progress=_stage)
     except RuntimeError as err:
@@ -74,6 +77,9 @@ def main(argv=None) -> int:
     run.add_argument("--dry-run", action="store_true",
                      help="with --hardware: connect read-only, read state and one RGB-D "
                           "frame, plan and print the trajectory; command nothing")
+    run.add_argument("--scripted", action="store_true",
+                     help="execute the scenario's scripted pull (plant_scene.pull) instead "
+                          "of planning with LMAP")
     run.set_defaults(func=cmd_run)
     args = parser.parse_args(argv)
     return args.func(args)

@@ -88,3 +88,47 @@ def RunScriptedPullEpisode(scenario: Scenario, out: Path,
                                       for k, v in outcome.items()))
     return files + ["rgb.png", "depth.png", "label.png", "rgb_after.png", "label_after.png",
                     "outcome.json", "scene.html"]
+
+
+def RunLmapEpisode(scenario: Scenario, out: Path,
+                   progress: Callable[[str], None] = print) -> list[str]:
+    """The full LMAP loop in simulation (see ``lmap_drake.evaluation.episode``):
+    writes ``scenario.yaml``, ``episode.json``, ``candidates.json``, before/
+    after RGB with the segmentation overlaid, ``action_and_shapes.png``,
+    the ground truth, ``diagram.svg`` and ``scene.html`` (Meshcat recording
+    with leaf snapshots)."""
+    import json
+
+    from lmap_drake.diagram import WriteDiagramSvg
+    from lmap_drake.evaluation.episode import RunEpisode, SaveEpisode
+    from lmap_drake.plants.generator import SaveGroundTruth
+
+    out = Path(out)
+    DumpScenario(scenario, out / "scenario.yaml")
+    meshcat = Meshcat()
+    progress("loading the shape template, generating the plant, building the diagram")
+    meshcat.StartRecording()
+    result = RunEpisode(scenario, meshcat, progress)
+    meshcat.StopRecording()
+    meshcat.PublishRecording()
+    files = ["scenario.yaml"] + SaveEpisode(result, out)
+    files += SaveGroundTruth(result.world.model, out)
+    SaveRgb(result.images_before["rgb_image"], out / "rgb.png")
+    SaveDepth(result.images_before["depth_image"], out / "depth.png")
+    SaveLabel(result.images_before["label_image"], out / "label.png")
+    SaveRgb(result.images_after["rgb_image"], out / "rgb_after.png")
+    SaveLabel(result.images_after["label_image"], out / "label_after.png")
+    (out / "outcome.json").write_text(json.dumps(result.record["outcome"], indent=2))
+    files += ["rgb.png", "depth.png", "label.png", "rgb_after.png", "label_after.png",
+              "outcome.json"]
+    files.append("diagram.svg" if WriteDiagramSvg(result.world.diagram, out / "diagram.svg")
+                 else "diagram.dot")
+    (out / "scene.html").write_text(meshcat.StaticHtml())
+    files.append("scene.html")
+    r = result.record
+    progress(f"episode {r['status']}: {r['message']}")
+    progress("outcome: " + json.dumps(r["outcome"]))
+    if r["shape_initial"] and r["shape_final"]:
+        progress(f"Chamfer {r['shape_initial']['chamfer_cm']:.2f} cm -> "
+                 f"{r['shape_final']['chamfer_cm']:.2f} cm; wall {r['wall_seconds']:.0f} s")
+    return files

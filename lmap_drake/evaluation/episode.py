@@ -30,6 +30,34 @@ def ShapeErrors(estimate, model) -> dict | None:
         np.asarray(gt.faces), model.peduncle_axis_W, n=10000).items()}
 
 
+class LeafAnimator:
+    """Meshcat's recording does not animate deformable bodies: this adds the
+    leaf's surface as a triangle mesh every ``period`` simulated seconds and
+    toggles the snapshots' visibility in the recording, so the saved HTML
+    shows the leaf moving."""
+
+    def __init__(self, meshcat, world: PlantWorldSim, period: float = 0.2):
+        from lmap_drake.plants.leaf import BoundaryTriangles
+        self.meshcat, self.world, self.period = meshcat, world, period
+        self.faces = np.asarray(BoundaryTriangles(world.model.leaf_tets), np.int32).T.copy()
+        self.k, self.next_time, self.previous = 0, 0.0, None
+
+    def __call__(self) -> None:
+        from pydrake.geometry import Rgba
+        t = self.world.time
+        if self.meshcat is None or t < self.next_time:
+            return
+        path = f"/leaf_snapshots/{self.k:04d}"
+        V = np.asarray(self.world.LeafVertices().T, float, order="F")
+        self.meshcat.SetTriangleMesh(path, V, np.asfortranarray(self.faces),
+                                     Rgba(0.2, 0.6, 0.15, 1.0))
+        self.meshcat.SetProperty(path, "visible", False, 0.0)
+        self.meshcat.SetProperty(path, "visible", True, t)
+        if self.previous is not None:
+            self.meshcat.SetProperty(self.previous, "visible", False, t)
+        self.previous, self.k, self.next_time = path, self.k + 1, t + self.period
+
+
 @dc.dataclass
 class EpisodeResult:
     """What ``RunEpisode`` returns (and writes as ``episode.json``)."""
@@ -57,7 +85,9 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
     def controller():
         c = world.diagram.GetSubsystemByName("arm_controller")
         return c, c.GetMyContextFromRoot(world.context)
+    animate = LeafAnimator(meshcat, world)
     world.AdvanceTo(0.25)
+    animate()
     before = world.Images()
     vis0 = world.Visibility()
     sim_wall = 0.0
@@ -66,6 +96,7 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
         t0 = time.perf_counter()
         world.AdvanceTo(world.time + 0.05)
         sim_wall += time.perf_counter() - t0
+        animate()
         c, cctx = controller()
         st = c.Status(cctx)
         if st.finished:

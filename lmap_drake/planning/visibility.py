@@ -85,22 +85,35 @@ class VisibilityModel:
             uv = self._project(p_C)
             # splat radius: the voxel's pixel footprint at its depth
             rad = np.ceil(0.5 * self.f * self.voxel * np.sqrt(2) / p_C[:, 2]).astype(int)
+            all_pix, all_z = [], []
             for r in np.unique(rad):
                 sel = rad == r
                 for du in range(-r, r + 1):
                     for dv in range(-r, r + 1):
                         pix = self._pixels(uv[sel] + [du, dv])
                         ok = pix >= 0
-                        np.minimum.at(zbuf, pix[ok], p_C[sel, 2][ok])
+                        all_pix.append(pix[ok])
+                        all_z.append(p_C[sel, 2][ok])
+            _MinInto(zbuf, np.concatenate(all_pix), np.concatenate(all_z))
         fz = np.full(h * w, np.inf)
         ok = self._fruit_pix >= 0
-        np.minimum.at(fz, self._fruit_pix[ok], self._fruit_z[ok])
+        _MinInto(fz, self._fruit_pix[ok], self._fruit_z[ok])
         tol = 0.75 * self.voxel
         seen = np.zeros(len(self.fruit_W), bool)
         pix = self._fruit_pix[ok]
         z = self._fruit_z[ok]
         seen[ok] = (z <= fz[pix] + tol) & (z < zbuf[pix] - tol)
         return seen
+
+
+def _MinInto(buf: np.ndarray, idx: np.ndarray, val: np.ndarray) -> None:
+    """buf[i] = min(buf[i], min of val where idx == i) (a fast np.minimum.at)."""
+    if len(idx) == 0:
+        return
+    order = np.lexsort((val, idx))
+    idx, val = idx[order], val[order]
+    first = np.r_[True, idx[1:] != idx[:-1]]
+    buf[idx[first]] = np.minimum(buf[idx[first]], val[first])
 
 
 def CountNewlySeen(seen_k: np.ndarray, seen_init: np.ndarray) -> int:

@@ -248,7 +248,8 @@ class ArmController(LeafSystem):
                 t0 = time.perf_counter()
                 st.final_estimate = self._final.Eval(context)
                 st.stage_seconds["reestimation_s"] = time.perf_counter() - t0
-                self._enter(st, "done", t)
+                self._enter(st, "done", t, "action executed; shape re-estimated on the "
+                            "fused views")
 
     def _Plan(self, context, st: ControllerStatus, t: float) -> None:
         t0 = time.perf_counter()

@@ -17,6 +17,11 @@
   output:  ``plan`` (abstract PlanResult: status, chosen action with its
            joint solutions, the candidate table, per-stage seconds).
 
+With ``planner.method`` set to a baseline (``random``, ``upward``,
+``min_overlap``), ActionCandidates passes the scene through without LMAP
+candidates and ActionSelection runs the baseline at the largest of
+``planner.distances`` (seed ``random_seed``).
+
 All outputs are computed on demand and cached by Drake until an input
 changes. The robot model (a MultibodyPlant for IK) is an attribute.
 """
@@ -26,8 +31,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, PlanningContext,
-                                      PlanResult, SelectFromPredictions)
+from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, PlanBaseline,
+                                      PlanningContext, PlanResult, SelectFromPredictions)
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
 from lmap_drake.types import SceneEstimate, SemanticScene
@@ -69,6 +74,11 @@ class ActionCandidates(LeafSystem):
     def _calc_set(self, context, output) -> None:
         scene = self.get_input_port(0).Eval(context)
         q = self.get_input_port(1).Eval(context)
+        if self._scenario.planner.method != "lmap":
+            # Baselines choose in ActionSelection, without LMAP candidates
+            # and without deformation predictions.
+            output.set_value(CandidateSet("baseline", scene))
+            return
         output.set_value(GenerateCandidates(self.Context(scene, q), self._scenario.planner,
                                             self._scenario.deformation))
 
@@ -91,6 +101,13 @@ class ActionSelection(LeafSystem):
     def _calc(self, context, output) -> None:
         import time
         cset = self.get_input_port(0).Eval(context)
+        cfg = self._scenario.planner
+        if cfg.method != "lmap":
+            q = self.get_input_port(2).Eval(context)
+            ctx = self._candidates.Context(cset.scene, q)
+            output.set_value(PlanBaseline(ctx, cfg, cfg.method, cfg.distances[-1],
+                                          seed=self._scenario.random_seed))
+            return
         t0 = time.perf_counter()
         predictions = self.get_input_port(1).Eval(context) if cset.status == "ok" else []
         deformation_s = time.perf_counter() - t0
