@@ -64,6 +64,15 @@ def TriangulateLeaf(shape: LeafShape) -> tuple[np.ndarray, np.ndarray]:
     pts = [poly[i] + seg[i] * f for i in range(len(poly))
            for f in np.arange(0, 1, h / max(np.linalg.norm(seg[i]), 1e-9))]
     boundary = np.array(pts)
+    # Drop boundary samples closer than 0.3 h to the previous kept one (the
+    # resampling can put two almost on top of each other at short segments).
+    keep = [0]
+    for i in range(1, len(boundary)):
+        if np.linalg.norm(boundary[i] - boundary[keep[-1]]) > 0.3 * h:
+            keep.append(i)
+    if np.linalg.norm(boundary[keep[-1]] - boundary[0]) <= 0.3 * h and len(keep) > 3:
+        keep.pop()
+    boundary = boundary[keep]
     # Interior: a hexagonal grid kept at least 0.45 h from the boundary.
     u0, u1 = poly[:, 0].min(), poly[:, 0].max()
     v0, v1 = poly[:, 1].min(), poly[:, 1].max()
@@ -84,6 +93,10 @@ def TriangulateLeaf(shape: LeafShape) -> tuple[np.ndarray, np.ndarray]:
     centroids = uv[faces].mean(axis=1)
     keep = path.contains_points(centroids, radius=-1e-9) | path.contains_points(centroids)
     faces = faces[keep]
+    # No slivers: drop triangles with almost no area (collinear boundary points).
+    a, b = uv[faces[:, 1]] - uv[faces[:, 0]], uv[faces[:, 2]] - uv[faces[:, 0]]
+    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    faces = faces[area > 0.02 * h * h]
     used = np.unique(faces)
     remap = -np.ones(len(uv), int)
     remap[used] = np.arange(len(used))

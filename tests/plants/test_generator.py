@@ -62,3 +62,12 @@ def test_paper_suite_names_and_ground_truth(tmp_path):
     assert set(files) == {"ground_truth.json", "fruit_W.obj", "leaf_rest_W.obj"}
     assert gt["fruit_volume_m3"] == pytest.approx(m.fruit_volume)
     assert np.allclose(gt["branch_axis_W"], [0, 0, 1])
+
+
+def test_suite_leaf_meshes_have_no_degenerate_tets():
+    from lmap_drake.plants.leaf import TetVolumes
+    for name in ("small_leaf_thin_branch_round_red_heavy",
+                 "large_leaf_thick_branch_round_red_heavy"):
+        m = GeneratePlant(PaperSuite()[name], P_WC)
+        v = TetVolumes(m.leaf_rest_W, m.leaf_tets)
+        assert v.min() > 1e-3 * np.median(v), name
