@@ -262,8 +262,8 @@ def SplitBranchParts(points: np.ndarray, min_points: int = 30, slab: float = 0.0
     return keep
 
 
-def CompleteBranches(points_W, instance, camera_W, params=None, min_points: int = 30
-                     ) -> BranchEstimate | None:
+def CompleteBranches(points_W, instance, camera_W, params=None, min_points: int = 30,
+                     max_points: int = 6000) -> BranchEstimate | None:
     """Completes every branch instance with at least ``min_points`` points
     (all points as one instance when ids are missing / all -1), each split
     into cylinder-like parts (``SplitBranchParts``: a peduncle stalk becomes
@@ -274,6 +274,9 @@ def CompleteBranches(points_W, instance, camera_W, params=None, min_points: int 
         return None
     inst = np.asarray(instance) if instance is not None and len(instance) == len(pts) \
         else -np.ones(len(pts), int)
+    if len(pts) > max_points:  # fused clouds: a seeded subsample is plenty
+        keep = np.sort(np.random.default_rng(0).choice(len(pts), max_points, replace=False))
+        pts, inst = pts[keep], inst[keep]
     ids = [i for i in np.unique(inst) if i >= 0 and (inst == i).sum() >= min_points]
     groups = [pts[inst == i] for i in ids] if ids else [pts]
     parts = [p for g in groups for p in SplitBranchParts(g, min_points)]

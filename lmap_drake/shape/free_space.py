@@ -180,5 +180,12 @@ def FreeSpacePoints(camera_W: np.ndarray, points_W: np.ndarray, fruit_points_W: 
     if len(fruit_points_W) == 0 or len(points_W) == 0:
         return np.zeros((0, 3))
     grid = RegionAroundFruit(fruit_points_W, voxel)
-    idx = CarveFreeSpace(camera_W, points_W, grid)
+    # Rays ending in the same half-voxel cell are nearly identical: keep one
+    # per cell (fused multi-view clouds can hold 10^5 points).
+    pts = np.asarray(points_W, float)
+    _, first = np.unique(np.floor(pts / (0.5 * voxel)).astype(np.int64), axis=0,
+                         return_index=True)
+    idx = CarveFreeSpace(camera_W, pts[np.sort(first)], grid)
+    occ = _occupied(grid, pts)
+    idx = np.setdiff1d(idx, occ)
     return grid.centers(grid.unflat(idx))
