@@ -162,7 +162,7 @@ class ScriptedPullConfig:
     pregrasp_distance: float = 0.05
     pregrasp_opening: float = 0.02
     direction_W: list[float] = dc.field(default_factory=lambda: [-0.57, 0.0, 0.82])
-    distance: float = 0.07
+    distance: float = 0.06
     duration: float = 2.0
     hold: float = 0.5
 

@@ -50,8 +50,9 @@ def Outline(shape: LeafShape, spacing: float) -> np.ndarray:
                             np.c_[u_blade, -HalfWidth(shape, u_blade)]])
     left = right[::-1].copy()
     left[:, 1] *= -1
-    poly = np.concatenate([right[:-1], left[:-1]])  # tip point once
-    return poly
+    # right side base -> tip, then the left side tip -> base (tip once); the
+    # polygon closes across the petiole's base.
+    return np.concatenate([right, left[1:]])
 
 
 def TriangulateLeaf(shape: LeafShape) -> tuple[np.ndarray, np.ndarray]:

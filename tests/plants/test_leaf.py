@@ -53,3 +53,9 @@ def test_max_principal_stretch():
 def test_bad_shape_name():
     with pytest.raises(ValueError, match="ovate"):
         TriangulateLeaf(LeafShape(shape="round"))
+
+
+def test_petiole_base_has_both_corners():
+    uv, _ = TriangulateLeaf(LeafShape(element_size=0.01))
+    base = uv[np.isclose(uv[:, 0], -LeafShape().petiole_length)]
+    assert len(base) == 2 and np.ptp(base[:, 1]) == pytest.approx(LeafShape().petiole_width)

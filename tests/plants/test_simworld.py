@@ -76,3 +76,13 @@ def test_pushing_into_the_fruit_is_flagged(grasped):
     Pull(world, toward, 0.06, 1.5, 0.2)
     out = _outcome(world)
     assert out.fruit_collision, out
+
+
+def test_leaf_holds_its_shape_under_gravity():
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    world = PlantWorldSim(scenario)
+    fixed = world.model.leaf_fixed
+    assert fixed.sum() >= 6 and np.ptp(world.model.leaf_uv[fixed, 1]) > 0.004
+    world.Hold(0.5)
+    sag = np.linalg.norm(world.LeafVertices() - world.model.leaf_rest_W, axis=1).max()
+    assert sag < 0.01
