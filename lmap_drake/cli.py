@@ -2,6 +2,9 @@
 
     lmap-drake run [--scenario_file F] [--scenario_name N] [--scenario_text YAML]
                    [--output DIR] [--hardware [--dry-run]]
+    lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
+                    [--distances D,..] [--random_seeds K] [--scenario_names A,B]
+                    [--workers W] [--output DIR] [--resume]
 """
 from __future__ import annotations
 
@@ -66,6 +69,51 @@ def cmd_run(args) -> int:
     return 0
 
 
+def cmd_eval(args) -> int:
+    from lmap_drake.evaluation import tables as T
+    from lmap_drake.evaluation.run_eval import RunEvaluation
+    from lmap_drake.scenario import _RawYaml
+
+    out = Path(args.output) if args.output else Path("out") / (
+        "eval-" + _dt.datetime.now().strftime("%Y%m%d-%H%M%S"))
+    out.mkdir(parents=True, exist_ok=True)
+    if args.scenarios:
+        from lmap_drake.plants.suite import RandomSuite, SuiteYaml
+        suite_file = out / "suite.yaml"
+        suite_file.write_text(SuiteYaml(RandomSuite(args.scenarios, args.seed),
+                                        f"# RandomSuite({args.scenarios}, {args.seed})"))
+    else:
+        suite_file = Path(args.scenario_file)
+    if not suite_file.exists():
+        print(f"error: scenario file not found: {suite_file}", file=sys.stderr)
+        return 2
+    names = list(_RawYaml(suite_file.read_text()) or {})
+    if args.scenario_names:
+        wanted = [n for n in args.scenario_names.split(",") if n]
+        missing = [n for n in wanted if n not in names]
+        if missing:
+            print(f"error: not in {suite_file}: {', '.join(missing)}", file=sys.stderr)
+            return 2
+        names = wanted
+    try:
+        methods = [m for m in args.methods.split(",") if m]
+        distances = [float(d) for d in args.distances.split(",") if d]
+        specs = T.EpisodeSpecs(names, methods, distances, args.random_seeds, args.seed)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    try:
+        summary = RunEvaluation(specs, suite_file, out, workers=args.workers,
+                                resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
+                                threshold=args.visibility_success)
+    except FileExistsError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    for eid, msg in summary["errors"]:
+        print(f"error in {eid}: {msg}", file=sys.stderr)
+    return 1 if summary["errors"] else 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="lmap-drake", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -81,6 +129,30 @@ def main(argv=None) -> int:
                      help="execute the scenario's scripted pull (plant_scene.pull) instead "
                           "of planning with LMAP")
     run.set_defaults(func=cmd_run)
+    ev = sub.add_parser("eval", help="run a scenario suite with LMAP and the baselines; "
+                        "write the Table II-V analogues")
+    ev.add_argument("--scenario_file", default=str(DEFAULT_SCENARIO_FILE.parent / "suite.yaml"),
+                    help="suite of named scenarios (default: %(default)s)")
+    ev.add_argument("--scenarios", type=int, default=0,
+                    help="instead: N random scenarios from RandomSuite(N, --seed)")
+    ev.add_argument("--seed", type=int, default=0,
+                    help="RandomSuite seed, and the first planner random_seed")
+    ev.add_argument("--scenario_names", default="",
+                    help="comma-separated subset of the suite's scenarios")
+    ev.add_argument("--methods", default="random,upward,min_overlap,lmap,lmap_lambda0",
+                    help="comma-separated methods (default: %(default)s)")
+    ev.add_argument("--distances", default="0.02,0.04,0.06,0.08",
+                    help="baseline move distances, metres (default: %(default)s)")
+    ev.add_argument("--random_seeds", type=int, default=5,
+                    help="Random-baseline trials per scenario and distance")
+    ev.add_argument("--workers", type=int, default=2, help="worker processes")
+    ev.add_argument("--visibility_success", type=float, default=0.95,
+                    help="Table V: final visibility counted as sufficient")
+    ev.add_argument("--output", default=None, help="output folder (default: out/eval-<time>/)")
+    ev.add_argument("--resume", action="store_true",
+                    help="continue OUTPUT/episodes.jsonl: skip episodes already recorded "
+                         "(errors are re-run)")
+    ev.set_defaults(func=cmd_eval)
     args = parser.parse_args(argv)
     return args.func(args)
 

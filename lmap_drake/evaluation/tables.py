@@ -1,0 +1,449 @@
+"""Functional core of ``lmap-drake eval``: episode specs, and the
+aggregation of episode records (``RunEpisode(...).record`` plus an ``eval``
+entry naming the spec) into analogues of the paper's Tables II-V, written as
+JSON, Markdown and matplotlib bar charts. Pure functions on dicts; nothing
+here simulates.
+
+Method labels: ``random``, ``upward``, ``min_overlap`` (baselines, one row
+per move distance), ``lmap`` (lambda = 1) and ``lmap_lambda0`` (lambda = 0);
+the LMAP rows choose their own distance (row key ``adaptive``).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+BASELINES = ("random", "upward", "min_overlap")
+LMAP_METHODS = {"lmap": 1.0, "lmap_lambda0": 0.0}
+METHODS = BASELINES + tuple(LMAP_METHODS)
+DEFAULT_DISTANCES = (0.02, 0.04, 0.06, 0.08)
+ADAPTIVE = "adaptive"
+SHAPE_KEYS = ("chamfer_cm", "volume_err_cm3", "center_err_cm", "angle_err_deg")
+# Table IV rows: paper name -> stage_seconds keys (first present wins).
+STAGES = {
+    "semantic_segmentation": ("segmentation_s",),
+    "branch_completion": ("branch_completion_s", "branch_s"),
+    "fruit_completion": ("shape_completion_s",),
+    "generation_collision": ("generation_collision_s",),
+    "deformation_simulation": ("deformation_s",),
+    "visibility_checking": ("visibility_s",),
+    "reestimation": ("reestimation_s",),
+}
+VISIBILITY_SUCCESS = 0.95
+
+
+# ----------------------------------------------------------------- specs
+def DistanceLabel(distance: float | None) -> str:
+    """Row key of a move distance: ``'6cm'`` (``'adaptive'`` for None)."""
+    if distance is None:
+        return ADAPTIVE
+    cm = round(100.0 * float(distance), 2)
+    return f"{cm:g}cm"
+
+
+def EpisodeId(spec: dict) -> str:
+    return f"{spec['scenario']}|{spec['method']}|{DistanceLabel(spec['distance'])}|s{spec['seed']}"
+
+
+def EpisodeSpecs(scenarios: list[str], methods=METHODS, distances=DEFAULT_DISTANCES,
+                 random_seeds: int = 5, seed: int = 0) -> list[dict]:
+    """One spec per episode: the Random baseline ``random_seeds`` times
+    (seeds ``seed .. seed+random_seeds-1``) at each distance, Upward and
+    Min-Overlap once at each distance, LMAP once per energy weight (its
+    own distances from the scenario). Ordered scenario-major."""
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+    specs = []
+    for name in scenarios:
+        for m in methods:
+            if m in LMAP_METHODS:
+                specs.append(dict(scenario=name, method=m, distance=None, seed=seed,
+                                  energy_weight=LMAP_METHODS[m]))
+                continue
+            seeds = range(seed, seed + random_seeds) if m == "random" else [seed]
+            for d in distances:
+                for s in seeds:
+                    specs.append(dict(scenario=name, method=m, distance=float(d), seed=s,
+                                      energy_weight=None))
+    for s in specs:
+        s["episode_id"] = EpisodeId(s)
+    return specs
+
+
+def ScenarioOverride(spec: dict) -> str:
+    """``scenario_text`` YAML for a spec (planner method, distances, energy
+    weight, random seed)."""
+    if spec["method"] in LMAP_METHODS:
+        planner = f"method: lmap, energy_weight: {float(spec['energy_weight'])!r}"
+    else:
+        planner = f"method: {spec['method']}, distances: [{float(spec['distance'])!r}]"
+    return f"{{planner: {{{planner}}}, random_seed: {int(spec['seed'])}}}"
+
+
+def LatestRecords(records: list[dict]) -> dict[str, dict]:
+    """episode_id -> the last record with that id (a resumed run appends)."""
+    out = {}
+    for r in records:
+        out[r["eval"]["episode_id"]] = r
+    return out
+
+
+def CompletedIds(records: list[dict]) -> set[str]:
+    """Ids ``--resume`` skips: the latest record is not an ``error``."""
+    return {k for k, r in LatestRecords(records).items() if r.get("status") != "error"}
+
+
+# ------------------------------------------------------------ aggregation
+def _valid(records):
+    return [r for r in records if r.get("status") != "error" and r.get("outcome")]
+
+
+def IsSafe(record: dict) -> bool:
+    o = record["outcome"]
+    return not (o["leaf_damage"] or o["plant_hazard"] or o["fruit_collision"])
+
+
+def ScoredVisibility(record: dict) -> float:
+    """Table II's visibility: the final value, or the initial one for an
+    unsafe trial (the paper: "for unsafe trials, the visibility fraction is
+    set to the initial value")."""
+    o = record["outcome"]
+    return float(o["visibility_final"] if IsSafe(record) else o["visibility_initial"])
+
+
+def _mean_std(values) -> dict:
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    if v.size == 0:
+        return {"mean": None, "std": None, "n": 0}
+    return {"mean": float(v.mean()), "std": float(v.std()), "n": int(v.size)}
+
+
+def _group(records) -> dict[tuple[str, str], list[dict]]:
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in records:
+        e = r["eval"]
+        groups.setdefault((e["method"], DistanceLabel(e["distance"])), []).append(r)
+    return groups
+
+
+def _ordered(groups):
+    def key(k):
+        m, d = k
+        mi = METHODS.index(m) if m in METHODS else len(METHODS)
+        return (mi, math.inf if d == ADAPTIVE else float(d[:-2]))
+    return sorted(groups, key=key)
+
+
+def _nest(rows: dict[tuple[str, str], dict]) -> dict:
+    out: dict = {}
+    for (m, d) in _ordered(rows):
+        out.setdefault(m, {})[d] = rows[(m, d)]
+    return out
+
+
+def Table2Row(records: list[dict]) -> dict:
+    """Safety and visibility of one method row (errors are counted apart)."""
+    ok = _valid(records)
+    n = len(ok)
+
+    def count(flag):
+        return sum(bool(r["outcome"][flag]) for r in ok)
+    safe = sum(IsSafe(r) for r in ok)
+    dist = [r["chosen_action"]["distance"] * 100.0 for r in ok
+            if r.get("chosen_action") and r["chosen_action"].get("distance") is not None]
+    row = {"n": n, "n_errors": len(records) - n,
+           "n_not_done": sum(r.get("status") != "done" for r in ok),
+           "safe": safe, "safe_rate": safe / n if n else None}
+    for flag in ("plant_hazard", "fruit_collision", "leaf_damage"):
+        c = count(flag)
+        row[flag] = c
+        row[f"{flag}_rate"] = c / n if n else None
+    vis = _mean_std(ScoredVisibility(r) for r in ok)
+    row["visibility_mean"], row["visibility_std"] = vis["mean"], vis["std"]
+    v0 = _mean_std(r["outcome"]["visibility_initial"] for r in ok)
+    row["visibility_initial_mean"], row["visibility_initial_std"] = v0["mean"], v0["std"]
+    row["move_distance_cm_mean"] = _mean_std(dist)["mean"]
+    return row
+
+
+def Table2(records: list[dict]) -> dict:
+    """{method: {distance label: row}} plus ``initial_visibility`` over the
+    scenarios (each scenario's mean initial visibility, then mean +- std)."""
+    groups = _group(LatestRecords(records).values())
+    out = _nest({k: Table2Row(v) for k, v in groups.items()})
+    per_scene: dict[str, list[float]] = {}
+    for r in _valid(LatestRecords(records).values()):
+        per_scene.setdefault(r["eval"]["scenario"], []).append(
+            r["outcome"]["visibility_initial"])
+    iv = _mean_std(np.mean(v) for v in per_scene.values())
+    out["initial_visibility"] = {"mean": iv["mean"], "std": iv["std"], "scenarios": iv["n"]}
+    return out
+
+
+def _shape_means(records, which) -> dict:
+    vals = [r[which] for r in records if r.get(which)]
+    row = {"n": len(vals)}
+    for k in SHAPE_KEYS:
+        row[k] = _mean_std(v.get(k) for v in vals)["mean"]
+    return row
+
+
+def Table3(records: list[dict]) -> dict:
+    """{method: {"final": means, "initial": means}} of the shape metrics
+    (Table III is the ``lmap`` row's ``final``)."""
+    out = {}
+    by_method: dict[str, list] = {}
+    for r in _valid(LatestRecords(records).values()):
+        by_method.setdefault(r["eval"]["method"], []).append(r)
+    for m in sorted(by_method, key=lambda m: METHODS.index(m) if m in METHODS else 99):
+        out[m] = {"final": _shape_means(by_method[m], "shape_final"),
+                  "initial": _shape_means(by_method[m], "shape_initial")}
+    return out
+
+
+def Table4(records: list[dict]) -> dict:
+    """{method: {stage: mean seconds or None}} with the paper's stage names,
+    ``total`` (sum of the present stages, per episode) and ``episode_wall``."""
+    out = {}
+    by_method: dict[str, list] = {}
+    for r in _valid(LatestRecords(records).values()):
+        by_method.setdefault(r["eval"]["method"], []).append(r)
+    for m in sorted(by_method, key=lambda m: METHODS.index(m) if m in METHODS else 99):
+        rs = by_method[m]
+        row, totals = {"n": len(rs)}, [0.0] * len(rs)
+        for stage, keys in STAGES.items():
+            vals = []
+            for i, r in enumerate(rs):
+                ss = r.get("stage_seconds") or {}
+                v = next((ss[k] for k in keys if k in ss), None)
+                if v is not None:
+                    vals.append(float(v))
+                    totals[i] += float(v)
+            row[stage] = _mean_std(vals)["mean"]
+        row["total"] = _mean_std(totals)["mean"]
+        row["episode_wall"] = _mean_std(r.get("wall_seconds") for r in rs)["mean"]
+        out[m] = row
+    return out
+
+
+def Table5Row(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dict:
+    """A partition of the valid episodes: ``success`` (safe and final
+    visibility >= threshold), ``leaf_damage``, ``insufficient_visibility``
+    (safe but below the threshold), ``other_unsafe`` (plant hazard or fruit
+    collision without leaf damage)."""
+    ok = _valid(records)
+    row = {"n": len(ok), "n_errors": len(records) - len(ok), "success": 0, "leaf_damage": 0,
+           "insufficient_visibility": 0, "other_unsafe": 0, "threshold": threshold}
+    for r in ok:
+        o = r["outcome"]
+        if o["leaf_damage"]:
+            row["leaf_damage"] += 1
+        elif not IsSafe(r):
+            row["other_unsafe"] += 1
+        elif o["visibility_final"] < threshold:
+            row["insufficient_visibility"] += 1
+        else:
+            row["success"] += 1
+    row["success_rate"] = row["success"] / row["n"] if row["n"] else None
+    return row
+
+
+def Table5(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dict:
+    """{"lmap_lambda0": row, "lmap": row} for the methods present."""
+    latest = list(LatestRecords(records).values())
+    out = {}
+    for m in ("lmap_lambda0", "lmap"):
+        rs = [r for r in latest if r["eval"]["method"] == m]
+        if rs:
+            out[m] = Table5Row(rs, threshold)
+            out[m]["energy_weight"] = LMAP_METHODS[m]
+    return out
+
+
+def AllTables(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dict:
+    return {"table2": Table2(records), "table3": Table3(records),
+            "table4": Table4(records), "table5": Table5(records, threshold)}
+
+
+# ---------------------------------------------------------------- output
+def _f(x, fmt="{:.2f}"):
+    return "-" if x is None else fmt.format(x)
+
+
+def Markdown(tables: dict, title: str = "lmap-drake eval", notes: str = "") -> str:
+    t2, t3, t4, t5 = (tables[k] for k in ("table2", "table3", "table4", "table5"))
+    L = [f"# {title}", ""]
+    if notes:
+        L += [notes, ""]
+    L += ["## Table II analogue: action planning (safety, visibility)", "",
+          "| Method | Move distance | Safe | Plant hazard | Fruit collision | Leaf damage "
+          "| Visibility fraction | Initial visibility | Errors |",
+          "|---|---|---|---|---|---|---|---|---|"]
+    for m, rows in t2.items():
+        if m == "initial_visibility":
+            continue
+        for d, r in rows.items():
+            dist = (f"{_f(r['move_distance_cm_mean'], '{:.1f}')} cm (adaptive)"
+                    if d == ADAPTIVE else d.replace("cm", " cm"))
+            n = r["n"]
+            L.append(f"| {m} | {dist} | {r['safe']} / {n} | {r['plant_hazard']} / {n} | "
+                     f"{r['fruit_collision']} / {n} | {r['leaf_damage']} / {n} | "
+                     f"{_f(r['visibility_mean'])} ± {_f(r['visibility_std'])} | "
+                     f"{_f(r['visibility_initial_mean'])} ± "
+                     f"{_f(r['visibility_initial_std'])} | {r['n_errors']} |")
+    iv = t2.get("initial_visibility", {})
+    L += ["", f"Initial visibility over {iv.get('scenarios', 0)} scenario(s): "
+          f"{_f(iv.get('mean'))} ± {_f(iv.get('std'))}. Unsafe trials count their initial "
+          "visibility (as in the paper); std is the population std.", ""]
+    L += ["## Table III analogue: shape completion after the action", "",
+          "| Method | Estimate | n | Chamfer (cm) | Volume err (cm³) | Center err (cm) "
+          "| Angle err (deg) |", "|---|---|---|---|---|---|---|"]
+    for m, r in t3.items():
+        for which in ("final", "initial"):
+            s = r[which]
+            L.append(f"| {m} | {which} | {s['n']} | " + " | ".join(
+                _f(s[k]) for k in SHAPE_KEYS) + " |")
+    L += ["", "## Table IV analogue: runtime per stage (mean s)", "",
+          "| Method | n | " + " | ".join(k.replace("_", " ") for k in STAGES) +
+          " | total | episode wall |", "|---" * (len(STAGES) + 4) + "|"]
+    for m, r in t4.items():
+        L.append(f"| {m} | {r['n']} | " + " | ".join(_f(r[k]) for k in STAGES) +
+                 f" | {_f(r['total'])} | {_f(r['episode_wall'], '{:.1f}')} |")
+    L += ["", "`-`: stage not recorded (branch completion is timed inside fruit "
+          "completion unless `stage_seconds` carries it).", ""]
+    thr = next(iter(t5.values()), {}).get("threshold", VISIBILITY_SUCCESS)
+    L += ["## Table V analogue: energy weight", "",
+          "| Method | λ | Success | Leaf damage | Insufficient visibility "
+          f"(< {thr:g}) | Other unsafe | Errors |", "|---|---|---|---|---|---|---|"]
+    for m, r in t5.items():
+        L.append(f"| {m} | {r['energy_weight']:g} | {r['success']} / {r['n']} | "
+                 f"{r['leaf_damage']} | {r['insufficient_visibility']} | "
+                 f"{r['other_unsafe']} | {r['n_errors']} |")
+    return "\n".join(L) + "\n"
+
+
+def SavePlots(tables: dict, out: Path) -> list[str]:
+    """Bar charts of the four tables; returns the file names written."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    out = Path(out)
+    files = []
+    t2 = tables["table2"]
+    rows = [(m, d, r) for m, rs in t2.items() if m != "initial_visibility"
+            for d, r in rs.items()]
+    if rows:
+        labels = [f"{m}\n{d}" for m, d, _ in rows]
+        x = np.arange(len(rows))
+        fig, axes = plt.subplots(1, 2, figsize=(max(8, 1.2 * len(rows) + 4), 4))
+        w = 0.27
+        for i, (k, name) in enumerate([("safe_rate", "safe"),
+                                       ("plant_hazard_rate", "plant hazard"),
+                                       ("fruit_collision_rate", "fruit collision")]):
+            axes[0].bar(x + (i - 1) * w, [r[k] or 0 for _, _, r in rows], w, label=name)
+        axes[0].set_xticks(x, labels, fontsize=7)
+        axes[0].set_ylim(0, 1.05)
+        axes[0].set_title("Table II: rates")
+        axes[0].legend(fontsize=7)
+        axes[1].bar(x, [r["visibility_mean"] or 0 for _, _, r in rows],
+                    yerr=[r["visibility_std"] or 0 for _, _, r in rows], capsize=3,
+                    label="scored visibility")
+        axes[1].scatter(x, [r["visibility_initial_mean"] or 0 for _, _, r in rows],
+                        color="k", marker="_", s=300, label="initial", zorder=3)
+        axes[1].set_xticks(x, labels, fontsize=7)
+        axes[1].set_ylim(0, 1.1)
+        axes[1].set_title("Table II: visibility fraction")
+        axes[1].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "table2.png", dpi=110)
+        plt.close(fig)
+        files.append("table2.png")
+    t3 = tables["table3"]
+    if t3:
+        fig, axes = plt.subplots(1, 4, figsize=(13, 3.4))
+        ms = list(t3)
+        x = np.arange(len(ms))
+        for ax, k in zip(axes, SHAPE_KEYS):
+            ax.bar(x - 0.2, [t3[m]["initial"][k] or 0 for m in ms], 0.4, label="initial")
+            ax.bar(x + 0.2, [t3[m]["final"][k] or 0 for m in ms], 0.4, label="final")
+            ax.set_xticks(x, ms, fontsize=7, rotation=20)
+            ax.set_title(k)
+        axes[0].legend(fontsize=7)
+        fig.suptitle("Table III: shape metrics before / after the action")
+        fig.tight_layout()
+        fig.savefig(out / "table3.png", dpi=110)
+        plt.close(fig)
+        files.append("table3.png")
+    t4 = tables["table4"]
+    if t4:
+        fig, ax = plt.subplots(figsize=(9, 3.8))
+        ms = list(t4)
+        x = np.arange(len(STAGES))
+        w = 0.8 / len(ms)
+        for i, m in enumerate(ms):
+            ax.bar(x + (i - (len(ms) - 1) / 2) * w, [t4[m][k] or 0 for k in STAGES], w, label=m)
+        ax.set_xticks(x, [k.replace("_", "\n") for k in STAGES], fontsize=7)
+        ax.set_ylabel("mean seconds")
+        ax.set_title("Table IV: runtime per stage")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "table4.png", dpi=110)
+        plt.close(fig)
+        files.append("table4.png")
+    t5 = tables["table5"]
+    if t5:
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        ms = list(t5)
+        bottom = np.zeros(len(ms))
+        for k in ("success", "leaf_damage", "insufficient_visibility", "other_unsafe"):
+            v = np.array([t5[m][k] for m in ms], float)
+            ax.bar([f"{m}\n(λ={t5[m]['energy_weight']:g})" for m in ms], v, bottom=bottom,
+                   label=k.replace("_", " "))
+            bottom += v
+        ax.set_ylabel("episodes")
+        ax.set_title("Table V: energy weight")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "table5.png", dpi=110)
+        plt.close(fig)
+        files.append("table5.png")
+    return files
+
+
+def WriteTables(records: list[dict], out: Path, threshold: float = VISIBILITY_SUCCESS,
+                notes: str = "", plots: bool = True) -> list[str]:
+    """table2..5.json, tables.md and the PNGs in ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tables = AllTables(records, threshold)
+    files = []
+    for k, v in tables.items():
+        (out / f"{k}.json").write_text(json.dumps(v, indent=2))
+        files.append(f"{k}.json")
+    (out / "tables.md").write_text(Markdown(tables, notes=notes))
+    files.append("tables.md")
+    if plots:
+        files += SavePlots(tables, out)
+    return files
+
+
+def ReadRecords(path: Path) -> list[dict]:
+    """Records of an ``episodes.jsonl`` (missing file: none; a torn last
+    line from an interrupted run is skipped)."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return out
