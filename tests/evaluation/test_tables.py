@@ -131,6 +131,7 @@ def test_table4_stage_means_with_paper_names():
     assert t4["branch_completion"] is None
     assert t4["total"] == pytest.approx(6.0 + 14.0 + 3.0 + 62.0 + 13.0 + 10.0)
     assert t4["episode_wall"] == pytest.approx(110.0)
+    assert t4["action_planning_total"] == pytest.approx(999.0)
 
 
 def test_table5_partitions_lambda_rows():
