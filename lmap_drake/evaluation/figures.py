@@ -20,6 +20,16 @@ def Overlay(rgb, label, alpha: float = 0.45) -> np.ndarray:
     return base.astype(np.uint8)
 
 
+def _EqualAxes(ax) -> None:
+    """Same scale on x, y and z (metres)."""
+    lims = np.array([ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()])
+    c, r = lims.mean(axis=1), 0.5 * np.ptp(lims, axis=1).max()
+    ax.set_xlim3d(c[0] - r, c[0] + r)
+    ax.set_ylim3d(c[1] - r, c[1] + r)
+    ax.set_zlim3d(c[2] - r, c[2] + r)
+    ax.set_box_aspect((1, 1, 1))
+
+
 def SaveEpisodeFigures(result, out: Path) -> list[str]:
     import matplotlib
     matplotlib.use("Agg")
@@ -52,7 +62,7 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
         ax.set_title(f"chosen action: {c.action.distance * 100:.0f} cm, "
                      f"E={c.energy:.2e}, N_vis={c.n_vis}")
     ax.legend(loc="upper left", fontsize=7)
-    ax.set_box_aspect((1, 1, 1))
+    _EqualAxes(ax)
     ax2 = fig.add_subplot(1, 2, 2, projection="3d")
     gt = model.fruit_mesh_W
     ax2.plot_trisurf(*np.asarray(gt.vertices).T, triangles=np.asarray(gt.faces), color="gray",
@@ -67,7 +77,7 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
                label="ground-truth axis")
     ax2.set_title("fruit estimates vs ground truth (gray)")
     ax2.legend(loc="upper left", fontsize=7)
-    ax2.set_box_aspect((1, 1, 1))
+    _EqualAxes(ax2)
     fig.tight_layout()
     fig.savefig(out / "action_and_shapes.png", dpi=110)
     plt.close(fig)
