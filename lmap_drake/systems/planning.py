@@ -105,7 +105,7 @@ class ActionSelection(LeafSystem):
         if cfg.method != "lmap":
             q = self.get_input_port(2).Eval(context)
             ctx = self._candidates.Context(cset.scene, q)
-            output.set_value(PlanBaseline(ctx, cfg, cfg.method, cfg.distances[-1],
+            output.set_value(PlanBaseline(ctx, cfg, cfg.method, max(cfg.distances),
                                           seed=self._scenario.random_seed))
             return
         t0 = time.perf_counter()
