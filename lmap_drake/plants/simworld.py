@@ -310,7 +310,6 @@ class PlantWorldSim:
         """Rebuilds the station with the leaf region between the pads fixed to
         the gripper (see the module docstring). Raises if no leaf vertex lies
         between the pads."""
-        from lmap_drake.plants.generator import _unit  # noqa: F401  (shared helper)
         width = self.GripperWidth()
         X_WG = self.X_WG()
         X_GT = X_WG.inverse() @ self.X_WT()
@@ -438,7 +437,7 @@ def RunScriptedPull(world: PlantWorldSim, settle: float = 0.3) -> dict:
     return {"before": before, "after": after, "outcome": outcome, "X_WT_grasp": X_WT_grasp}
 
 
-def OracleSceneEstimate(world: PlantWorldSim, semantic) -> "SceneEstimate":
+def OracleSceneEstimate(world: PlantWorldSim, semantic):
     """A ``SceneEstimate`` whose fruit and branch are the simulator's ground
     truth (exact mesh, SDF, pose), around an observed ``semantic`` scene: for
     planner tests and oracle ablations, never for the pipeline itself."""

@@ -30,12 +30,9 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from lmap_drake.scenario import DumpScenario, Scenario
 from lmap_drake.station.hardware.safety import SafetyChecker
-from lmap_drake.station.hardware.station import (ConnectHardwareClients, HardwareClients,
+from lmap_drake.station.hardware.station import (CheckHardwareSetup, ConnectHardwareClients,
+                                                 HardwareClients,
                                                  MakeHardwareStation, StopHardwareStation)
-from lmap_drake.station.hardware.realsense_client import ImportPyrealsense2
-from lmap_drake.station.hardware.ur_client import ImportUrRtde
-from lmap_drake.station.hardware_config import (CalibrationError, CalibrationX_WC,
-                                                LoadCameraCalibration, ValidateHardwareConfig)
 from lmap_drake.viz import SaveDepth, SaveRgb
 
 
@@ -96,20 +93,10 @@ def RunHardwareSnapshot(scenario: Scenario, out: Path, dry_run: bool = False,
     """One hardware run (see the module docstring). ``clients`` may be
     injected (tests); otherwise the real devices are connected. Raises
     HardwareStationUnavailable, SafetyRefusal or HardwareAbort."""
-    from lmap_drake.station.station import HardwareStationUnavailable
-
     out = Path(out)
     config = scenario.hardware
     own = clients is None
-    if own:  # a missing library is the first thing to report
-        ImportUrRtde()
-        ImportPyrealsense2()
-    try:
-        ValidateHardwareConfig(config)
-        calib = LoadCameraCalibration(config.camera.calibration_file)
-    except (ValueError, CalibrationError) as err:
-        raise HardwareStationUnavailable(f"hardware station: {err}") from err
-    X_WC = CalibrationX_WC(calib, scenario.robot.X_WB.GetDeterministicValue())
+    calib, X_WC = CheckHardwareSetup(scenario, own)
     DumpScenario(scenario, out / "scenario.yaml")
     files = ["scenario.yaml"]
     if own:

@@ -78,6 +78,24 @@ def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> H
     return HardwareClients(ur, gripper, camera)
 
 
+def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
+    """Checks before touching any device: the client libraries (when we
+    connect ourselves), the hardware config and the calibration file.
+    Returns (calibration, X_WC). Raises HardwareStationUnavailable."""
+    from lmap_drake.station.station import HardwareStationUnavailable
+
+    config = scenario.hardware
+    if own_clients:  # a missing library is the first thing to report
+        ImportUrRtde()
+        ImportPyrealsense2()
+    try:
+        ValidateHardwareConfig(config)
+        calib = LoadCameraCalibration(config.camera.calibration_file)
+    except (ValueError, CalibrationError) as err:
+        raise HardwareStationUnavailable(f"hardware station: {err}") from err
+    return calib, CalibrationX_WC(calib, scenario.robot.X_WB.GetDeterministicValue())
+
+
 def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = None) -> Diagram:
     """The hardware station Diagram for ``scenario.hardware``. ``clients``
     (tests, or a caller that connected first) are used as given; otherwise
@@ -88,15 +106,7 @@ def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = No
 
     config = scenario.hardware
     own_clients = clients is None
-    if own_clients:  # a missing library is the first thing to report
-        ImportUrRtde()
-        ImportPyrealsense2()
-    try:
-        ValidateHardwareConfig(config)
-        calib = LoadCameraCalibration(config.camera.calibration_file)
-    except (ValueError, CalibrationError) as err:
-        raise HardwareStationUnavailable(f"hardware station: {err}") from err
-    X_WC = CalibrationX_WC(calib, scenario.robot.X_WB.GetDeterministicValue())
+    calib, X_WC = CheckHardwareSetup(scenario, own_clients)
     if own_clients:
         clients = ConnectHardwareClients(config)
     try:
