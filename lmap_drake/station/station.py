@@ -1,4 +1,4 @@
-"""``MakeStation``: the simulated UR5 cell (or, later, the hardware one) as a
+"""``MakeStation``: the simulated UR5 cell or the hardware one as a
 Diagram with a fixed port contract.
 
 Exported ports (both modes):
