@@ -332,6 +332,15 @@ def Markdown(tables: dict, title: str = "lmap-drake eval", notes: str = "") -> s
     return "\n".join(L) + "\n"
 
 
+def _SaveFigure(fig, path: Path) -> str:
+    """Writes and closes a matplotlib figure; returns the file name."""
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
+
+
 def SavePlots(tables: dict, out: Path) -> list[str]:
     """Bar charts of the four tables; returns the file names written."""
     import matplotlib
@@ -364,10 +373,7 @@ def SavePlots(tables: dict, out: Path) -> list[str]:
         axes[1].set_ylim(0, 1.1)
         axes[1].set_title("Table II: visibility fraction")
         axes[1].legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "table2.png", dpi=110)
-        plt.close(fig)
-        files.append("table2.png")
+        files.append(_SaveFigure(fig, out / "table2.png"))
     t3 = tables["table3"]
     if t3:
         fig, axes = plt.subplots(1, 4, figsize=(13, 3.4))
@@ -380,10 +386,7 @@ def SavePlots(tables: dict, out: Path) -> list[str]:
             ax.set_title(k)
         axes[0].legend(fontsize=7)
         fig.suptitle("Table III: shape metrics before / after the action")
-        fig.tight_layout()
-        fig.savefig(out / "table3.png", dpi=110)
-        plt.close(fig)
-        files.append("table3.png")
+        files.append(_SaveFigure(fig, out / "table3.png"))
     t4 = tables["table4"]
     if t4:
         fig, ax = plt.subplots(figsize=(9, 3.8))
@@ -396,10 +399,7 @@ def SavePlots(tables: dict, out: Path) -> list[str]:
         ax.set_ylabel("mean seconds")
         ax.set_title("Table IV: runtime per stage")
         ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "table4.png", dpi=110)
-        plt.close(fig)
-        files.append("table4.png")
+        files.append(_SaveFigure(fig, out / "table4.png"))
     t5 = tables["table5"]
     if t5:
         fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -413,10 +413,7 @@ def SavePlots(tables: dict, out: Path) -> list[str]:
         ax.set_ylabel("episodes")
         ax.set_title("Table V: energy weight")
         ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "table5.png", dpi=110)
-        plt.close(fig)
-        files.append("table5.png")
+        files.append(_SaveFigure(fig, out / "table5.png"))
     return files
 
 

@@ -21,6 +21,7 @@ optical axis (NaN/inf/0 = no return), ``label`` HxW render labels.
 """
 from __future__ import annotations
 
+import abc
 import dataclasses as dc
 from pathlib import Path
 
@@ -64,13 +65,14 @@ def _depth2(depth) -> np.ndarray:
     return d[..., 0] if d.ndim == 3 else d
 
 
-class Segmenter:
+class Segmenter(abc.ABC):
     """Interface: ``Segment(rgb, depth, label=None) -> Segmentation``."""
     name = "base"
     needs_label = False
 
-    def Segment(self, rgb, depth, label=None) -> Segmentation:  # pragma: no cover
-        raise NotImplementedError
+    @abc.abstractmethod
+    def Segment(self, rgb, depth, label=None) -> Segmentation:
+        """Per-pixel classes and instances of one RGB-D (+ label) frame."""
 
 
 def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = None,

@@ -50,30 +50,35 @@ from scipy.spatial import cKDTree
 from lmap_drake.shape.deepsdf import CUBE_RADIUS, DeepSDFDecoder
 from lmap_drake.shape.marching import ExtractIsoSurface, MarchingTetrahedra
 from lmap_drake.shape.metrics import MeshCentroid
+from lmap_drake.scenario import ShapeConfig
 from lmap_drake.types import FruitEstimate
+
+
+_SHAPE_DEFAULTS = ShapeConfig()
 
 
 @dc.dataclass
 class SscParams:
-    """SSC weights and optimiser settings (see the module docstring)."""
-    w_sur: float = 1.0
-    w_neg: float = 2.0
-    w_ped: float = 0.1
-    w_reg: float = 1.0
-    w_neg_completed_branch: float = 0.1
-    learning_rate: float = 0.01
-    iterations: int = 300
-    num_peduncle_points: int = 10
-    loss_length_unit: float = 0.01
-    push_from_camera: float = 0.01
-    max_surface_points: int = 300
-    max_negative_points: int = 300
-    negative_margin: float = 0.005
-    max_negative_candidates: int = 4000
-    peduncle_max_distance: float = 0.02
-    peduncle_cone_deg: float = 30.0
-    refresh_every: int = 25
-    mesh_spacing: float = 0.003
+    """SSC weights and optimiser settings (see the module docstring). The
+    defaults are ``ShapeConfig``'s (one source of truth)."""
+    w_sur: float = _SHAPE_DEFAULTS.w_sur
+    w_neg: float = _SHAPE_DEFAULTS.w_neg
+    w_ped: float = _SHAPE_DEFAULTS.w_ped
+    w_reg: float = _SHAPE_DEFAULTS.w_reg
+    w_neg_completed_branch: float = _SHAPE_DEFAULTS.w_neg_completed_branch
+    learning_rate: float = _SHAPE_DEFAULTS.learning_rate
+    iterations: int = _SHAPE_DEFAULTS.iterations
+    num_peduncle_points: int = _SHAPE_DEFAULTS.num_peduncle_points
+    loss_length_unit: float = _SHAPE_DEFAULTS.loss_length_unit
+    push_from_camera: float = _SHAPE_DEFAULTS.push_from_camera
+    max_surface_points: int = _SHAPE_DEFAULTS.max_surface_points
+    max_negative_points: int = _SHAPE_DEFAULTS.max_negative_points
+    negative_margin: float = _SHAPE_DEFAULTS.negative_margin
+    max_negative_candidates: int = _SHAPE_DEFAULTS.max_negative_candidates
+    peduncle_max_distance: float = _SHAPE_DEFAULTS.peduncle_max_distance
+    peduncle_cone_deg: float = _SHAPE_DEFAULTS.peduncle_cone_deg
+    refresh_every: int = _SHAPE_DEFAULTS.refresh_every
+    mesh_spacing: float = _SHAPE_DEFAULTS.mesh_spacing
     seed: int = 0
 
     @staticmethod
