@@ -330,7 +330,14 @@ class DeformationConfig:
 
 @dc.dataclass
 class PlannerConfig:
-    """LMAP candidates, checks, visibility and selection (Sec. III-C)."""
+    """LMAP candidates, checks, visibility and selection (Sec. III-C).
+
+    ``max_energy`` (m^2, weighted ARAP energy; 0 disables): actions whose
+    predicted energy exceeds it are rejected as a damage risk before the
+    score is taken. A deviation from the paper, whose min-max normalised
+    score gives energy no absolute meaning (when every candidate is risky it
+    still picks one). The default is calibrated on simulated episodes by
+    ``scripts/calibrate_energy_cap.py`` (see its docstring)."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -346,6 +353,7 @@ class PlannerConfig:
     visibility_voxel: float = 0.003
     collision_margin: float = 0.005
     energy_weight: float = 1.0
+    max_energy: float = 2.0e-4
     method: str = "lmap"  # lmap | random | upward | min_overlap
 
 

@@ -76,9 +76,12 @@ def EpisodeSpecs(scenarios: list[str], methods=METHODS, distances=DEFAULT_DISTAN
 
 def ScenarioOverride(spec: dict) -> str:
     """``scenario_text`` YAML for a spec (planner method, distances, energy
-    weight, random seed)."""
+    weight, random seed). lambda = 0 ("without energy") also disables the
+    planner's ``max_energy`` cap."""
     if spec["method"] in LMAP_METHODS:
         planner = f"method: lmap, energy_weight: {float(spec['energy_weight'])!r}"
+        if float(spec["energy_weight"]) == 0.0:     # "without energy": no energy cap either
+            planner += ", max_energy: 0.0"
     else:
         planner = f"method: {spec['method']}, distances: [{float(spec['distance'])!r}]"
     return f"{{planner: {{{planner}}}, random_seed: {int(spec['seed'])}}}"

@@ -327,6 +327,9 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     for c, p in zip(live, predictions):
         c.energy = float(p.energy)
         c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
+        if cfg.max_energy > 0 and c.energy > cfg.max_energy:
+            c.reason = (f"predicted energy {c.energy:.2e} m^2 above max_energy "
+                        f"{cfg.max_energy:.2e} (damage risk)")
     vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
     t0 = time.perf_counter()
     by_dir: dict[tuple, list[Candidate]] = {}

@@ -41,7 +41,7 @@ def test_episode_specs_counts_and_overrides():
     assert T.ScenarioOverride(up) == "{planner: {method: upward, distances: [0.06]}, " \
                                      "random_seed: 0}"
     l0 = next(s for s in specs if s["method"] == "lmap_lambda0")
-    assert T.ScenarioOverride(l0) == "{planner: {method: lmap, energy_weight: 0.0}, " \
+    assert T.ScenarioOverride(l0) == "{planner: {method: lmap, energy_weight: 0.0, max_energy: 0.0}, " \
                                      "random_seed: 0}"
     seeds = sorted(s["seed"] for s in specs if s["method"] == "random" and s["scenario"] == "a"
                    and s["distance"] == 0.02)

@@ -41,8 +41,10 @@ def _X_WC():
     return s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
 
 
-def _plan(scene, energy_weight=1.0):
+def _plan(scene, energy_weight=1.0, max_energy=None):
     s = Scenario()
+    if max_energy is not None:
+        s.planner.max_energy = max_energy
     s.planner.num_grasps = 6
     s.planner.distances = [0.04, 0.08]
     s.planner.energy_weight = energy_weight
@@ -74,6 +76,22 @@ def test_diagram_plans_an_action_that_reveals_the_fruit():
     rows = [x.Row() for x in plan.candidates]
     assert any(not r["feasible"] for r in rows) and all("reason" in r for r in rows)
     assert set(plan.timings) >= {"generation_collision_s", "deformation_s", "visibility_s"}
+
+
+def test_energy_cap_rejects_risky_actions():
+    free = _plan(_scene(), max_energy=0.0)              # no cap
+    e = sorted(c.energy for c in free.candidates if c.feasible)
+    assert len(e) > 3
+    cap = e[len(e) // 2]
+    capped = _plan(_scene(), max_energy=cap)
+    assert capped.status == "ok"
+    ok = [c for c in capped.candidates if c.feasible]
+    assert ok and all(c.energy <= cap for c in ok)
+    rejected = [c for c in capped.candidates if "above max_energy" in c.reason]
+    assert rejected and all(c.energy > cap for c in rejected)
+    assert capped.chosen.energy <= cap
+    none_left = _plan(_scene(), max_energy=0.5 * e[0])
+    assert none_left.status == "no_feasible_action" and "above max_energy" in none_left.message
 
 
 def test_no_action_needed_when_the_leaf_is_aside():

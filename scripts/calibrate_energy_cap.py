@@ -1,0 +1,88 @@
+#!/usr/bin/env python
+"""Calibrates the planner's ``max_energy`` (predicted ARAP energy above
+which an action is rejected as a damage risk) from simulated episodes.
+
+    python scripts/calibrate_energy_cap.py --out cap.json out/eval_chain/episodes.jsonl [...]
+
+Input: episode records written by ``lmap-drake eval`` (``episodes.jsonl``)
+or ``lmap-drake run`` (``episode.json``) whose chosen action carries the
+predicted energy (the LMAP rows, any energy weight). Each record is labelled
+unsafe when the FEM plant world flagged leaf damage or a plant hazard
+(strain / petiole force thresholds of ``plant_scene.outcome``).
+
+Output: the cap halfway between the highest safe energy below the lowest
+unsafe energy and that lowest unsafe energy (so every unsafe record lies
+above it), how many records it separates correctly, and the sorted
+(energy, safe, petiole force, strain) rows, as JSON.
+
+The default ``PlannerConfig.max_energy`` = 2.0e-4 m^2 came from this script
+on the 24 LMAP episodes (lambda 1 and 0) of the 12-scene suite
+(diagrams/suite.yaml), without the cap; validate a new value on scenes that
+were not used to fit it (``lmap-drake eval --scenarios N --seed S``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def LoadRecords(paths: list[str]) -> list[dict]:
+    out = []
+    for p in paths:
+        text = Path(p).read_text()
+        if p.endswith(".jsonl"):
+            out += [json.loads(line) for line in text.splitlines() if line.strip()]
+        else:
+            out.append(json.loads(text))
+    return out
+
+
+def Calibrate(records: list[dict]) -> dict:
+    """The cap and its separation on records with an energy and an outcome."""
+    rows = []
+    for r in records:
+        a, o = r.get("chosen_action") or {}, r.get("outcome") or {}
+        if a.get("energy") is None or not o:
+            continue
+        rows.append(dict(scenario=r.get("scenario"), energy=float(a["energy"]),
+                         safe=not (o.get("leaf_damage") or o.get("plant_hazard")),
+                         petiole_force_n=o.get("max_petiole_force"),
+                         strain_p95=o.get("max_strain_percentile")))
+    if not rows:
+        raise ValueError("no record has both a chosen action energy and an outcome")
+    rows.sort(key=lambda r: r["energy"])
+    unsafe = [r["energy"] for r in rows if not r["safe"]]
+    if not unsafe:
+        cap = rows[-1]["energy"]
+        note = "no unsafe record: the cap is the highest energy seen (no evidence above it)"
+    else:
+        lo = min(unsafe)
+        safe_below = [r["energy"] for r in rows if r["safe"] and r["energy"] < lo]
+        cap = 0.5 * (max(safe_below) + lo) if safe_below else 0.5 * lo
+        note = "halfway between the highest safe energy below the lowest unsafe one and it"
+    correct = sum((r["energy"] <= cap) == r["safe"] for r in rows)
+    return dict(max_energy=cap, note=note, num_records=len(rows),
+                num_unsafe=len(unsafe), correctly_separated=correct,
+                safe_above_cap=sum(r["safe"] and r["energy"] > cap for r in rows),
+                rows=rows)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("records", nargs="+", help="episodes.jsonl / episode.json files")
+    ap.add_argument("--out", required=True, help="JSON file to write")
+    args = ap.parse_args(argv)
+    try:
+        res = Calibrate(LoadRecords(args.records))
+    except (OSError, ValueError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    Path(args.out).write_text(json.dumps(res, indent=2))
+    print(json.dumps({k: v for k, v in res.items() if k != "rows"}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""scripts/calibrate_energy_cap.py: the cap lies above every safe energy
+below the lowest unsafe one and below every unsafe energy."""
+import json
+import runpy
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _rec(energy, damage=False, hazard=False):
+    return {"scenario": "s", "chosen_action": {"energy": energy},
+            "outcome": {"leaf_damage": damage, "plant_hazard": hazard,
+                        "max_petiole_force": 1.0, "max_strain_percentile": 1.0}}
+
+
+def test_cap_separates_safe_from_unsafe(tmp_path):
+    mod = runpy.run_path(str(REPO / "scripts" / "calibrate_energy_cap.py"), run_name="cal")
+    recs = [_rec(1e-4), _rec(1.5e-4), _rec(3e-4, hazard=True), _rec(2.5e-4, damage=True),
+            _rec(4e-4), {"scenario": "no action", "status": "aborted"}]
+    src = tmp_path / "episodes.jsonl"
+    src.write_text("\n".join(json.dumps(r) for r in recs))
+    out = tmp_path / "cap.json"
+    assert mod["main"]([str(src), "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert abs(res["max_energy"] - 2.0e-4) < 1e-12
+    assert res["num_records"] == 5 and res["num_unsafe"] == 2
+    assert res["correctly_separated"] == 4 and res["safe_above_cap"] == 1
+
+
+def test_no_usable_record_is_an_error(tmp_path):
+    mod = runpy.run_path(str(REPO / "scripts" / "calibrate_energy_cap.py"), run_name="cal")
+    src = tmp_path / "episodes.jsonl"
+    src.write_text(json.dumps({"status": "aborted"}))
+    assert mod["main"]([str(src), "--out", str(tmp_path / "c.json")]) == 2
