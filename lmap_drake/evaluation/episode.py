@@ -130,6 +130,12 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
         "message": grasp_error or st.message,
         "plan_status": plan.status if plan is not None else None,
         "chosen_action": chosen,
+        # The planner's own visibility model (voxels of the estimated fruit):
+        # seen initially, at most (fruit alone) and after the chosen action.
+        "predicted_visibility": None if plan is None or not plan.seen_max else {
+            "initial": plan.seen_init / plan.seen_max,
+            "chosen": (plan.chosen.seen / plan.seen_max
+                       if plan.chosen is not None and plan.chosen.seen >= 0 else None)},
         "outcome": outcome.to_dict(),
         "shape_initial": ShapeErrors(st.initial_estimate, world.model),
         "shape_final": ShapeErrors(st.final_estimate, world.model),

@@ -327,9 +327,6 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     for c, p in zip(live, predictions):
         c.energy = float(p.energy)
         c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
-        if cfg.max_energy > 0 and c.energy > cfg.max_energy:
-            c.reason = (f"predicted energy {c.energy:.2e} m^2 above max_energy "
-                        f"{cfg.max_energy:.2e} (damage risk)")
     vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
     t0 = time.perf_counter()
     by_dir: dict[tuple, list[Candidate]] = {}
@@ -356,6 +353,17 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     result.timings["visibility_s"] = result.timings.get("visibility_s", 0.0) + \
         time.perf_counter() - t0
     feasible = [c for c in cands if c.feasible]
+    if feasible:
+        # The paper's score, normalised over every action that passed the
+        # checks; the energy cap then filters (normalising over the capped set
+        # instead would shift the lambda trade-off toward short pulls).
+        SelectAction(feasible, cfg.energy_weight)
+        if cfg.max_energy > 0:
+            for c in feasible:
+                if c.energy > cfg.max_energy:
+                    c.reason = (f"predicted energy {c.energy:.2e} m^2 above max_energy "
+                                f"{cfg.max_energy:.2e} (damage risk)")
+            feasible = [c for c in feasible if c.feasible]
     if not feasible:
         reasons: dict[str, int] = {}
         for c in cands:
@@ -365,7 +373,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         result.message = "no feasible action: " + ", ".join(
             f"{k}: {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
         return result
-    result.chosen = SelectAction(feasible, cfg.energy_weight)
+    result.chosen = max(feasible, key=lambda c: c.score)
     return result
 
 

@@ -90,6 +90,12 @@ def test_energy_cap_rejects_risky_actions():
     rejected = [c for c in capped.candidates if "above max_energy" in c.reason]
     assert rejected and all(c.energy > cap for c in rejected)
     assert capped.chosen.energy <= cap
+    # The score is normalised before the cap filters: the capped choice is the
+    # uncapped plan's best-scoring action under the cap.
+    key = lambda c: (c.action.grasp_id, c.action.direction_id, c.action.distance)
+    best = max((c for c in free.candidates if c.feasible and c.energy <= cap),
+               key=lambda c: c.score)
+    assert key(capped.chosen) == key(best)
     none_left = _plan(_scene(), max_energy=0.5 * e[0])
     assert none_left.status == "no_feasible_action" and "above max_energy" in none_left.message
 
