@@ -98,7 +98,10 @@ def cmd_eval(args) -> int:
     try:
         methods = [m for m in args.methods.split(",") if m]
         distances = [float(d) for d in args.distances.split(",") if d]
-        specs = T.EpisodeSpecs(names, methods, distances, args.random_seeds, args.seed)
+        specs = T.EpisodeSpecs(names, methods, distances, args.random_seeds, args.seed,
+                               args.scenario_text)
+        from lmap_drake.scenario import LoadScenario
+        LoadScenario(scenario_text=args.scenario_text)      # fail now on a bad override
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -145,6 +148,9 @@ def main(argv=None) -> int:
                     help="baseline move distances, metres (default: %(default)s)")
     ev.add_argument("--random_seeds", type=int, default=5,
                     help="Random-baseline trials per scenario and distance")
+    ev.add_argument("--scenario_text", default="{}",
+                    help="YAML overrides for every episode, applied before each method's own "
+                         "(e.g. '{planner: {max_energy_per_node: 0.0}}')")
     ev.add_argument("--workers", type=int, default=2, help="worker processes")
     ev.add_argument("--visibility_success", type=float, default=0.95,
                     help="Table V: final visibility counted as sufficient")

@@ -332,12 +332,14 @@ class DeformationConfig:
 class PlannerConfig:
     """LMAP candidates, checks, visibility and selection (Sec. III-C).
 
-    ``max_energy`` (m^2, weighted ARAP energy; 0 disables): actions whose
-    predicted energy exceeds it are rejected as a damage risk before the
-    score is taken. A deviation from the paper, whose min-max normalised
+    ``max_energy_per_node`` (m^2; 0 disables): actions whose predicted
+    ARAP energy per deformable leaf node exceeds it are rejected as a damage
+    risk (the paper's score, normalised over all checked actions, then picks
+    among the rest). A deviation from the paper, whose min-max normalised
     score gives energy no absolute meaning (when every candidate is risky it
-    still picks one). The default is calibrated on simulated episodes by
-    ``scripts/calibrate_energy_cap.py`` (see its docstring)."""
+    still picks one). Per node, because the energy is a sum over the graph
+    and grows with leaf size at equal strain. The default is calibrated on
+    simulated episodes by ``scripts/calibrate_energy_cap.py``."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -353,7 +355,7 @@ class PlannerConfig:
     visibility_voxel: float = 0.003
     collision_margin: float = 0.005
     energy_weight: float = 1.0
-    max_energy: float = 2.0e-4
+    max_energy_per_node: float = 8.0e-7
     method: str = "lmap"  # lmap | random | upward | min_overlap
 
 
@@ -451,9 +453,9 @@ def _explain(err: Exception, raw: dict | None, root: str, where: str) -> Scenari
 
 def LoadScenario(*, filename: str | Path | None = None,
                  scenario_name: str | None = None,
-                 scenario_text: str = "{}") -> Scenario:
+                 scenario_text: str | list[str] = "{}") -> Scenario:
     """Loads a scenario: defaults, then ``scenario_name`` from ``filename``,
-    then the YAML overrides in ``scenario_text``.
+    then the YAML overrides in ``scenario_text`` (a list: applied in order).
 
     Raises ScenarioError naming the file and the unknown key on bad input.
     """
@@ -473,13 +475,16 @@ def LoadScenario(*, filename: str | Path | None = None,
                                      defaults=result)
         except Exception as err:  # Drake raises RuntimeError
             raise _explain(err, raw_all[name], name, f"{path} (scenario '{name}')") from err
-    if scenario_text and scenario_text.strip() not in ("", "{}"):
+    texts = [scenario_text] if isinstance(scenario_text, str) else list(scenario_text)
+    for text in texts:
+        if not text or text.strip() in ("", "{}"):
+            continue
         try:
-            raw = _RawYaml(scenario_text)
+            raw = _RawYaml(text)
         except Exception as err:
             raise ScenarioError(f"--scenario_text is not valid YAML: {err}") from err
         try:
-            result = yaml_load_typed(schema=Scenario, data=scenario_text, defaults=result)
+            result = yaml_load_typed(schema=Scenario, data=text, defaults=result)
         except Exception as err:
             raise _explain(err, raw, "", "--scenario_text") from err
     Validate(result)

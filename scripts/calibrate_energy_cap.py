@@ -1,12 +1,15 @@
 #!/usr/bin/env python
-"""Calibrates the planner's ``max_energy`` (predicted ARAP energy above
-which an action is rejected as a damage risk) from simulated episodes.
+"""Calibrates the planner's ``max_energy_per_node`` (predicted ARAP energy
+per deformable leaf node above which an action is rejected as a damage
+risk) from simulated episodes.
 
     python scripts/calibrate_energy_cap.py --out cap.json out/eval_chain/episodes.jsonl [...]
 
 Input: episode records written by ``lmap-drake eval`` (``episodes.jsonl``)
 or ``lmap-drake run`` (``episode.json``) whose chosen action carries the
-predicted energy (the LMAP rows, any energy weight). Each record is labelled
+predicted ``energy_per_node`` (the LMAP rows, any energy weight; run them
+with the cap off, ``{planner: {max_energy_per_node: 0.0}}``, or the data
+only shows actions below the current cap). Each record is labelled
 unsafe when the FEM plant world flagged leaf damage or a plant hazard
 (strain / petiole force thresholds of ``plant_scene.outcome``).
 
@@ -15,10 +18,12 @@ unsafe energy and that lowest unsafe energy (so every unsafe record lies
 above it), how many records it separates correctly, and the sorted
 (energy, safe, petiole force, strain) rows, as JSON.
 
-The default ``PlannerConfig.max_energy`` = 2.0e-4 m^2 came from this script
-on the 24 LMAP episodes (lambda 1 and 0) of the 12-scene suite
-(diagrams/suite.yaml), without the cap; validate a new value on scenes that
-were not used to fit it (``lmap-drake eval --scenarios N --seed S``).
+The default ``PlannerConfig.max_energy_per_node`` came from this script on
+the 24 LMAP episodes (lambda 1 and 0, cap off) of the 12-scene suite
+(diagrams/suite.yaml); validate a new value on scenes that were not used to
+fit it (``lmap-drake eval --scenarios N --seed S``). The total energy does
+not separate small from large leaves (a small leaf is hazardous at an
+energy a large one bears); per node it does.
 """
 from __future__ import annotations
 
@@ -44,14 +49,14 @@ def Calibrate(records: list[dict]) -> dict:
     rows = []
     for r in records:
         a, o = r.get("chosen_action") or {}, r.get("outcome") or {}
-        if a.get("energy") is None or not o:
+        if a.get("energy_per_node") is None or not o:
             continue
-        rows.append(dict(scenario=r.get("scenario"), energy=float(a["energy"]),
+        rows.append(dict(scenario=r.get("scenario"), energy=float(a["energy_per_node"]),
                          safe=not (o.get("leaf_damage") or o.get("plant_hazard")),
                          petiole_force_n=o.get("max_petiole_force"),
                          strain_p95=o.get("max_strain_percentile")))
     if not rows:
-        raise ValueError("no record has both a chosen action energy and an outcome")
+        raise ValueError("no record has both a chosen action energy_per_node and an outcome")
     rows.sort(key=lambda r: r["energy"])
     unsafe = [r["energy"] for r in rows if not r["safe"]]
     if not unsafe:
@@ -63,7 +68,7 @@ def Calibrate(records: list[dict]) -> dict:
         cap = 0.5 * (max(safe_below) + lo) if safe_below else 0.5 * lo
         note = "halfway between the highest safe energy below the lowest unsafe one and it"
     correct = sum((r["energy"] <= cap) == r["safe"] for r in rows)
-    return dict(max_energy=cap, note=note, num_records=len(rows),
+    return dict(max_energy_per_node=cap, note=note, num_records=len(rows),
                 num_unsafe=len(unsafe), correctly_separated=correct,
                 safe_above_cap=sum(r["safe"] and r["energy"] > cap for r in rows),
                 rows=rows)

@@ -66,3 +66,11 @@ def test_dump_round_trips(tmp_path):
     assert t.robot.kp == s.robot.kp
     assert t.cameras["camera0"].focal.x == s.cameras["camera0"].focal.x
     assert t.plant_scene.fruit_color.rgba.tolist() == s.plant_scene.fruit_color.rgba.tolist()
+
+
+def test_scenario_text_list_is_applied_in_order():
+    s = LoadScenario(scenario_text=["{planner: {energy_weight: 0.5, num_grasps: 3}}",
+                                    "{planner: {energy_weight: 0.0}}"])
+    assert s.planner.energy_weight == 0.0 and s.planner.num_grasps == 3
+    with pytest.raises(ScenarioError, match="bogus"):
+        LoadScenario(scenario_text=["{}", "{planner: {bogus: 1}}"])

@@ -40,7 +40,8 @@ def RunOneEpisode(spec: dict, suite_file: str) -> dict:
         from lmap_drake.evaluation.episode import RunEpisode
         from lmap_drake.scenario import LoadScenario
         scenario = LoadScenario(filename=suite_file, scenario_name=spec["scenario"],
-                                scenario_text=T.ScenarioOverride(spec))
+                                scenario_text=[spec.get("scenario_text", "{}"),
+                                               T.ScenarioOverride(spec)])
         record = dict(RunEpisode(scenario).record)
     except BaseException as err:  # noqa: BLE001 - recorded, not raised
         if isinstance(err, KeyboardInterrupt):

@@ -49,11 +49,13 @@ def EpisodeId(spec: dict) -> str:
 
 
 def EpisodeSpecs(scenarios: list[str], methods=METHODS, distances=DEFAULT_DISTANCES,
-                 random_seeds: int = 5, seed: int = 0) -> list[dict]:
+                 random_seeds: int = 5, seed: int = 0, scenario_text: str = "{}") -> list[dict]:
     """One spec per episode: the Random baseline ``random_seeds`` times
     (seeds ``seed .. seed+random_seeds-1``) at each distance, Upward and
     Min-Overlap once at each distance, LMAP once per energy weight (its
-    own distances from the scenario). Ordered scenario-major."""
+    own distances from the scenario). Ordered scenario-major. ``scenario_text``:
+    YAML overrides for every episode, applied before the method's own
+    (``ScenarioOverride``)."""
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise ValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
@@ -71,17 +73,18 @@ def EpisodeSpecs(scenarios: list[str], methods=METHODS, distances=DEFAULT_DISTAN
                                       energy_weight=None))
     for s in specs:
         s["episode_id"] = EpisodeId(s)
+        s["scenario_text"] = scenario_text
     return specs
 
 
 def ScenarioOverride(spec: dict) -> str:
     """``scenario_text`` YAML for a spec (planner method, distances, energy
     weight, random seed). lambda = 0 ("without energy") also disables the
-    planner's ``max_energy`` cap."""
+    planner's ``max_energy_per_node`` cap."""
     if spec["method"] in LMAP_METHODS:
         planner = f"method: lmap, energy_weight: {float(spec['energy_weight'])!r}"
         if float(spec["energy_weight"]) == 0.0:     # "without energy": no energy cap either
-            planner += ", max_energy: 0.0"
+            planner += ", max_energy_per_node: 0.0"
     else:
         planner = f"method: {spec['method']}, distances: [{float(spec['distance'])!r}]"
     return f"{{planner: {{{planner}}}, random_seed: {int(spec['seed'])}}}"

@@ -13,6 +13,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.deformation.action import Action, PullDirections
+from lmap_drake.deformation.graph import FREE
 from lmap_drake.deformation.predict import PredictDeformations
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
 from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
@@ -36,6 +37,7 @@ class Candidate:
     approach: object = None       # planning.motion.ApproachPlan
     reason: str = ""              # empty = feasible
     energy: float = float("nan")
+    num_leaf_nodes: int = 0       # deformable nodes of the action's graph
     n_vis: int = -1
     seen: int = -1
     score: float = float("nan")
@@ -45,12 +47,20 @@ class Candidate:
     def feasible(self) -> bool:
         return self.reason == ""
 
+    def EnergyPerNode(self) -> float | None:
+        """Predicted ARAP energy per deformable (leaf) node, m^2: the energy's
+        leaf-size-independent form, compared with ``max_energy_per_node``."""
+        if np.isnan(self.energy) or self.num_leaf_nodes <= 0:
+            return None
+        return self.energy / self.num_leaf_nodes
+
     def Row(self) -> dict:
         a = self.action
         return {"grasp_id": a.grasp_id, "direction_id": a.direction_id,
                 "distance": round(a.distance, 4), "p_WG": a.p_WG.round(4).tolist(),
                 "dp_W": a.dp_W.round(4).tolist(), "feasible": self.feasible,
                 "reason": self.reason, "energy": None if np.isnan(self.energy) else self.energy,
+                "energy_per_node": self.EnergyPerNode(),
                 "n_vis": self.n_vis, "seen": self.seen,
                 "score": None if np.isnan(self.score) else self.score}
 
@@ -326,6 +336,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     n_leaf = len(ctx.leaf_W)
     for c, p in zip(live, predictions):
         c.energy = float(p.energy)
+        c.num_leaf_nodes = int(np.count_nonzero(np.asarray(p.node_kind) == FREE))
         c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
     vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
     t0 = time.perf_counter()
@@ -358,11 +369,13 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         # checks; the energy cap then filters (normalising over the capped set
         # instead would shift the lambda trade-off toward short pulls).
         SelectAction(feasible, cfg.energy_weight)
-        if cfg.max_energy > 0:
+        cap = cfg.max_energy_per_node
+        if cap > 0:
             for c in feasible:
-                if c.energy > cfg.max_energy:
-                    c.reason = (f"predicted energy {c.energy:.2e} m^2 above max_energy "
-                                f"{cfg.max_energy:.2e} (damage risk)")
+                e = c.EnergyPerNode()
+                if e is not None and e > cap:
+                    c.reason = (f"predicted energy per leaf node {e:.2e} m^2 above "
+                                f"max_energy_per_node {cap:.2e} (damage risk)")
             feasible = [c for c in feasible if c.feasible]
     if not feasible:
         reasons: dict[str, int] = {}

@@ -41,7 +41,7 @@ def test_episode_specs_counts_and_overrides():
     assert T.ScenarioOverride(up) == "{planner: {method: upward, distances: [0.06]}, " \
                                      "random_seed: 0}"
     l0 = next(s for s in specs if s["method"] == "lmap_lambda0")
-    assert T.ScenarioOverride(l0) == "{planner: {method: lmap, energy_weight: 0.0, max_energy: 0.0}, " \
+    assert T.ScenarioOverride(l0) == "{planner: {method: lmap, energy_weight: 0.0, max_energy_per_node: 0.0}, " \
                                      "random_seed: 0}"
     seeds = sorted(s["seed"] for s in specs if s["method"] == "random" and s["scenario"] == "a"
                    and s["distance"] == 0.02)
@@ -196,3 +196,8 @@ def test_runner_records_failed_episodes_and_resumes(tmp_path):
         f.write(json.dumps(ok) + "\n")
     out = RunEvaluation(specs, suite, tmp_path, workers=1, resume=True, progress=lines.append)
     assert out["ran"] == 0 and out["skipped"] == 1
+
+
+def test_specs_carry_the_user_override():
+    specs = T.EpisodeSpecs(["a"], ["lmap"], scenario_text="{planner: {max_energy_per_node: 0.0}}")
+    assert [s["scenario_text"] for s in specs] == ["{planner: {max_energy_per_node: 0.0}}"]

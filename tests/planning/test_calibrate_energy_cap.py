@@ -8,7 +8,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _rec(energy, damage=False, hazard=False):
-    return {"scenario": "s", "chosen_action": {"energy": energy},
+    return {"scenario": "s", "chosen_action": {"energy": 100 * energy, "energy_per_node": energy},
             "outcome": {"leaf_damage": damage, "plant_hazard": hazard,
                         "max_petiole_force": 1.0, "max_strain_percentile": 1.0}}
 
@@ -22,7 +22,7 @@ def test_cap_separates_safe_from_unsafe(tmp_path):
     out = tmp_path / "cap.json"
     assert mod["main"]([str(src), "--out", str(out)]) == 0
     res = json.loads(out.read_text())
-    assert abs(res["max_energy"] - 2.0e-4) < 1e-12
+    assert abs(res["max_energy_per_node"] - 2.0e-4) < 1e-12
     assert res["num_records"] == 5 and res["num_unsafe"] == 2
     assert res["correctly_separated"] == 4 and res["safe_above_cap"] == 1
 

@@ -44,7 +44,7 @@ def _X_WC():
 def _plan(scene, energy_weight=1.0, max_energy=None):
     s = Scenario()
     if max_energy is not None:
-        s.planner.max_energy = max_energy
+        s.planner.max_energy_per_node = max_energy
     s.planner.num_grasps = 6
     s.planner.distances = [0.04, 0.08]
     s.planner.energy_weight = energy_weight
@@ -80,24 +80,25 @@ def test_diagram_plans_an_action_that_reveals_the_fruit():
 
 def test_energy_cap_rejects_risky_actions():
     free = _plan(_scene(), max_energy=0.0)              # no cap
-    e = sorted(c.energy for c in free.candidates if c.feasible)
+    e = sorted(c.EnergyPerNode() for c in free.candidates if c.feasible)
     assert len(e) > 3
     cap = e[len(e) // 2]
     capped = _plan(_scene(), max_energy=cap)
     assert capped.status == "ok"
     ok = [c for c in capped.candidates if c.feasible]
-    assert ok and all(c.energy <= cap for c in ok)
-    rejected = [c for c in capped.candidates if "above max_energy" in c.reason]
-    assert rejected and all(c.energy > cap for c in rejected)
-    assert capped.chosen.energy <= cap
+    assert ok and all(c.EnergyPerNode() <= cap for c in ok)
+    rejected = [c for c in capped.candidates if "above max_energy_per_node" in c.reason]
+    assert rejected and all(c.EnergyPerNode() > cap for c in rejected)
+    assert capped.chosen.EnergyPerNode() <= cap
+    assert all(c.num_leaf_nodes > 10 for c in ok)
     # The score is normalised before the cap filters: the capped choice is the
     # uncapped plan's best-scoring action under the cap.
     key = lambda c: (c.action.grasp_id, c.action.direction_id, c.action.distance)
-    best = max((c for c in free.candidates if c.feasible and c.energy <= cap),
+    best = max((c for c in free.candidates if c.feasible and c.EnergyPerNode() <= cap),
                key=lambda c: c.score)
     assert key(capped.chosen) == key(best)
     none_left = _plan(_scene(), max_energy=0.5 * e[0])
-    assert none_left.status == "no_feasible_action" and "above max_energy" in none_left.message
+    assert none_left.status == "no_feasible_action" and "above max_energy_per_node" in none_left.message
 
 
 def test_no_action_needed_when_the_leaf_is_aside():
