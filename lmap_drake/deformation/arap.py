@@ -273,9 +273,11 @@ def _DistanceChains(dU_c: np.ndarray):
 
 class ArapProblem:
     """ARAP on a fixed graph: ``rest_W`` (n, 3) with the first ``num_free``
-    nodes free, undirected ``edges`` (m, 2) with ``weights`` (m,). The
-    Laplacian of the free nodes is factorised once here (``factorization``:
-    "splu" sparse LU, "cholesky" dense Cholesky, "inverse" dense inverse)."""
+    nodes free, undirected ``edges`` (m, 2) with ``weights`` (m,).
+    ``factorization`` is how the plain solver solves with the free-node
+    Laplacian L_ff ("splu" sparse LU, "cholesky" dense Cholesky, "inverse"
+    dense inverse; built on its first use); the L-BFGS solver always uses
+    the sparse LU of L_ff, computed here."""
 
     def __init__(self, rest_W: np.ndarray, edges: np.ndarray, weights: np.ndarray,
                  num_free: int, factorization: str = "inverse", polar_iterations: int = 4):
@@ -284,6 +286,8 @@ class ArapProblem:
         nf = int(num_free)
         if nf <= 0 or nf >= n:
             raise ValueError(f"need free and constrained nodes, got {nf} free of {n}")
+        if factorization not in ("splu", "cholesky", "inverse"):
+            raise ValueError(f"unknown factorization '{factorization}'")
         edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
         w = np.asarray(weights, dtype=float)
         src = np.concatenate([edges[:, 0], edges[:, 1]])
@@ -293,63 +297,78 @@ class ArapProblem:
         self.rest_W, self.n, self.num_free = rest, n, nf
         self.polar_iterations = int(polar_iterations)
         self.edges, self.weights = edges, w
-        W = sp.csr_matrix((w2, (src, dst)), shape=(n, n))
-        deg = np.asarray(W.sum(axis=1)).ravel()
+        self.factorization = factorization
+        deg = np.bincount(src, w2, minlength=n)
         if np.any(deg[:nf] == 0):
             raise ValueError("free node without edges")
-        L = (sp.diags(deg) - W).tocsr()
+        L = sp.csr_matrix((np.concatenate([-w2, deg]),
+                           (np.concatenate([src, np.arange(n)]), np.concatenate([dst, np.arange(n)]))),
+                          shape=(n, n))
         self.L = L
-        with SingleThreadBlas():
-            self._Factorize(L, nf, factorization)
-        self._BuildOperators(n, nf, src, dst, w2, e, rest, L)
-
-    def _Factorize(self, L, nf: int, factorization: str) -> None:
-        L_ff = L[:nf, :nf].tocsc()
+        self._L_ff = L[:nf, :nf].tocsr()
         self.L_fc = L[:nf, nf:].tocsr()
-        self.factorization = factorization
-        if factorization == "splu":
-            self._lu = spla.splu(L_ff, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                 options=dict(SymmetricMode=True))
-            self._solve = self._lu.solve
-        elif factorization == "cholesky":
-            cf = sla.cho_factor(L_ff.toarray(), lower=False, check_finite=False)
-            self._solve = lambda b: sla.cho_solve(cf, b, check_finite=False)
-        elif factorization == "inverse":
-            # Dense inverse from the Cholesky factor (LAPACK potrf + potri).
-            c, info = sla.lapack.dpotrf(L_ff.toarray(), lower=False)
-            inv, info2 = sla.lapack.dpotri(c, lower=False)
-            if info or info2:
-                raise ValueError("free-node Laplacian is not positive definite")
-            inv = np.triu(inv) + np.triu(inv, 1).T
-            self._solve = lambda b: inv @ b
-        else:
-            raise ValueError(f"unknown factorization '{factorization}'")
-
-    def _BuildOperators(self, n, nf, src, dst, w2, e, rest, L) -> None:
-        # K_b[i, j] = w_ij e_ij[b]; Kv = [K_0; K_1; K_2] (3n x n), Kh = [K_0 K_1 K_2].
-        self._Kv = sp.csr_matrix(
-            (np.concatenate([w2 * e[:, b] for b in range(3)]),
-             (np.concatenate([src + b * n for b in range(3)]), np.tile(dst, 3))),
-            shape=(3 * n, n))
-        self._Kh = sp.csr_matrix(
-            (np.concatenate([w2 * e[:, b] for b in range(3)]),
-             (np.tile(src, 3), np.concatenate([dst + b * n for b in range(3)]))),
-            shape=(n, 3 * n))
+        self._L_cc = L[nf:, nf:].tocsr()
+        self._edge_data = (src, dst, w2, e)
+        self._solve_plain = None
+        self._plain_ops = None
         self._c = np.stack([np.bincount(src, w2 * e[:, b], minlength=n)
                             for b in range(3)], axis=1)              # sum_j w e_ij
         self._cT = np.ascontiguousarray(self._c.T)
         self._M0 = np.stack([np.stack([np.bincount(src, w2 * e[:, k] * e[:, b], minlength=n)
                                        for b in range(3)]) for k in range(3)])[..., None]
-        self._Lp = L @ rest
         self._e2 = float((w2 * (e * e).sum(1)).sum())
-        self._BuildReduced(src, dst, w2, e)
+        self._BuildKernelOperators(src, dst, w2, e)
 
-    def _BuildReduced(self, src, dst, w2, e) -> None:
-        """Operators of the accelerated solver. Rotations are kept only for
-        the "active" nodes: the free nodes then the constrained nodes with a
-        free neighbour. A constrained node with only constrained neighbours
-        has a constant covariance per action, so its rotation and its share
-        of the energy are computed once per solve."""
+    # ---- the L_ff solve of the plain solver.
+
+    def _solve(self, b: np.ndarray) -> np.ndarray:
+        if self._solve_plain is None:
+            with SingleThreadBlas():
+                self._solve_plain = self._Factorize(self._L_ff, self.factorization)
+        return self._solve_plain(b)
+
+    @staticmethod
+    def _Factorize(L_ff, factorization: str):
+        if factorization == "splu":
+            lu = spla.splu(L_ff.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options=dict(SymmetricMode=True))
+            return lu.solve
+        if factorization == "cholesky":
+            cf = sla.cho_factor(L_ff.toarray(), lower=False, check_finite=False)
+            return lambda b: sla.cho_solve(cf, b, check_finite=False)
+        # Dense inverse from the Cholesky factor (LAPACK potrf + potri).
+        c, info = sla.lapack.dpotrf(L_ff.toarray(), lower=False)
+        inv, info2 = sla.lapack.dpotri(c, lower=False)
+        if info or info2:
+            raise ValueError("free-node Laplacian is not positive definite")
+        inv = np.triu(inv) + np.triu(inv, 1).T
+        return lambda b: inv @ b
+
+    def _PlainOperators(self):
+        """K_b[i, j] = w_ij e_ij[b]; Kv = [K_0; K_1; K_2] (3n x n), Kh = [K_0 K_1 K_2]."""
+        if self._plain_ops is None:
+            src, dst, w2, e = self._edge_data
+            n = self.n
+            val = np.concatenate([w2 * e[:, b] for b in range(3)])
+            Kv = sp.csr_matrix((val, (np.concatenate([src + b * n for b in range(3)]),
+                                      np.tile(dst, 3))), shape=(3 * n, n))
+            Kh = sp.csr_matrix((val, (np.tile(src, 3),
+                                      np.concatenate([dst + b * n for b in range(3)]))),
+                               shape=(n, 3 * n))
+            self._plain_ops = (Kv, Kh, self.L @ self.rest_W)
+        return self._plain_ops
+
+    # ---- operators of the compiled L-BFGS solver (arap_kernels.SolveTasks).
+
+    def _BuildKernelOperators(self, src, dst, w2, e) -> None:
+        """Rotations are kept only for the "active" nodes: the free nodes
+        then the constrained nodes with a free neighbour. A constrained node
+        with only constrained neighbours has a constant covariance per
+        action, so its rotation and its share of the energy are computed
+        once per solve. CSR arrays (row pointer, column, w_ij e_ij (., 3)):
+        ``_mrows`` active rows i, free columns j (covariances
+        M_i = Mconst_i + x_i c_i^T - sum_j w_ij x_j e_ij^T); ``_hrows`` free
+        rows i, active columns j (sum_j w_ij R_j e_ij)."""
         n, nf = self.n, self.num_free
         nc = n - nf
         cf = np.zeros(n, dtype=bool)
@@ -360,43 +379,62 @@ class ArapProblem:
         pos = np.full(n, -1, dtype=np.int64)
         pos[act] = np.arange(nr)
         self._act, self._inact, self._nr = act, inact, nr
-        ia = pos[src] >= 0
-        s_r, d_a, w_a, e_a = pos[src[ia]], dst[ia], w2[ia], e[ia]
+        we = w2[:, None] * e
 
+        def csr(rows, cols, vals, nrow):
+            o = np.lexsort((cols, rows))
+            ptr = np.zeros(nrow + 1, dtype=np.int64)
+            np.cumsum(np.bincount(rows, minlength=nrow), out=ptr[1:])
+            return ptr, np.ascontiguousarray(cols[o], dtype=np.int64), np.ascontiguousarray(vals[o])
+
+        ps = pos[src]
+        sel = (ps >= 0) & (dst < nf)
+        self._mrows = csr(ps[sel], dst[sel], we[sel], nr)
+        sel = src < nf
+        self._hrows = csr(src[sel], pos[dst[sel]], we[sel], nf)
+        Lff = self._L_ff
+        Lff.sort_indices()
+        self._lrows = (Lff.indptr.astype(np.int64), Lff.indices.astype(np.int64),
+                       np.ascontiguousarray(Lff.data, dtype=float))
+        lu = spla.splu(Lff.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options=dict(SymmetricMode=True))
+        Lo = sp.tril(lu.L, -1, format="csc")
+        d = lu.U.diagonal()
+        if np.any(~(d > 0)):
+            raise ValueError("free-node Laplacian is not positive definite")
+        Up = sp.triu(lu.U, 1, format="csc")
+        Lo.sort_indices()
+        Up.sort_indices()
+        i64 = np.int64
+        self._lu = (lu.perm_r.astype(i64), lu.perm_c.astype(i64),
+                    Lo.indptr.astype(i64), Lo.indices.astype(i64), Lo.data.astype(float),
+                    Up.indptr.astype(i64), Up.indices.astype(i64), Up.data.astype(float), 1.0 / d)
+        # M_i (active i) = M0_i + u_i c_i^T - sum_j w_ij u_j e_ij^T; the sum over
+        # constrained j is formed once per solve (Kvc, Kvi: rows b * nrow + i).
         def stack_rows(rows, cols, wv, ev, nrow, ncol):
             return sp.csr_matrix(
                 (np.concatenate([wv * ev[:, b] for b in range(3)]),
                  (np.concatenate([rows + b * nrow for b in range(3)]), np.tile(cols, 3))),
                 shape=(3 * nrow, ncol))
 
-        fj = d_a < nf
-        # M_i (active i) = M0_i + u_i c_i^T - sum_j w_ij u_j e_ij^T; the sum split
-        # into free j (per iteration) and constrained j (once per solve).
-        self._Kvf = stack_rows(s_r[fj], d_a[fj], w_a[fj], e_a[fj], nr, nf)
-        self._Kvc = stack_rows(s_r[~fj], d_a[~fj] - nf, w_a[~fj], e_a[~fj], nr, nc)
-        self._M0r = np.ascontiguousarray(self._M0[:, :, act])          # (3, 3, nr, 1)
-        self._cr = np.ascontiguousarray(self._cT[:, act])                # (3, nr)
-        self._cf = np.ascontiguousarray(self._c[:nf])                    # (nf, 3)
-        # sum_j w_ij R_j e_ij for free i: every neighbour of a free node is active.
-        fs = src < nf
-        self._Khr = sp.csr_matrix(
-            (np.concatenate([w2[fs] * e[fs, b] for b in range(3)]),
-             (np.tile(src[fs], 3), np.concatenate([pos[dst[fs]] + b * nr for b in range(3)]))),
-            shape=(nf, 3 * nr))
-        self._L_ff = self.L[:nf, :nf].tocsr()
-        self._L_cc = self.L[nf:, nf:].tocsr()
-        ii = ~ia
-        self._Kvi = stack_rows(np.searchsorted(inact, src[ii]), dst[ii] - nf, w2[ii], e[ii],
+        sel = (ps >= 0) & (dst >= nf)
+        self._Kvc = stack_rows(ps[sel], dst[sel] - nf, w2[sel], e[sel], nr, nc)
+        sel = ps < 0
+        self._Kvi = stack_rows(np.searchsorted(inact, src[sel]), dst[sel] - nf, w2[sel], e[sel],
                                len(inact), nc)
+        self._M0r = np.ascontiguousarray(self._M0[:, :, act])          # (3, 3, nr, 1)
+        self._cr = np.ascontiguousarray(self._c[act])                    # (nr, 3)
+        self._cf = np.ascontiguousarray(self._c[:nf])                    # (nf, 3)
 
-    # ---- pieces of the iteration. Displacements are node-major U (n, A, 3)
+    # ---- pieces of the plain iteration. Displacements are node-major U (n, A, 3)
     # (for the sparse products); rotations and M are component-first
     # (3, 3, n, A) so that the per-node 3x3 algebra runs on contiguous arrays.
 
     def _local_M(self, U: np.ndarray) -> np.ndarray:
         """M_i = sum_j w_ij e'_ij e_ij^T for displacements U (n, A, 3) -> (3, 3, n, A)."""
         n, A, _ = U.shape
-        KU = (self._Kv @ U.reshape(n, 3 * A)).reshape(3, n, A, 3)    # [b, i, a, k]
+        Kv = self._PlainOperators()[0]
+        KU = (Kv @ U.reshape(n, 3 * A)).reshape(3, n, A, 3)          # [b, i, a, k]
         M = U.transpose(2, 0, 1)[:, None] * self._cT[None, :, :, None]
         M += self._M0
         M -= KU.transpose(3, 0, 1, 2)
@@ -405,7 +443,8 @@ class ArapProblem:
     def _energy(self, U: np.ndarray, R: np.ndarray, M: np.ndarray) -> np.ndarray:
         n, A, _ = U.shape
         LU = (self.L @ U.reshape(n, 3 * A)).reshape(n, A, 3)
-        quad = 4.0 * np.einsum("nak,nk->a", U, self._Lp) + 2.0 * np.einsum("nak,nak->a", U, LU)
+        quad = (4.0 * np.einsum("nak,nk->a", U, self._PlainOperators()[2])
+                + 2.0 * np.einsum("nak,nak->a", U, LU))
         tr = np.einsum("kbna,kbna->a", R, M)
         return np.maximum(2.0 * self._e2 + quad - 2.0 * tr, 0.0)
 
@@ -414,72 +453,30 @@ class ArapProblem:
         constrained displacements U_c (n_c, A, 3)."""
         n, A = R.shape[2:]
         nf = self.num_free
+        Kh = self._PlainOperators()[1]
         Rstack = R.transpose(1, 2, 3, 0).reshape(3 * n, 3 * A)       # [b*n + j, a*3 + k]
-        sRe = (self._Kh @ Rstack).reshape(n, A, 3)                    # sum_j w R_j e_ij
+        sRe = (Kh @ Rstack).reshape(n, A, 3)                          # sum_j w R_j e_ij
         Rc = np.einsum("kbia,bi->iak", R[:, :, :nf], self._cT[:, :nf])
         rhs = 0.5 * (Rc + sRe[:nf]) - self._c[:nf, None, :]
         rhs -= (self.L_fc @ U_c.reshape(len(U_c), 3 * A)).reshape(nf, A, 3)
         return np.asarray(self._solve(rhs.reshape(nf, 3 * A))).reshape(nf, A, 3)
 
-    # ---- accelerated solver (same energy, same fixed point; see SolveAccelerated).
-
-    def _FastLocal(self, x: np.ndarray, Mconst: np.ndarray) -> np.ndarray:
-        """Covariances M (3, 3, nr, A) of the active nodes for free displacements x (nf, A, 3)."""
-        nf, A, _ = x.shape
-        nr = self._nr
-        M = Mconst.copy()
-        M[:, :, :nf] += x.transpose(2, 0, 1)[:, None] * self._cr[None, :, :nf, None]
-        M -= (self._Kvf @ x.reshape(nf, 3 * A)).reshape(3, nr, A, 3).transpose(3, 0, 1, 2)
-        return M
-
-    def _FastGlobal(self, R: np.ndarray, rc: np.ndarray) -> np.ndarray:
-        nr, A = R.shape[2:]
-        nf = self.num_free
-        Rstack = R.transpose(1, 2, 3, 0).reshape(3 * nr, 3 * A)
-        rhs = (self._Khr @ Rstack).reshape(nf, A, 3)
-        rhs += np.einsum("kbia,bi->iak", R[:, :, :nf], self._cr[:, :nf])
-        rhs *= 0.5
-        rhs += rc
-        return np.asarray(self._solve(rhs.reshape(nf, 3 * A))).reshape(nf, A, 3)
-
-    def _ApplyInverse(self, v: np.ndarray) -> np.ndarray:
-        """L_ff^-1 applied to vectors v (a, 3 nf) in node-major order."""
-        a_ = v.shape[0]
-        nf = self.num_free
-        b = v.reshape(a_, nf, 3).transpose(1, 0, 2).reshape(nf, 3 * a_)
-        out = np.asarray(self._solve(b)).reshape(nf, a_, 3)
-        return out.transpose(1, 0, 2).reshape(a_, 3 * nf)
-
-    def _FastGrad(self, x: np.ndarray, R: np.ndarray, rc: np.ndarray) -> np.ndarray:
-        """grad E / 4 = L_ff x - rhs(R) as (A, 3 nf), node-major."""
-        nr, A = R.shape[2:]
-        nf = self.num_free
-        Rstack = R.transpose(1, 2, 3, 0).reshape(3 * nr, 3 * A)
-        rhs = (self._Khr @ Rstack).reshape(nf, A, 3)
-        rhs += np.einsum("kbia,bi->iak", R[:, :, :nf], self._cr[:, :nf])
-        rhs *= -0.5
-        rhs -= rc
-        rhs += (self._L_ff @ x.reshape(nf, 3 * A)).reshape(nf, A, 3)
-        return rhs.transpose(1, 0, 2).reshape(A, 3 * nf)
-
-    def _FastEnergy(self, x, R, M, lin, Econst):
-        nf, A, _ = x.shape
-        Lx = (self._L_ff @ x.reshape(nf, 3 * A)).reshape(nf, A, 3)
-        quad = np.einsum("nak,nak->a", x, lin + 2.0 * Lx)
-        tr = np.einsum("kbna,kbna->a", R, M)
-        return np.maximum(Econst + quad - 2.0 * tr, 0.0)
+    # ---- accelerated solver (same energy, same fixed point).
 
     def SolveAccelerated(self, constrained_displacements: np.ndarray, max_iterations: int = 300,
                          relative_tolerance: float = 1e-5, history: int = 8,
                          armijo: float = 1e-4, max_backtracks: int = 3,
                          warm_start: bool = True) -> ArapResult:
         """As ``SolvePlain`` (same energy, constraints, start and stopping
-        rule) by L-BFGS on the free displacements (see the module notes):
-        ``history`` (s, y) pairs, Armijo constant ``armijo``, up to
-        ``max_backtracks`` step halvings. ``warm_start``: actions whose
-        constrained displacements are a multiple s > 1 of another action's
-        (the same pull, longer) start from s times that action's solution
-        instead of the Laplacian solve."""
+        rule) by L-BFGS on the free displacements (see the module notes),
+        compiled (``arap_kernels.SolveTasks``): ``history`` (s, y) pairs,
+        Armijo constant ``armijo``, up to ``max_backtracks`` step halvings.
+        ``warm_start``: actions whose constrained displacements are a
+        multiple s > 1 of another action's (the same pull, longer) start
+        from s times that action's solution (displacements, and its
+        rotations as the start of the per-node Newton iterations) instead
+        of the Laplacian solve."""
+        from lmap_drake.deformation import arap_kernels as K
         dU_c = np.asarray(constrained_displacements, dtype=float)
         A = dU_c.shape[0]
         n, nf, nr = self.n, self.num_free, self._nr
@@ -489,10 +486,10 @@ class ArapProblem:
         U_c = np.ascontiguousarray(dU_c.transpose(1, 0, 2))              # (nc, A, 3)
         Ucf = U_c.reshape(nc, 3 * A)
         act, inact = self._act, self._inact
-        # Per-solve constants.
+        # Per-action constants.
         Mconst = self._M0r - (self._Kvc @ Ucf).reshape(3, nr, A, 3).transpose(3, 0, 1, 2)
         Mconst[:, :, nf:] += (U_c[act[nf:] - nf].transpose(2, 0, 1)[:, None]
-                              * self._cr[None, :, nf:, None])
+                              * self._cr[nf:].T[None, :, :, None])
         z = (self.L_fc @ Ucf).reshape(nf, A, 3)
         rc = -self._cf[:, None, :] - z
         lin = 4.0 * (self._cf[:, None, :] + z)
@@ -502,124 +499,46 @@ class ArapProblem:
         Econst = (2.0 * self._e2 + 4.0 * np.einsum("nak,nk->a", U_c, self._c[nf:])
                   + 2.0 * np.einsum("nak,nak->a", U_c, Lcc))
         R_out = np.zeros((A, n, 3, 3))
-        R_out[:, :, [0, 1, 2], [0, 1, 2]] = 1.0
         ni = len(inact)
+        pit = self.polar_iterations
+        ptol = (1e-8, 1e-6, 1e-5)                 # PolarRotationQuaternion's tolerances
         if ni:
             Mi = (self._M0[:, :, inact]
                   + U_c[inact - nf].transpose(2, 0, 1)[:, None] * self._cT[None, :, inact, None]
                   - (self._Kvi @ Ucf).reshape(3, ni, A, 3).transpose(3, 0, 1, 2))
-            qi = np.zeros((4, ni, A))
-            qi[0] = 1.0
-            Ri, _ = PolarRotationQuaternion(Mi, qi, self.polar_iterations)
-            Econst -= 2.0 * np.einsum("kbna,kbna->a", Ri, Mi)
-            R_out[:, inact] = Ri.transpose(3, 2, 0, 1)
-        U_out = np.empty((A, n, 3))
-        U_out[:, nf:] = dU_c
+            Mi = np.ascontiguousarray(Mi.transpose(3, 2, 0, 1)).reshape(A * ni, 3, 3)
+            qi = np.zeros((A * ni, 4))
+            qi[:, 0] = 1.0
+            Ri = K.PolarRotations(Mi, qi, K.LANES, pit, *ptol)
+            Econst -= 2.0 * np.einsum("nab,nab->n", Ri, Mi).reshape(A, ni).sum(axis=1)
+            R_out[:, inact] = Ri.reshape(A, ni, 3, 3)
+        pred, ratio, _ = (_DistanceChains(dU_c) if warm_start
+                          else (np.full(A, -1), np.ones(A), None))
+        # Longest chains of warm starts first.
+        height = np.ones(A, dtype=np.int64)
+        for a in np.argsort(-np.linalg.norm(dU_c.reshape(A, -1), axis=1), kind="stable"):
+            if pred[a] >= 0:
+                height[pred[a]] = max(height[pred[a]], height[a] + 1)
+        order = np.argsort(-height, kind="stable").astype(np.int64)
+        c3 = lambda v: np.ascontiguousarray(v.transpose(1, 0, 2))      # (nf, A, 3) -> (A, nf, 3)
+        Mc_t = np.ascontiguousarray(Mconst.transpose(3, 2, 0, 1))       # (A, nr, 3, 3)
+        X = np.empty((A, nf, 3))
+        Q = np.empty((A, nr, 4))
+        Ra = np.empty((A, nr, 3, 3))
         energy = np.full(A, np.inf)
         iters = np.zeros(A, dtype=np.int64)
         converged = np.zeros(A, dtype=bool)
         floor = 1e-14 * max(self._e2, 1e-30)
-        pred, ratio, stages = (_DistanceChains(dU_c) if warm_start
-                               else (np.full(A, -1), np.ones(A), [np.arange(A)]))
-        Mconst_all, rc_all, lin_all, Econst_all = Mconst, rc, lin, Econst
-        for ids in stages:
-            a_ = len(ids)
-            Mconst, rc = Mconst_all[:, :, :, ids], rc_all[:, ids]
-            lin, Econst = lin_all[:, ids], Econst_all[ids]
-            x0 = None
-            if pred[ids[0]] >= 0:      # scaled solution of the next shorter pull
-                x0 = np.ascontiguousarray(
-                    (ratio[ids, None, None] * U_out[pred[ids], :nf]).transpose(1, 0, 2))
-            R = np.zeros((3, 3, nr, a_))
-            R[0, 0] = R[1, 1] = R[2, 2] = 1.0
-            q = np.zeros((4, nr, a_))
-            q[0] = 1.0
-            if x0 is None:
-                x = self._FastGlobal(R, rc)
-            else:
-                x = x0
-            M = self._FastLocal(x, Mconst)
-            R, q = PolarRotationQuaternion(M, q, self.polar_iterations)
-            E = self._FastEnergy(x, R, M, lin, Econst)
-            # L-BFGS on E(x) = min_R E(x, R) with the Laplacian as initial Hessian
-            # (Liu, Bouaziz & Kavan 2017): grad E / 4 = L_ff x - rhs(R(x)), and the
-            # unit step with no history is exactly the global-local step.
-            m = int(history)
-            D = 3 * nf
-            S = np.zeros((a_, m, D))
-            Y = np.zeros((a_, m, D))
-            rho = np.zeros((a_, m))
-            ring = 0
-            gr = self._FastGrad(x, R, rc)
-            it = 1
-            while True:
-                Ep = energy[ids] if it > 1 else np.full(len(ids), np.inf)
-                done = (E <= floor) | (np.isfinite(Ep)
-                                      & (Ep - E <= relative_tolerance * np.maximum(Ep, floor)))
-                stop = done | (it >= max_iterations)
-                energy[ids] = E
-                iters[ids] = it
-                converged[ids[done]] = True
-                if stop.any():
-                    s_ = ids[stop]
-                    U_out[s_, :nf] = x[:, stop].transpose(1, 0, 2)
-                    R_out[np.ix_(s_, act)] = R[:, :, :, stop].transpose(3, 2, 0, 1)
-                    if stop.all():
-                        break
-                    k_ = ~stop
-                    ids = ids[k_]
-                    x, R, q, E, gr = x[:, k_], R[:, :, :, k_], q[:, :, k_], E[k_], gr[k_]
-                    Mconst, rc, lin, Econst = Mconst[:, :, :, k_], rc[:, k_], lin[:, k_], Econst[k_]
-                    S, Y, rho = S[k_], Y[k_], rho[k_]
-                it += 1
-                a_ = len(ids)
-                # Two-loop recursion, vectors (a, D) in node-major order [i, k].
-                qv = gr.copy()
-                alpha = np.zeros((a_, m))
-                for j in [(ring - 1 - t) % m for t in range(m)] if m else []:
-                    alpha[:, j] = rho[:, j] * np.einsum("ad,ad->a", S[:, j], qv)
-                    qv -= alpha[:, j, None] * Y[:, j]
-                r = self._ApplyInverse(qv)
-                for j in [(ring + t) % m for t in range(m)] if m else []:
-                    beta = rho[:, j] * np.einsum("ad,ad->a", Y[:, j], r)
-                    r += (alpha[:, j] - beta)[:, None] * S[:, j]
-                p = -r
-                slope = np.einsum("ad,ad->a", gr, p)                     # < 0 for descent
-                bad = ~(slope < 0)
-                if bad.any():                                            # plain step, forget history
-                    rho[bad] = 0.0
-                    p[bad] = -self._ApplyInverse(gr[bad])
-                    slope[bad] = np.einsum("ad,ad->a", gr[bad], p[bad])
-                t = np.ones(a_)
-                xn = x + p.reshape(a_, nf, 3).transpose(1, 0, 2)
-                Mn = self._FastLocal(xn, Mconst)
-                Rn, qn = PolarRotationQuaternion(Mn, q, self.polar_iterations)
-                En = self._FastEnergy(xn, Rn, Mn, lin, Econst)
-                for _ in range(max_backtracks):
-                    fail = ~(En <= E + 4.0 * armijo * t * slope)
-                    if not fail.any():
-                        break
-                    t[fail] *= 0.5
-                    xf = x[:, fail] + t[None, fail, None] * p[fail].reshape(-1, nf, 3).transpose(1, 0, 2)
-                    Mf = self._FastLocal(xf, Mconst[:, :, :, fail])
-                    Rf, qf = PolarRotationQuaternion(Mf, q[:, :, fail], self.polar_iterations)
-                    En[fail] = self._FastEnergy(xf, Rf, Mf, lin[:, fail], Econst[fail])
-                    xn[:, fail], Rn[:, :, :, fail], qn[:, :, fail] = xf, Rf, qf
-                fail = ~(En <= E)
-                if fail.any():                                           # keep the old iterate
-                    xn[:, fail], Rn[:, :, :, fail], qn[:, :, fail], En[fail] = (
-                        x[:, fail], R[:, :, :, fail], q[:, :, fail], E[fail])
-                    rho[fail] = 0.0
-                grn = self._FastGrad(xn, Rn, rc)
-                sv = (xn - x).transpose(1, 0, 2).reshape(a_, D)
-                yv = grn - gr
-                sy = np.einsum("ad,ad->a", sv, yv)
-                ok = sy > 1e-12 * np.sqrt(np.einsum("ad,ad->a", sv, sv) * np.einsum("ad,ad->a", yv, yv))
-                if m:
-                    S[:, ring], Y[:, ring] = sv, yv
-                    rho[:, ring] = np.where(ok, 1.0 / np.where(ok, sy, 1.0), 0.0)
-                    ring = (ring + 1) % m
-                x, R, q, E, gr = xn, Rn, qn, En, grn
+        if A:
+            K.SolveTasks(K.LANES, nf, self._cr, *self._mrows, *self._hrows, *self._lrows, *self._lu,
+                         Mc_t, c3(rc), c3(lin), c3(-z), Econst, pred.astype(np.int64),
+                         ratio.astype(float), order, int(max_iterations), float(relative_tolerance),
+                         float(floor), int(history), float(armijo), int(max_backtracks),
+                         pit, *ptol, X, Q, Ra, energy, iters, converged)
+        R_out[:, act] = Ra
+        U_out = np.empty((A, n, 3))
+        U_out[:, :nf] = X
+        U_out[:, nf:] = dU_c
         return ArapResult(displacements=U_out, positions_W=self.rest_W[None] + U_out,
                           rotations=R_out, energy=energy, iterations=iters, converged=converged)
 
