@@ -47,6 +47,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from lmap_drake.deformation import arap_kernels as K
+
 
 def _OpenBlasLocalThreads() -> list:
     """``openblas_set_num_threads_local`` (thread count for the calling
@@ -255,10 +257,12 @@ def _DistanceChains(dU_c: np.ndarray):
     pred, ratio = np.full(A, -1), np.ones(A)
     nz = np.flatnonzero(s > 0)
     if len(nz):
-        d = np.round(v[nz] / s[nz, None], 9)
-        _, grp = np.unique(d, axis=0, return_inverse=True)
-        for g in np.unique(grp):
-            mem = nz[grp.reshape(-1) == g]
+        d = np.round(v[nz] / s[nz, None], 9) + 0.0              # + 0.0: no -0.0
+        groups: dict[bytes, list[int]] = {}
+        for a, row in zip(nz, d):
+            groups.setdefault(row.tobytes(), []).append(a)
+        for mem in groups.values():
+            mem = np.array(mem)
             mem = mem[np.argsort(s[mem], kind="stable")]
             for a, b in zip(mem[:-1], mem[1:]):
                 r = s[b] / s[a]
@@ -367,8 +371,9 @@ class ArapProblem:
         action, so its rotation and its share of the energy are computed
         once per solve. CSR arrays (row pointer, column, w_ij e_ij (., 3)):
         ``_mrows`` active rows i, free columns j (covariances
-        M_i = Mconst_i + x_i c_i^T - sum_j w_ij x_j e_ij^T); ``_hrows`` free
-        rows i, active columns j (sum_j w_ij R_j e_ij)."""
+        M_i = Mconst_i + x_i c_i^T - sum_j w_ij x_j e_ij^T), with w_ij and the
+        free nodes' degrees (L_ff x); ``_hrows`` free rows i, active columns
+        j (sum_j w_ij R_j e_ij)."""
         n, nf = self.n, self.num_free
         nc = n - nf
         cf = np.zeros(n, dtype=bool)
@@ -389,14 +394,13 @@ class ArapProblem:
 
         ps = pos[src]
         sel = (ps >= 0) & (dst < nf)
-        self._mrows = csr(ps[sel], dst[sel], we[sel], nr)
+        ptr, col, val = csr(ps[sel], dst[sel], np.column_stack([we[sel], w2[sel]]), nr)
+        # + the free-free weights and the degrees: L_ff x from the same loop.
+        self._mrows = (ptr, col, np.ascontiguousarray(val[:, :3]), np.ascontiguousarray(val[:, 3]),
+                       np.bincount(src, w2, minlength=n)[:nf].copy())
         sel = src < nf
         self._hrows = csr(src[sel], pos[dst[sel]], we[sel], nf)
-        Lff = self._L_ff
-        Lff.sort_indices()
-        self._lrows = (Lff.indptr.astype(np.int64), Lff.indices.astype(np.int64),
-                       np.ascontiguousarray(Lff.data, dtype=float))
-        lu = spla.splu(Lff.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+        lu = spla.splu(self._L_ff.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options=dict(SymmetricMode=True))
         Lo = sp.tril(lu.L, -1, format="csc")
         d = lu.U.diagonal()
@@ -476,7 +480,6 @@ class ArapProblem:
         from s times that action's solution (displacements, and its
         rotations as the start of the per-node Newton iterations) instead
         of the Laplacian solve."""
-        from lmap_drake.deformation import arap_kernels as K
         dU_c = np.asarray(constrained_displacements, dtype=float)
         A = dU_c.shape[0]
         n, nf, nr = self.n, self.num_free, self._nr
@@ -530,7 +533,7 @@ class ArapProblem:
         converged = np.zeros(A, dtype=bool)
         floor = 1e-14 * max(self._e2, 1e-30)
         if A:
-            K.SolveTasks(K.LANES, nf, self._cr, *self._mrows, *self._hrows, *self._lrows, *self._lu,
+            K.SolveTasks(K.LANES, nf, self._cr, *self._mrows, *self._hrows, *self._lu,
                          Mc_t, c3(rc), c3(lin), c3(-z), Econst, pred.astype(np.int64),
                          ratio.astype(float), order, int(max_iterations), float(relative_tolerance),
                          float(floor), int(history), float(armijo), int(max_backtracks),

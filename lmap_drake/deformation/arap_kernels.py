@@ -30,6 +30,9 @@ LANES = 8
 # fastmath without "nnan"/"ninf": the solver compares against inf.
 _OPTS = dict(cache=True, nogil=True, error_model="numpy",
              fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+# Leaf kernels neither allocate nor keep references: no reference counting
+# (its atomic increments cost as much as the small kernels themselves).
+_LEAF = dict(_OPTS, _nrt=False)
 
 
 @njit(**_OPTS)
@@ -59,7 +62,7 @@ def _PolarSvdOne(m, l, q, R):
     q[0, l], q[1, l], q[2, l], q[3, l] = w * s, x * s, y * s, z * s
 
 
-@njit(**_OPTS)
+@njit(**_LEAF)
 def _PolarLanes(m, q, R, act, ang_out, maxit, tol, ftol, qtol):
     """Rotation maximising tr(R^T M) per lane (M = m (9, nl)) by Newton steps
     on SO(3) from the warm start q (4, nl) (updated in place; R (9, nl) out).
@@ -67,8 +70,9 @@ def _PolarLanes(m, q, R, act, ang_out, maxit, tol, ftol, qtol):
     except that a step theta is applied as the unit quaternion along
     (1, theta / 2) (Cayley map: angle 2 atan(|theta| / 2) = |theta| -
     |theta|^3 / 12 + ..., so convergence stays quadratic and the fixed point
-    is the same). Lanes still moving by more than ``ftol`` rad after
-    ``maxit`` steps fall back to the SVD."""
+    is the same). Returns the number of lanes still moving by more than
+    ``ftol`` rad after ``maxit`` steps (ang_out[l] > ftol), for the SVD
+    fallback (``_PolarSvdOne``)."""
     nl = m.shape[1]
     for l in range(nl):
         act[l] = 1.0
@@ -157,10 +161,11 @@ def _PolarLanes(m, q, R, act, ang_out, maxit, tol, ftol, qtol):
         R[2, l] = 2.0 * (x * z - w * y)
         R[5, l] = 2.0 * (y * z + w * x)
         R[8, l] = 1.0 - 2.0 * (x * x + y * y)
-    if checked:                          # the check step ran: fall back where needed
+    nfb = 0
+    if checked:                          # the check step ran: lanes for the SVD
         for l in range(nl):
-            if ang_out[l] > ftol:
-                _PolarSvdOne(m, l, q, R)
+            nfb += ang_out[l] > ftol
+    return nfb
 
 
 @njit(**_OPTS)
@@ -182,7 +187,10 @@ def PolarRotations(M, q, nl, maxit, tol, ftol, qtol):
                     m[3 * b + a, l] = M[s + l, a, b] if l < k else 0.0
             for c in range(4):
                 qq[c, l] = q[s + l, c] if l < k else (1.0 if c == 0 else 0.0)
-        _PolarLanes(m, qq, Rl, act, ang, maxit, tol, ftol, qtol)
+        if _PolarLanes(m, qq, Rl, act, ang, maxit, tol, ftol, qtol):
+            for l in range(nl):
+                if ang[l] > ftol:
+                    _PolarSvdOne(m, l, qq, Rl)
         for l in range(k):
             for a in range(3):
                 for b in range(3):
@@ -192,58 +200,107 @@ def PolarRotations(M, q, nl, maxit, tol, ftol, qtol):
     return R
 
 
-@njit(**_OPTS)
-def _Evaluate(nf, x, q, R3, R9, Lx, E, Mc, Ec, lin, cr, mptr, mcol, mwe, lptr, lcol, lval,
-              maxit, tol, ftol, qtol, m3, m9, act, ang, tr):
+@njit(**_LEAF)
+def _Evaluate(nf, x, q, R3, R9, Lx, E, Mc, Ec, lin, cr, mptr, mcol, mwe, mw, deg,
+              maxit, tol, ftol, qtol, m3, m9, act, ang, tr, fb_node, fb_lane, fb_M):
     """E(x) = min_R E(x, R) per lane at free displacements x (nf, 3 nl): the
     covariances of the active nodes (Mc (nr, 3, 3 nl) their constant part),
     their rotations (q (nr, 4, nl) warm start, updated; R3 (nr, 3, 3 nl) and
-    R9 (nr, 9, nl), two views of the result), Lx = L_ff x (nf, 3 nl) and the
-    energy E (nl,). Scratch: m3 (3, 3 nl) and m9 (9, nl) views of one array."""
+    R9 (nr, 9, nl), two views of the result), Lx = L_ff x (nf, 3 nl)
+    (L_ff = diag(deg) - the free-free weights mw of the covariance rows), the
+    traces tr (nl,) and E (nl,) (not clamped at 0). Scratch: m3 (3, 3 nl)
+    and m9 (9, nl) views of one array. Entries left for the SVD fallback
+    are listed in fb_node, fb_lane, fb_M (covariance, row-major); returns
+    their number (see ``_ApplyFallbacks``)."""
     nr = Mc.shape[0]
     W3 = x.shape[1]
     nl = E.shape[0]
+    nfb = 0
     for l in range(nl):
         tr[l] = 0.0
     for i in range(nr):
-        for b in range(3):
-            for c in range(W3):
-                m3[b, c] = Mc[i, b, c]
+        for c in range(W3):
+            m3[0, c] = Mc[i, 0, c]
+            m3[1, c] = Mc[i, 1, c]
+            m3[2, c] = Mc[i, 2, c]
         if i < nf:
-            for b in range(3):
-                cb = cr[i, b]
+            c0, c1, c2, dg = cr[i, 0], cr[i, 1], cr[i, 2], deg[i]
+            for c in range(W3):
+                xi = x[i, c]
+                m3[0, c] += c0 * xi
+                m3[1, c] += c1 * xi
+                m3[2, c] += c2 * xi
+                Lx[i, c] = dg * xi
+            for p in range(mptr[i], mptr[i + 1]):
+                j = mcol[p]
+                w0, w1, w2, w = mwe[p, 0], mwe[p, 1], mwe[p, 2], mw[p]
                 for c in range(W3):
-                    m3[b, c] += cb * x[i, c]
-        for p in range(mptr[i], mptr[i + 1]):
-            j = mcol[p]
-            for b in range(3):
-                wb = mwe[p, b]
+                    xj = x[j, c]
+                    m3[0, c] -= w0 * xj
+                    m3[1, c] -= w1 * xj
+                    m3[2, c] -= w2 * xj
+                    Lx[i, c] -= w * xj
+        else:
+            for p in range(mptr[i], mptr[i + 1]):
+                j = mcol[p]
+                w0, w1, w2 = mwe[p, 0], mwe[p, 1], mwe[p, 2]
                 for c in range(W3):
-                    m3[b, c] -= wb * x[j, c]
+                    xj = x[j, c]
+                    m3[0, c] -= w0 * xj
+                    m3[1, c] -= w1 * xj
+                    m3[2, c] -= w2 * xj
         Ri = R9[i]
-        _PolarLanes(m9, q[i], Ri, act, ang, maxit, tol, ftol, qtol)
+        if _PolarLanes(m9, q[i], Ri, act, ang, maxit, tol, ftol, qtol):
+            for l in range(nl):
+                if ang[l] > ftol:
+                    fb_node[nfb] = i
+                    fb_lane[nfb] = l
+                    for k in range(3):
+                        for b in range(3):
+                            fb_M[nfb, k, b] = m9[3 * b + k, l]
+                    nfb += 1
         for s in range(9):
             for l in range(nl):
                 tr[l] += Ri[s, l] * m9[s, l]
     for l in range(nl):
         E[l] = 0.0
     for i in range(nf):
-        for c in range(W3):
-            Lx[i, c] = 0.0
-        for p in range(lptr[i], lptr[i + 1]):
-            j = lcol[p]
-            v = lval[p]
-            for c in range(W3):
-                Lx[i, c] += v * x[j, c]
         for k in range(3):
             o = k * nl
             for l in range(nl):
                 E[l] += x[i, o + l] * (lin[i, o + l] + 2.0 * Lx[i, o + l])
     for l in range(nl):
-        E[l] = max(Ec[l] + E[l] - 2.0 * tr[l], 0.0)
+        E[l] = Ec[l] + E[l] - 2.0 * tr[l]
+    return nfb
 
 
 @njit(**_OPTS)
+def _ApplyFallbacks(nfb, fb_node, fb_lane, fb_M, q, R9, E):
+    """SVD rotations for the entries listed by ``_Evaluate``, with their
+    share of the energy E corrected; then E = max(E, 0)."""
+    m = np.zeros((9, 1))
+    qq = np.zeros((4, 1))
+    Rl = np.zeros((9, 1))
+    for f in range(nfb):
+        i, l = fb_node[f], fb_lane[f]
+        old = 0.0
+        for k in range(3):
+            for b in range(3):
+                m[3 * b + k, 0] = fb_M[f, k, b]
+                old += R9[i, 3 * b + k, l] * fb_M[f, k, b]
+        _PolarSvdOne(m, 0, qq, Rl)
+        new = 0.0
+        for c in range(9):
+            R9[i, c, l] = Rl[c, 0]
+            new += Rl[c, 0] * m[c, 0]
+        for c in range(4):
+            q[i, c, l] = qq[c, 0]
+        E[l] -= 2.0 * (new - old)
+    for l in range(E.shape[0]):
+        E[l] = max(E[l], 0.0)
+
+
+@njit(**_LEAF)
 def _Gradient(nf, R3, Lx, rc, cr, hptr, hcol, hwe, g):
     """grad E / 4 = L_ff x - rc - (R_i c_i + sum_j w_ij R_j e_ij) / 2, (nf, 3 nl)."""
     W3 = g.shape[1]
@@ -260,7 +317,7 @@ def _Gradient(nf, R3, Lx, rc, cr, hptr, hcol, hwe, g):
             g[i, c] = Lx[i, c] - rc[i, c] - 0.5 * g[i, c]
 
 
-@njit(**_OPTS)
+@njit(**_LEAF)
 def _SolveLU(b, out, y, pr, pc, lp, li, lv, up, ui, uv, ud):
     """out = L_ff^-1 b for b (nf, w) with the sparse LU factors
     (Pr L_ff Pc = L U; strict triangles in CSC, ud = 1 / diag(U)),
@@ -291,7 +348,7 @@ def _SolveLU(b, out, y, pr, pc, lp, li, lv, up, ui, uv, ud):
             out[i, c] = y[r, c]
 
 
-@njit(**_OPTS)
+@njit(**_LEAF)
 def _Dot(a, b, out):
     """out[l] = sum_d a[d, l] b[d, l] for a, b (D, nl)."""
     D, nl = a.shape
@@ -309,24 +366,89 @@ def _Dot(a, b, out):
         d += 1
 
 
-@njit(**_OPTS)
-def _Axpy(y, a, x):
-    """y[d, l] += a[l] x[d, l] for y, x (D, nl)."""
-    D, nl = y.shape
-    for d in range(D):
-        for l in range(nl):
-            y[d, l] += a[l] * x[d, l]
-
-
-@njit(**_OPTS)
+@njit(**_LEAF)
 def _CopyLane(dst, src, l):
     """dst[:, l] = src[:, l] for (D, nl) arrays."""
     for d in range(dst.shape[0]):
         dst[d, l] = src[d, l]
 
 
+@njit(**_LEAF)
+def _Transpose(src, dst):
+    """dst = src^T, (a, b) -> (b, a), eight rows of src at a time."""
+    A, B = src.shape
+    a0 = 0
+    while a0 + 8 <= A:
+        for b in range(B):
+            dst[b, a0] = src[a0, b]
+            dst[b, a0 + 1] = src[a0 + 1, b]
+            dst[b, a0 + 2] = src[a0 + 2, b]
+            dst[b, a0 + 3] = src[a0 + 3, b]
+            dst[b, a0 + 4] = src[a0 + 4, b]
+            dst[b, a0 + 5] = src[a0 + 5, b]
+            dst[b, a0 + 6] = src[a0 + 6, b]
+            dst[b, a0 + 7] = src[a0 + 7, b]
+        a0 += 8
+    for a in range(a0, A):
+        for b in range(B):
+            dst[b, a] = src[a, b]
+
+
+@njit(**_LEAF)
+def _TwoLoop(gT, qv, p, pT, ys, S, Y, rho, alpha, ring, m_, busy,
+             pr, pc, lp, li, lv, up, ui, uv, ud):
+    """L-BFGS direction -H g with the sparse L_ff^-1 as initial inverse
+    Hessian, per lane: gT (nl, D) the gradients lane-major, S, Y (m, nl, D)
+    the pairs (slot ring - 1 newest), rho (m, nl) (0: pair unused). Result
+    p (nf, 3 nl) lane-last; qv, pT, ys scratch, alpha (m, nl) out. Lanes
+    with busy[l] == 0 are skipped."""
+    nl, D = gT.shape
+    for l in range(nl):
+        g = gT[l]
+        if busy[l] == 0:
+            continue
+        for s_ in range(m_):
+            j = (ring - 1 - s_) % m_
+            r = rho[j, l]
+            if r == 0.0:
+                alpha[j, l] = 0.0
+                continue
+            Sj = S[j, l]
+            acc = 0.0
+            for d in range(D):
+                acc += Sj[d] * g[d]
+            a = r * acc
+            alpha[j, l] = a
+            Yj = Y[j, l]
+            for d in range(D):
+                g[d] -= a * Yj[d]
+    _Transpose(gT, qv.reshape((D, nl)))
+    _SolveLU(qv, p, ys, pr, pc, lp, li, lv, up, ui, uv, ud)
+    _Transpose(p.reshape((D, nl)), pT)
+    for l in range(nl):
+        v = pT[l]
+        if busy[l] == 0:
+            continue
+        for s_ in range(m_):
+            j = (ring + s_) % m_
+            r = rho[j, l]
+            if r == 0.0:
+                continue
+            Yj = Y[j, l]
+            acc = 0.0
+            for d in range(D):
+                acc += Yj[d] * v[d]
+            c = alpha[j, l] - r * acc
+            Sj = S[j, l]
+            for d in range(D):
+                v[d] += c * Sj[d]
+        for d in range(D):
+            v[d] = -v[d]
+    _Transpose(pT, p.reshape((D, nl)))
+
+
 @njit(**_OPTS)
-def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
+def SolveTasks(nl, nf, cr, mptr, mcol, mwe, mw, deg, hptr, hcol, hwe,
                pr, pc, lp, li, lv, up, ui, uv, ud,
                Mc_t, rc_t, lin_t, b0_t, Ec_t, pred, ratio, order,
                max_iterations, rel_tol, floor, history, armijo, max_backtracks,
@@ -345,7 +467,7 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
     m_ = history
     mh = max(m_, 1)
     W3 = 3 * nl
-    # Vectors (nf, 3 nl) [i, k * nl + l]; V views (3 nf, nl).
+    # Vectors (nf, 3 nl) [i, k * nl + l], views (3 nf, nl); lane-major (nl, 3 nf).
     x = np.zeros((nf, W3))
     xn = np.zeros((nf, W3))
     xb = np.zeros((nf, W3))
@@ -359,6 +481,8 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
     Lxb = np.zeros((nf, W3))
     rc = np.zeros((nf, W3))
     lin = np.zeros((nf, W3))
+    gT = np.zeros((nl, D))
+    pT = np.zeros((nl, D))
     q = np.zeros((nr, 4, nl))
     q[:, 0, :] = 1.0
     qn = q.copy()
@@ -368,8 +492,8 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
     Rn = np.zeros((nr, 3, W3))
     Rb = np.zeros((nr, 3, W3))
     Mc = np.zeros((nr, 3, W3))
-    S = np.zeros((mh, D, nl))
-    Y = np.zeros((mh, D, nl))
+    S = np.zeros((mh, nl, D))
+    Y = np.zeros((mh, nl, D))
     rho = np.zeros((mh, nl))
     alpha = np.zeros((mh, nl))
     E = np.zeros(nl)
@@ -379,14 +503,14 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
     Ec = np.zeros(nl)
     t = np.ones(nl)
     slope = np.zeros(nl)
-    tmp = np.zeros(nl)
-    tmp2 = np.zeros(nl)
-    tmp3 = np.zeros(nl)
     m3 = np.zeros((3, W3))
     m9 = m3.reshape((9, nl))
     act = np.zeros(nl)
     ang = np.zeros(nl)
     tr = np.zeros(nl)
+    fb_node = np.zeros(nr * nl, np.int64)
+    fb_lane = np.zeros(nr * nl, np.int64)
+    fb_M = np.zeros((nr * nl, 3, 3))
     status = np.zeros(nl, np.int64)      # 0 idle, 1 starting, 2 iterating
     task = np.full(nl, -1, np.int64)
     its = np.zeros(nl, np.int64)
@@ -443,33 +567,25 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
                             rc[i, o] = rc_t[k, i, c]
                             lin[i, o] = lin_t[k, i, c]
                             x[i, o] = 0.0
-                            gr[i, o] = 0.0 if kp >= 0 else -b0_t[k, i, c]
             if status[l] != 0:
                 busy += 1
         if busy == 0:
             break
-        xV, xnV, pV, qV = x.reshape((D, nl)), xn.reshape((D, nl)), p.reshape((D, nl)), qv.reshape((D, nl))
+        xV, xnV, pV = x.reshape((D, nl)), xn.reshape((D, nl)), p.reshape((D, nl))
         gV, gnV, xbV = gr.reshape((D, nl)), grn.reshape((D, nl)), xb.reshape((D, nl))
-        # Direction: L-BFGS two-loop recursion with L_ff as initial Hessian.
-        # Starting lanes have no history; their "gradient" gives p = L^-1 b0.
-        qV[:] = gV
-        for s_ in range(m_):
-            j = (ring - 1 - s_) % m_
-            _Dot(S[j], qV, tmp)
-            for l in range(nl):
-                alpha[j, l] = rho[j, l] * tmp[l]
-                tmp[l] = -alpha[j, l]
-            _Axpy(qV, tmp, Y[j])
-        _SolveLU(qv, p, ys, pr, pc, lp, li, lv, up, ui, uv, ud)
-        for s_ in range(m_):
-            j = (ring + s_) % m_
-            _Dot(Y[j], pV, tmp)
-            for l in range(nl):
-                tmp[l] = alpha[j, l] - rho[j, l] * tmp[l]
-            _Axpy(pV, tmp, S[j])
-        for d in range(D):
-            for l in range(nl):
-                pV[d, l] = -pV[d, l]
+        # Direction. Starting lanes have no history (rho = 0); their "gradient"
+        # -b0 gives p = L^-1 b0 (Laplacian solve), or p is the warm start.
+        _Transpose(gV, gT)
+        for l in range(nl):
+            if status[l] == 1:
+                k = task[l]
+                for i in range(nf):
+                    for c in range(3):
+                        gT[l, 3 * i + c] = 0.0 if pred[k] >= 0 else -b0_t[k, i, c]
+        # gT holds the gradient node-major per lane: [l, i * 3 + k]; the
+        # lane-last vectors are [i, k * nl + l] = [(i * 3 + k) * nl + l].
+        _TwoLoop(gT, qv, p, pT, ys, S, Y, rho, alpha, ring, m_, status,
+                 pr, pc, lp, li, lv, up, ui, uv, ud)
         for l in range(nl):
             if status[l] == 1 and pred[task[l]] >= 0:
                 k = task[l]
@@ -494,9 +610,11 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
             for l in range(nl):
                 xnV[d, l] = xV[d, l] + pV[d, l]
         qn[:] = q
-        _Evaluate(nf, xn, qn, Rn, Rn.reshape((nr, 9, nl)), Lxn, En, Mc, Ec, lin, cr,
-                  mptr, mcol, mwe, lptr, lcol, lval, pmaxit, ptol, pftol, pqtol,
-                  m3, m9, act, ang, tr)
+        Rn9 = Rn.reshape((nr, 9, nl))
+        nfb = _Evaluate(nf, xn, qn, Rn, Rn9, Lxn, En, Mc, Ec, lin, cr, mptr, mcol, mwe,
+                        mw, deg, pmaxit, ptol, pftol, pqtol, m3, m9, act, ang, tr,
+                        fb_node, fb_lane, fb_M)
+        _ApplyFallbacks(nfb, fb_node, fb_lane, fb_M, qn, Rn9, En)
         for l in range(nl):
             t[l] = 1.0
         for _ in range(max_backtracks):
@@ -508,12 +626,15 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
                     anyf = True
             if not anyf:
                 break
-            xbV[:] = xV
-            _Axpy(xbV, t, pV)
+            for d in range(D):
+                for l in range(nl):
+                    xbV[d, l] = xV[d, l] + t[l] * pV[d, l]
             qb[:] = q
-            _Evaluate(nf, xb, qb, Rb, Rb.reshape((nr, 9, nl)), Lxb, Eb, Mc, Ec, lin, cr,
-                      mptr, mcol, mwe, lptr, lcol, lval, pmaxit, ptol, pftol, pqtol,
-                      m3, m9, act, ang, tr)
+            Rb9 = Rb.reshape((nr, 9, nl))
+            nfb = _Evaluate(nf, xb, qb, Rb, Rb9, Lxb, Eb, Mc, Ec, lin, cr, mptr, mcol, mwe,
+                            mw, deg, pmaxit, ptol, pftol, pqtol, m3, m9, act, ang, tr,
+                            fb_node, fb_lane, fb_M)
+            _ApplyFallbacks(nfb, fb_node, fb_lane, fb_M, qb, Rb9, Eb)
             for l in range(nl):
                 if fail[l]:
                     _CopyLane(xnV, xbV, l)
@@ -530,19 +651,24 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, hptr, hcol, hwe, lptr, lcol, lval,
                 En[l] = E[l]
                 rho[:, l] = 0.0
         _Gradient(nf, Rn, Lxn, rc, cr, hptr, hcol, hwe, grn)
-        # History pair (s, y); none for starting lanes.
+        # History pair (s, y), lane-major; none for starting lanes.
         if m_ > 0:
             Sr, Yr = S[ring], Y[ring]
             for d in range(D):
                 for l in range(nl):
-                    Sr[d, l] = xnV[d, l] - xV[d, l]
-                    Yr[d, l] = gnV[d, l] - gV[d, l]
-            _Dot(Sr, Yr, tmp)
-            _Dot(Sr, Sr, tmp2)
-            _Dot(Yr, Yr, tmp3)
+                    Sr[l, d] = xnV[d, l] - xV[d, l]
+                    Yr[l, d] = gnV[d, l] - gV[d, l]
             for l in range(nl):
-                ok = status[l] == 2 and tmp[l] > 1e-12 * np.sqrt(tmp2[l] * tmp3[l])
-                rho[ring, l] = 1.0 / tmp[l] if ok else 0.0
+                sy = 0.0
+                ss = 0.0
+                yy = 0.0
+                Sl, Yl = Sr[l], Yr[l]
+                for d in range(D):
+                    sy += Sl[d] * Yl[d]
+                    ss += Sl[d] * Sl[d]
+                    yy += Yl[d] * Yl[d]
+                ok = status[l] == 2 and sy > 1e-12 * np.sqrt(ss * yy)
+                rho[ring, l] = 1.0 / sy if ok else 0.0
             ring = (ring + 1) % m_
         x, xn = xn, x
         q, qn = qn, q

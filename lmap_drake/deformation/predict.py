@@ -1,9 +1,12 @@
 """Deformation prediction for a set of actions: graph per grasp, one ARAP
 factorisation per grasp, all (direction, distance) actions of the grasp
-solved together, dense interpolation. World frame W, metres."""
+solved together, dense interpolation. Grasps are independent and run in
+parallel threads (the ARAP kernels release the GIL). World frame W, metres."""
 from __future__ import annotations
 
 import dataclasses as dc
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -56,16 +59,19 @@ def PrepareGrasp(leaf_graph: LeafGraph, p_WG: np.ndarray, R_WG: np.ndarray,
     return GraspSolution(g, problem, interp)
 
 
-def SolveGrasp(prep: GraspSolution, actions: list[Action], config: DeformationConfig,
-               dense: bool = True) -> list[PredictedDeformation]:
-    """Solves all ``actions`` (sharing ``prep``'s grasp) in one batch: fixed
-    nodes stay, handle nodes move by each action's dp_W."""
+def SolveActions(prep: GraspSolution, actions: list[Action], config: DeformationConfig):
+    """``ArapResult`` of all ``actions`` (sharing ``prep``'s grasp), solved
+    in one batch: fixed nodes stay, handle nodes move by each action's dp_W."""
     g = prep.graph
     dp = np.array([a.dp_W for a in actions]).reshape(len(actions), 1, 3)
     u_c = np.zeros((len(actions), g.num_constrained, 3))
     u_c[:, g.num_fixed:] = dp
-    res = prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance,
-                             method=config.arap_method)
+    return prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance,
+                              method=config.arap_method)
+
+
+def _Predictions(prep: GraspSolution, actions: list[Action], res, dense: bool):
+    g = prep.graph
     dense_W = (prep.interpolator.Apply(g.nodes_W, res.positions_W, res.rotations)
                if dense else [None] * len(actions))
     return [PredictedDeformation(action=a, nodes_W=g.nodes_W, node_kind=g.kind,
@@ -75,18 +81,54 @@ def SolveGrasp(prep: GraspSolution, actions: list[Action], config: DeformationCo
             for i, a in enumerate(actions)]
 
 
+def SolveGrasp(prep: GraspSolution, actions: list[Action], config: DeformationConfig,
+               dense: bool = True) -> list[PredictedDeformation]:
+    """Solves all ``actions`` (sharing ``prep``'s grasp) in one batch: fixed
+    nodes stay, handle nodes move by each action's dp_W."""
+    return _Predictions(prep, actions, SolveActions(prep, actions, config), dense)
+
+
+def DefaultWorkers() -> int:
+    """Threads for independent grasps: the CPUs this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:                       # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def PrepareAndSolveGrasps(leaf_graph: LeafGraph, groups: list[list[Action]],
+                          config: DeformationConfig, factorization: str = "inverse",
+                          workers: int | None = None) -> list:
+    """(GraspSolution, ArapResult) per group of actions sharing a grasp
+    (``PrepareGrasp`` then ``SolveActions``), groups spread over ``workers``
+    threads (default ``DefaultWorkers()``); results in the order of
+    ``groups``."""
+    def Run(acts):
+        prep = PrepareGrasp(leaf_graph, acts[0].p_WG, acts[0].R_WG, config, factorization)
+        return prep, SolveActions(prep, acts, config)
+
+    workers = min(len(groups), workers or DefaultWorkers())
+    if workers <= 1:
+        return [Run(acts) for acts in groups]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(Run, groups))
+
+
 def PredictDeformations(leaf_points_W: np.ndarray, branch_points_W: np.ndarray,
                         actions: list[Action], config: DeformationConfig,
-                        dense: bool = True) -> list[PredictedDeformation]:
+                        dense: bool = True, workers: int | None = None
+                        ) -> list[PredictedDeformation]:
     """Predictions for ``actions`` (any order, any number of grasps), in
-    the order given. Raises DeformationError on unusable input."""
+    the order given; grasps in ``workers`` threads (``PrepareAndSolveGrasps``).
+    Raises DeformationError on unusable input."""
     if not actions:
         return []
     leaf_graph = BuildLeafGraph(leaf_points_W, branch_points_W, config)
     out: list[PredictedDeformation | None] = [None] * len(actions)
-    for idx in GroupActionsByGrasp(actions):
-        a0 = actions[idx[0]]
-        prep = PrepareGrasp(leaf_graph, a0.p_WG, a0.R_WG, config)
-        for i, p in zip(idx, SolveGrasp(prep, [actions[i] for i in idx], config, dense)):
+    idxs = GroupActionsByGrasp(actions)
+    groups = [[actions[i] for i in idx] for idx in idxs]
+    solved = PrepareAndSolveGrasps(leaf_graph, groups, config, workers=workers)
+    for idx, acts, (prep, res) in zip(idxs, groups, solved):
+        for i, p in zip(idx, _Predictions(prep, acts, res, dense)):
             out[i] = p
     return out
