@@ -32,7 +32,14 @@ rule (relative energy decrease of one iteration below a tolerance):
   energy. Rotations are kept only for the free nodes and the constrained
   nodes with a free neighbour; the other constrained nodes have a constant
   covariance per action, so their rotations and energy share are computed
-  once per solve.
+  once per solve. Runs compiled (numba, ``arap_kernels``): actions in SIMD
+  lanes, each lane taking the next ready action when its own stops, L_ff^-1
+  by sparse LU substitutions. Per action the iterates are those of the
+  former vectorised numpy implementation up to round-off and the polar
+  warm start (energies within ~1e-6 relative, same iteration counts on the
+  benchmark leaf); at the default tolerance 1e-5 the energies are within
+  ~1e-4 of the tight minimum (the plain solver: ~5e-4), see
+  tests/deformation/test_arap_kernels.py.
 """
 from __future__ import annotations
 
