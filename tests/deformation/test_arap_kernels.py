@@ -85,3 +85,17 @@ def test_threads_over_grasps_give_the_same_predictions(plant):
     for a, b in zip(one, two):
         assert a.action == b.action and a.energy == b.energy
         assert np.array_equal(a.deformed_nodes_W, b.deformed_nodes_W)
+
+
+def test_factorizations_agree_for_the_plain_solver(problem):
+    """``factorization`` now only selects the plain solver's L_ff solve (the
+    compiled solver always uses the sparse LU): all three agree there."""
+    prob, u_c = problem
+    g = (prob.rest_W, prob.edges, prob.weights, prob.num_free)
+    out = [ArapProblem(*g, factorization=f).Solve(u_c[:4], 40, 1e-5, method="plain")
+           for f in ("splu", "cholesky", "inverse")]
+    for r in out[1:]:
+        assert np.allclose(r.energy, out[0].energy, rtol=1e-8)
+        assert np.allclose(r.positions_W, out[0].positions_W, atol=1e-9)
+    with pytest.raises(ValueError):
+        ArapProblem(*g, factorization="nope")
