@@ -18,10 +18,13 @@ unsafe energy and that lowest unsafe energy (so every unsafe record lies
 above it), how many records it separates correctly, and the sorted
 (energy, safe, petiole force, strain) rows, as JSON.
 
-The default ``PlannerConfig.max_energy_per_node`` came from this script on
-the 24 LMAP episodes (lambda 1 and 0, cap off) of the 12-scene suite
-(diagrams/suite.yaml); validate a new value on scenes that were not used to
-fit it (``lmap-drake eval --scenarios N --seed S``). The total energy does
+The default ``PlannerConfig.max_energy_per_node`` = 7.0e-7 m^2 came from
+this script on 48 LMAP episodes: lambda 1 and 0 with the cap off on the
+12-scene suite (diagrams/suite.yaml; alone it gave 8.2e-7, separating all 24)
+and lambda 1 (cap 8e-7) and 0 on a random suite
+(``lmap-drake eval --scenarios 12 --seed 7``; 3 of its 12 lambda-1 episodes
+were hazards at 7.4-7.9e-7, inside the suite's gap). Validate a new value on
+scenes that were not used to fit it (another ``--seed``). The total energy does
 not separate small from large leaves (a small leaf is hazardous at an
 energy a large one bears); per node it does.
 """
