@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import json
+import re
 import time
 from pathlib import Path
 
@@ -380,7 +381,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     if not feasible:
         reasons: dict[str, int] = {}
         for c in cands:
-            k = c.reason.split(" (")[0]
+            k = re.sub(r"\d[\d.e+-]*", "#", c.reason.split(" (")[0])   # group by wording
             reasons[k] = reasons.get(k, 0) + 1
         result.status = "no_feasible_action"
         result.message = "no feasible action: " + ", ".join(
