@@ -1,6 +1,7 @@
 import numpy as np
 
-from lmap_drake.shape.free_space import (CarveFreeSpace, CarveFreeSpaceDDA, FreeSpacePoints,
+from lmap_drake.shape.free_space import (CarveFreeSpace, CarveFreeSpaceDDA, CarveFreeSpaceSamples,
+                                         FreeSpacePoints,
                                          RegionAroundFruit, VoxelGrid)
 
 
@@ -52,3 +53,23 @@ def test_free_space_is_in_front_of_surfaces_only():
     front = c - np.array([0, 0.04, 0])
     idx = grid.flat(grid.index(front[None]))[0]
     assert idx in CarveFreeSpace(cam, pts, grid)
+
+
+def test_free_points_are_traversed_samples_not_voxel_centres():
+    """Every free point lies on a carved ray segment, so none is inside the
+    sphere (voxel centres of corner-clipped voxels can be), and there is one
+    point per free voxel, inside that voxel."""
+    rng = np.random.default_rng(2)
+    cam, c, pts = _scene(rng)
+    fruit = pts[np.linalg.norm(pts - c, axis=1) < 0.031]
+    grid = RegionAroundFruit(fruit, 0.003)
+    idx, means = CarveFreeSpaceSamples(cam, pts, grid)
+    np.testing.assert_array_equal(idx, CarveFreeSpace(cam, pts, grid))
+    np.testing.assert_array_equal(grid.flat(grid.index(means)), idx)
+    centres = grid.centers(grid.unflat(idx))
+    r_c = np.linalg.norm(centres - c, axis=1)
+    r_m = np.linalg.norm(means - c, axis=1)
+    assert (r_c < 0.03).sum() > 0          # the quantisation the means avoid
+    assert r_m.min() > 0.03                 # rays stop one voxel before the sphere
+    free = FreeSpacePoints(cam, pts, fruit, 0.003)   # (rays deduplicated per half voxel)
+    assert len(free) > 0.95 * len(idx) and np.linalg.norm(free - c, axis=1).min() > 0.03
