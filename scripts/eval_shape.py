@@ -15,6 +15,16 @@ Writes FILE.json ({"source", "ssc": {"initial_occlusion": {"chamfer_cm",
 "without_occlusion": {...}}, ..., "rows": [...]}) and FILE.md (table).
 ``seconds`` is the fruit-completion time per fruit (free space + fit;
 branch completion reported separately as ``branch_seconds``).
+
+``--seeds 0,1,2,3`` repeats every fit with those optimiser seeds (surface /
+negative subsampling): the tables are then means over cases and seeds, and
+``"seed_std"`` holds, per method and condition, the standard deviation over
+seeds of the per-seed means (the run-to-run noise a difference between two
+methods has to exceed). Rows of the DeepSDF methods also record how many
+iterations had an active negative loss (``neg_iters``) and an active
+peduncle loss (``ped_iters``), and how many negative points the estimate
+still has inside it (``neg_inside``: leaf, observed branch, free space,
+more than 0.5 mm deep).
 """
 from __future__ import annotations
 
@@ -31,6 +41,7 @@ from lmap_drake.scenario import ShapeConfig
 from lmap_drake.shape import benchmark
 from lmap_drake.shape.completion import CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
+from lmap_drake.shape.free_space import FreeSpacePoints
 from lmap_drake.shape.metrics import ShapeMetrics
 from lmap_drake.shape.ssc import SscParams
 
@@ -51,10 +62,20 @@ def Cases(source: str, num: int):
                 lambda occ, i=i: benchmark.MakeSyntheticCase(i, occ)
 
 
+def SceneNegatives(sem, voxel: float) -> np.ndarray:
+    """The observed negatives of SSC (leaf, branch, free space; W, m)."""
+    cam = np.asarray(sem.X_WC, float)[:3, 3]
+    obs = [p for p in (sem.fruit_points_W, sem.leaf_points_W, sem.branch_points_W) if len(p)]
+    free = FreeSpacePoints(cam, np.vstack(obs), sem.fruit_points_W, voxel)
+    return np.vstack([np.asarray(p, float).reshape(-1, 3) for p in
+                      (sem.leaf_points_W, sem.branch_points_W, free)])
+
+
 def Markdown(res: dict, methods) -> str:
+    seeds = res.get("seeds", [0])
     lines = [f"Shape completion, {res['num_cases']} cases, source: {res['source']} "
-             f"(mean over cases; seconds = fruit completion per fruit, "
-             f"{res['threads']} torch threads)", "",
+             f"(mean over cases" + (f" and seeds {seeds}" if len(seeds) > 1 else "") +
+             f"; seconds = fruit completion per fruit, {res['threads']} torch threads)", "",
              "| condition | method | Chamfer (cm) | volume err (cm^3) | centre err (cm) "
              "| angle err (deg) | s/fruit |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for cond in CONDITIONS:
@@ -63,6 +84,15 @@ def Markdown(res: dict, methods) -> str:
             lines.append(f"| {cond.replace('_', ' ')} | {NAMES[m]} | {r['chamfer_cm']:.2f} | "
                          f"{r['volume_err_cm3']:.1f} | {r['center_err_cm']:.2f} | "
                          f"{r['angle_err_deg']:.1f} | {r['seconds']:.2f} |")
+    if "seed_std" in res:
+        lines += ["", "Standard deviation over seeds of the mean (Chamfer / volume / centre / "
+                  "angle):", ""]
+        for cond in CONDITIONS:
+            for m in methods:
+                r = res["seed_std"][m][cond]
+                lines.append(f"- {cond.replace('_', ' ')}, {NAMES[m]}: {r['chamfer_cm']:.3f} / "
+                             f"{r['volume_err_cm3']:.2f} / {r['center_err_cm']:.3f} / "
+                             f"{r['angle_err_deg']:.2f}")
     lines += ["", "TCoRe is not evaluated: its trained weights are not available."]
     return "\n".join(lines) + "\n"
 
@@ -77,6 +107,7 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=1,
                     help="torch threads (1 avoids oversubscription on a shared 2-core machine)")
     ap.add_argument("--iterations", type=int, default=None)
+    ap.add_argument("--seeds", default="0", help="optimiser seeds, comma-separated")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     methods = a.methods.split(",")
@@ -85,35 +116,53 @@ def main(argv=None):
     P = SscParams.FromConfig(cfg)
     if a.iterations:
         P.iterations = a.iterations
+    seeds = [int(x) for x in a.seeds.split(",")]
     rows, source = [], None
     t_all = time.time()
     for src, name, make in Cases(a.source, a.num_cases):
         source = src
         for cond in CONDITIONS:
             case = make(cond == "initial_occlusion")
-            for m in methods:
-                tm = {}
-                est = CompleteScene(case.semantic, dec, mean, P, m, cfg.free_space_voxel,
-                                    timings=tm)
-                f = est.fruit
-                r = ShapeMetrics(f.vertices_W, f.faces, f.peduncle_axis_W, case.gt_vertices_W,
-                                 case.gt_faces, case.gt_axis_W)
-                r.update(seconds=tm.get("fruit_s", 0.0), branch_seconds=tm.get("branch_s", 0.0),
-                         case=case.name, condition=cond, method=m,
-                         visible_fraction=case.visible_fraction,
-                         num_fruit_points=int(len(case.semantic.fruit_points_W)))
-                rows.append(r)
-                print(f"{case.name:28s} {cond:18s} {m:7s} CD {r['chamfer_cm']:.2f} cm  "
-                      f"V {r['volume_err_cm3']:6.1f} cm3  c {r['center_err_cm']:.2f} cm  "
-                      f"ang {r['angle_err_deg']:5.1f} deg  {r['seconds']:.2f} s  "
-                      f"(vis {case.visible_fraction:.2f})", flush=True)
+            sem = case.semantic
+            negatives = None
+            for seed in seeds:
+                P.seed = seed
+                for m in methods:
+                    tm = {}
+                    est = CompleteScene(sem, dec, mean, P, m, cfg.free_space_voxel, timings=tm)
+                    f = est.fruit
+                    r = ShapeMetrics(f.vertices_W, f.faces, f.peduncle_axis_W,
+                                     case.gt_vertices_W, case.gt_faces, case.gt_axis_W)
+                    r.update(seconds=tm.get("fruit_s", 0.0),
+                             branch_seconds=tm.get("branch_s", 0.0), case=case.name,
+                             condition=cond, method=m, seed=seed,
+                             visible_fraction=case.visible_fraction,
+                             num_fruit_points=int(len(sem.fruit_points_W)))
+                    if m != "supeps":
+                        if negatives is None:
+                            negatives = SceneNegatives(sem, cfg.free_space_voxel)
+                        tr = [t for t in f.loss_trace if t.get("it", -1) >= 0]
+                        r.update(neg_iters=int(sum(t["neg"] > 0 for t in tr)),
+                                 ped_iters=int(sum(t["ped"] > 0 for t in tr)),
+                                 neg_inside=int((f.sdf_W(negatives) < -5e-4).sum()))
+                    rows.append(r)
+                    print(f"{case.name:28s} {cond:18s} {m:7s} s{seed} CD {r['chamfer_cm']:.2f} cm"
+                          f"  V {r['volume_err_cm3']:6.1f} cm3  c {r['center_err_cm']:.2f} cm  "
+                          f"ang {r['angle_err_deg']:5.1f} deg  {r['seconds']:.2f} s  "
+                          f"(vis {case.visible_fraction:.2f})", flush=True)
     res = {"source": source, "num_cases": len({r["case"] for r in rows}), "threads": a.threads,
-           "iterations": P.iterations, "total_seconds": round(time.time() - t_all, 1)}
+           "iterations": P.iterations, "seeds": seeds,
+           "total_seconds": round(time.time() - t_all, 1)}
     for m in methods:
         res[m] = {}
         for cond in CONDITIONS:
             sel = [r for r in rows if r["method"] == m and r["condition"] == cond]
             res[m][cond] = {k: float(np.mean([r[k] for r in sel])) for k in METRICS}
+    if len(seeds) > 1:
+        res["seed_std"] = {m: {cond: {k: float(np.std([np.mean(
+            [r[k] for r in rows if r["method"] == m and r["condition"] == cond
+             and r["seed"] == sd]) for sd in seeds])) for k in METRICS} for cond in CONDITIONS}
+            for m in methods}
     res["rows"] = rows
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -54,7 +54,7 @@ def CompleteScene(semantic: SemanticScene, decoder=None, mean_latent=None,
         return out
     t0 = time.time()
     if method == "supeps":
-        out.fruit = FitSuperellipsoid(fruit, cam)
+        out.fruit = FitSuperellipsoid(fruit, cam, seed=P.seed)
     elif method == "homa":
         out.fruit = FitHoma(decoder, mean_latent, fruit, cam, P)
     else:
