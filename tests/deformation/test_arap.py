@@ -3,29 +3,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from lmap_drake.deformation import (
-    Action, ArapProblem, BuildGraspGraph, BuildLeafGraph, MakeActions, PredictDeformations,
-    PullDirections)
+    Action, ArapProblem, MakeActions, PredictDeformations, PullDirections)
 from lmap_drake.deformation.arap import (
     MatrixToQuaternion, PolarRotationQuaternion, PolarRotationSvd, QuaternionToMatrix)
-from lmap_drake.deformation.synthetic import OvateLeaf
-from lmap_drake.scenario import DeformationConfig
 
-# Gripper approaching the leaf tip along -x, closing along z (leaf normal).
-R_TIP = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
-CFG = DeformationConfig(max_iterations=150, relative_tolerance=1e-5)
-
-
-@pytest.fixture(scope="module")
-def plant():
-    return OvateLeaf(spacing=0.0015)
-
-
-@pytest.fixture(scope="module")
-def tip_graph(plant):
-    leaf, branch = plant
-    lg = BuildLeafGraph(leaf, branch, CFG)
-    p = leaf[np.argmax(leaf[:, 0] - 5 * np.abs(leaf[:, 1]))] - [0.01, 0, 0]
-    return p, BuildGraspGraph(lg, p, R_TIP, CFG)
+from leaf_fixtures import R_TIP, TEST_CONFIG as CFG
 
 
 def brute_energy(g, positions, rotations):

@@ -4,28 +4,17 @@ import numpy as np
 import pytest
 
 from lmap_drake.deformation import (
-    ArapProblem, BuildGraspGraph, BuildLeafGraph, MakeActions, PredictDeformations,
+    ArapProblem, MakeActions, PredictDeformations,
     PullDirections)
 from lmap_drake.deformation import arap_kernels as K
 from lmap_drake.deformation.arap import PolarRotationSvd
-from lmap_drake.deformation.synthetic import OvateLeaf
-from lmap_drake.scenario import DeformationConfig
 
-R_TIP = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
-CFG = DeformationConfig(max_iterations=150, relative_tolerance=1e-5)
+from leaf_fixtures import R_TIP, TEST_CONFIG as CFG
 
 
 @pytest.fixture(scope="module")
-def plant():
-    return OvateLeaf(spacing=0.0015)
-
-
-@pytest.fixture(scope="module")
-def problem(plant):
-    leaf, branch = plant
-    lg = BuildLeafGraph(leaf, branch, CFG)
-    p = leaf[np.argmax(leaf[:, 0] - 5 * np.abs(leaf[:, 1]))] - [0.01, 0, 0]
-    g = BuildGraspGraph(lg, p, R_TIP, CFG)
+def problem(tip_graph):
+    _, g = tip_graph
     # 5 directions x 3 distances: 15 actions (more than the lanes) in chains.
     dirs = PullDirections()[::3]
     u_c = np.zeros((15, g.num_constrained, 3))
