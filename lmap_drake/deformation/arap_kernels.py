@@ -301,6 +301,18 @@ def _ApplyFallbacks(nfb, fb_node, fb_lane, fb_M, q, R9, E):
     for l in range(E.shape[0]):
         E[l] = max(E[l], 0.0)
 
+@njit(**_OPTS)
+def _EvaluateFrom(q0, nf, x, q, R, Lx, E, Mc, Ec, lin, cr, mptr, mcol, mwe, mw, deg,
+                  maxit, tol, ftol, qtol, m3, m9, act, ang, tr, fb_node, fb_lane, fb_M):
+    """``_Evaluate`` at x with the rotations warm-started from q0 (copied
+    into q), then the SVD fallbacks applied (``_ApplyFallbacks``)."""
+    q[:] = q0
+    R9 = R.reshape((R.shape[0], 9, R.shape[2] // 3))
+    nfb = _Evaluate(nf, x, q, R, R9, Lx, E, Mc, Ec, lin, cr, mptr, mcol, mwe, mw, deg,
+                    maxit, tol, ftol, qtol, m3, m9, act, ang, tr, fb_node, fb_lane, fb_M)
+    _ApplyFallbacks(nfb, fb_node, fb_lane, fb_M, q, R9, E)
+
+
 
 @njit(**_LEAF)
 def _Gradient(nf, R3, Lx, rc, cr, hptr, hcol, hwe, g):
@@ -611,12 +623,8 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, mw, deg, hptr, hcol, hwe,
         for d in range(D):
             for l in range(nl):
                 xnV[d, l] = xV[d, l] + pV[d, l]
-        qn[:] = q
-        Rn9 = Rn.reshape((nr, 9, nl))
-        nfb = _Evaluate(nf, xn, qn, Rn, Rn9, Lxn, En, Mc, Ec, lin, cr, mptr, mcol, mwe,
-                        mw, deg, pmaxit, ptol, pftol, pqtol, m3, m9, act, ang, tr,
-                        fb_node, fb_lane, fb_M)
-        _ApplyFallbacks(nfb, fb_node, fb_lane, fb_M, qn, Rn9, En)
+        _EvaluateFrom(q, nf, xn, qn, Rn, Lxn, En, Mc, Ec, lin, cr, mptr, mcol, mwe, mw, deg,
+                      pmaxit, ptol, pftol, pqtol, m3, m9, act, ang, tr, fb_node, fb_lane, fb_M)
         for l in range(nl):
             t[l] = 1.0
         for _ in range(max_backtracks):
@@ -631,12 +639,9 @@ def SolveTasks(nl, nf, cr, mptr, mcol, mwe, mw, deg, hptr, hcol, hwe,
             for d in range(D):
                 for l in range(nl):
                     xbV[d, l] = xV[d, l] + t[l] * pV[d, l]
-            qb[:] = q
-            Rb9 = Rb.reshape((nr, 9, nl))
-            nfb = _Evaluate(nf, xb, qb, Rb, Rb9, Lxb, Eb, Mc, Ec, lin, cr, mptr, mcol, mwe,
-                            mw, deg, pmaxit, ptol, pftol, pqtol, m3, m9, act, ang, tr,
-                            fb_node, fb_lane, fb_M)
-            _ApplyFallbacks(nfb, fb_node, fb_lane, fb_M, qb, Rb9, Eb)
+            _EvaluateFrom(q, nf, xb, qb, Rb, Lxb, Eb, Mc, Ec, lin, cr, mptr, mcol, mwe, mw,
+                          deg, pmaxit, ptol, pftol, pqtol, m3, m9, act, ang, tr, fb_node,
+                          fb_lane, fb_M)
             for l in range(nl):
                 if fail[l]:
                     _CopyLane(xnV, xbV, l)

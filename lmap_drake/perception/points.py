@@ -21,9 +21,11 @@ import dataclasses as dc
 import numpy as np
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF
+from lmap_drake.scenario import PerceptionConfig
 from lmap_drake.types import SemanticScene
 
 CLASS_FIELDS = {BRANCH: "branch", LEAF: "leaf", FRUIT: "fruit"}
+_PERCEPTION_DEFAULTS = PerceptionConfig()
 
 
 @dc.dataclass(frozen=True)
@@ -158,13 +160,13 @@ def VoxelDownsample(points: np.ndarray, voxel: float,
 
 @dc.dataclass
 class PointParams:
-    """Point-cloud post-processing parameters (see ``PerceptionConfig``)."""
-    depth_cut: float = 1.5
-    dbscan_eps: float = 0.008
-    dbscan_min_points: int = 30
-    voxel_size: float = 0.003
-    outlier_neighbors: int = 20
-    outlier_std_ratio: float = 2.0
+    """Point-cloud post-processing parameters (defaults: ``PerceptionConfig``)."""
+    depth_cut: float = _PERCEPTION_DEFAULTS.depth_cut
+    dbscan_eps: float = _PERCEPTION_DEFAULTS.dbscan_eps
+    dbscan_min_points: int = _PERCEPTION_DEFAULTS.dbscan_min_points
+    voxel_size: float = _PERCEPTION_DEFAULTS.voxel_size
+    outlier_neighbors: int = _PERCEPTION_DEFAULTS.outlier_neighbors
+    outlier_std_ratio: float = _PERCEPTION_DEFAULTS.outlier_std_ratio
 
     @staticmethod
     def FromConfig(cfg) -> "PointParams":
