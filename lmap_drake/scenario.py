@@ -126,7 +126,12 @@ class FruitConfig:
     """Pepper shape (see ``lmap_drake.plants.pepper.PepperShape``), colour and
     placement. ``height_on_branch``: fruit centre above the branch base (m);
     ``tilt_deg``: peduncle axis tilt from vertical, about a horizontal axis at
-    ``tilt_azimuth_deg`` from the camera direction."""
+    ``tilt_azimuth_deg`` from the camera direction; ``lean_deg``: a further
+    tilt that turns the fruit top toward the branch (the fruit hangs from a
+    short peduncle at a stem node, its body pressed away from the stem). The
+    fruit sits as close to the branch as ``gap_to_branch`` (m, branch surface
+    to fruit surface) allows; the peduncle stalk runs from the fruit top to
+    the stem."""
     variant: str = "blocky"
     size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
     lobes: int = 4
@@ -143,6 +148,7 @@ class FruitConfig:
     gap_to_branch: float = 0.004
     tilt_deg: float = 10.0
     tilt_azimuth_deg: float = 30.0
+    lean_deg: float = 0.0
     peduncle_length: float = 0.015
     peduncle_radius: float = 0.004
 

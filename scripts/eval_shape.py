@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from pydrake.common.yaml import yaml_load_typed
 
 from lmap_drake.paths import REPO_ROOT
 from lmap_drake.scenario import ShapeConfig
@@ -108,10 +109,12 @@ def main(argv=None):
                     help="torch threads (1 avoids oversubscription on a shared 2-core machine)")
     ap.add_argument("--iterations", type=int, default=None)
     ap.add_argument("--seeds", default="0", help="optimiser seeds, comma-separated")
+    ap.add_argument("--shape_text", default="{}",
+                    help="YAML overrides of ShapeConfig, e.g. \"{peduncle_max_distance: 0.03}\"")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     methods = a.methods.split(",")
-    cfg = ShapeConfig()
+    cfg = yaml_load_typed(schema=ShapeConfig, data=a.shape_text, defaults=ShapeConfig())
     dec, mean, _ = LoadDecoder(cfg.weights_file, getattr(cfg, "mean_latent_file", "") or None)
     P = SscParams.FromConfig(cfg)
     if a.iterations:

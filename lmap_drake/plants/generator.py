@@ -105,6 +105,32 @@ def _branch_point_at_height(points: np.ndarray, z: float) -> np.ndarray:
     return np.array([np.interp(z, zs, points[:, i]) for i in range(3)])
 
 
+def OffsetBesideBranch(V_W: np.ndarray, branch: np.ndarray, e_lat: np.ndarray,
+                       d_fwd: np.ndarray, clearance: float) -> float:
+    """Smallest shift x (m) along ``e_lat`` that puts the fruit vertices
+    ``V_W + x e_lat`` on the ``e_lat`` side of the (near-vertical) branch
+    centre line ``branch`` with every vertex at least ``clearance`` (m)
+    from it horizontally (bisection; exact for any fruit pose)."""
+    V = np.asarray(V_W, float)
+
+    def ok(x: float) -> bool:
+        P = V + x * e_lat
+        bz = np.stack([np.interp(P[:, 2], branch[:, 2], branch[:, i]) for i in range(3)], 1)
+        off = P - bz
+        off[:, 2] = 0.0
+        if np.min(np.linalg.norm(off, axis=1)) < clearance:
+            return False
+        strip = np.abs(off @ d_fwd) < clearance      # vertices level with the branch
+        return not strip.any() or float(np.min(off[strip] @ e_lat)) > 0.0
+    lo, hi = -0.3, 0.3
+    if not ok(hi):
+        raise ValueError("cannot place the fruit beside the branch within 0.3 m")
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+    return hi
+
+
 def _leaf_vertices(shape: LeafShape, nodes: np.ndarray, attach: np.ndarray, d_fwd: np.ndarray,
                    midrib: np.ndarray, reach: float, bend_radius: float) -> np.ndarray:
     """Maps leaf coordinates (u, v, layer) to world: the petiole leaves the
@@ -188,10 +214,13 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     tilt_axis = _rot_about([0, 0, 1], np.deg2rad(fr.tilt_azimuth_deg)) @ d_fwd
     R_WO = _rot_about(tilt_axis, np.deg2rad(fr.tilt_deg)) @ _rot_about(
         [0, 0, 1], np.arctan2(d_fwd[1], d_fwd[0]))
-    r_xy = 0.5 * max(fr.size[0], fr.size[1])
+    if fr.lean_deg != 0.0:   # top toward the branch (direction -e_lat)
+        R_WO = _rot_about(np.cross([0, 0, 1.0], -e_lat), np.deg2rad(fr.lean_deg)) @ R_WO
     z_center = base[2] + fr.height_on_branch
     p_branch_f = _branch_point_at_height(branch, z_center)
-    center = p_branch_f + e_lat * (b.radius + r_xy + fr.gap_to_branch)
+    center = p_branch_f + e_lat * OffsetBesideBranch(
+        pepper.mesh.vertices @ R_WO.T + p_branch_f, branch, e_lat, d_fwd,
+        b.radius + fr.gap_to_branch)
     X_WO = np.eye(4)
     X_WO[:3, :3] = R_WO
     X_WO[:3, 3] = center

@@ -71,3 +71,35 @@ def test_suite_leaf_meshes_have_no_degenerate_tets():
         m = GeneratePlant(PaperSuite()[name], P_WC)
         v = TetVolumes(m.leaf_rest_W, m.leaf_tets)
         assert v.min() > 1e-3 * np.median(v), name
+
+
+def _horizontal_gap_to_branch_axis(m) -> np.ndarray:
+    V = np.asarray(m.fruit_mesh_W.vertices)
+    b = np.stack([np.interp(V[:, 2], m.branch_points_W[:, 2], m.branch_points_W[:, i])
+                  for i in range(2)], 1)
+    return np.linalg.norm(V[:, :2] - b, axis=1)
+
+
+@pytest.mark.parametrize("lean, tilt", [(0.0, 10.0), (0.0, 25.0), (35.0, 10.0)])
+def test_fruit_placed_at_the_configured_gap_from_the_branch(lean, tilt):
+    cfg = _cfg()
+    cfg.fruit.lean_deg, cfg.fruit.tilt_deg = lean, tilt
+    m = GeneratePlant(cfg, P_WC)
+    gap = _horizontal_gap_to_branch_axis(m).min() - cfg.branch.radius
+    # As close as the configured gap allows, never closer (tilted fruits too).
+    assert gap == pytest.approx(cfg.fruit.gap_to_branch, abs=5e-4)
+
+
+def test_lean_turns_the_fruit_top_toward_the_branch():
+    tops = {}
+    for lean in (0.0, 35.0):
+        cfg = _cfg()
+        cfg.fruit.lean_deg = lean
+        m = GeneratePlant(cfg, P_WC)
+        top = m.stalk_W[0]
+        b = np.array([np.interp(top[2], m.branch_points_W[:, 2], m.branch_points_W[:, i])
+                      for i in range(2)])
+        tops[lean] = (np.linalg.norm(top[:2] - b), m.peduncle_axis_W)
+    assert tops[35.0][0] < tops[0.0][0] - 0.01          # top > 1 cm closer to the stem
+    tilt = np.degrees(np.arccos(tops[35.0][1][2]))
+    assert 25.0 < tilt < 45.0                            # 35 deg lean (+-10 deg own tilt)
