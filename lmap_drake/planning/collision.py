@@ -35,20 +35,16 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
     """'' if the robot samples keep ``margin`` from the fruit (SDF) and the
     branch mesh, else the reason. ``*_box`` = (lo, hi) bounds of each
     object; only samples within ``margin`` of those bounds are queried."""
-    if fruit_sdf is not None:
-        pts = robot_points_W if fruit_box is None else NearBox(
-            robot_points_W, fruit_box[0] - margin, fruit_box[1] + margin)
+    for name, distance, box in (("fruit", fruit_sdf, fruit_box),
+                                ("branch", branch_distance, branch_box)):
+        if distance is None:
+            continue
+        pts = robot_points_W if box is None else NearBox(
+            robot_points_W, box[0] - margin, box[1] + margin)
         if len(pts):
-            d = fruit_sdf(pts)
+            d = distance(pts)
             if d.min() < margin:
-                return f"robot-fruit ({d.min() * 1000:.1f} mm)"
-    if branch_distance is not None:
-        pts = robot_points_W if branch_box is None else NearBox(
-            robot_points_W, branch_box[0] - margin, branch_box[1] + margin)
-        if len(pts):
-            d = branch_distance(pts)
-            if d.min() < margin:
-                return f"robot-branch ({d.min() * 1000:.1f} mm)"
+                return f"robot-{name} ({d.min() * 1000:.1f} mm)"
     return ""
 
 

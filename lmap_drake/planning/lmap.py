@@ -143,24 +143,19 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
     free = [ctx.q_current + f * (approach.via - ctx.q_current) for f in np.linspace(0, 1, 8)[1:]]
     free += list(approach.to_ready) + list(approach.to_pregrasp)
     leaf_tree = cKDTree(ctx.leaf_W) if len(ctx.leaf_W) else None
-    for q in free:
-        pts = robot.SurfacePoints(q, half_open)
-        why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
-                                   cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
-        if why:
-            return f"{why} on the way to the pre-grasp"
-        if leaf_tree is not None and leaf_tree.query(pts)[0].min() < cfg.collision_margin:
-            return "robot-leaf on the way to the pre-grasp"
-    for q in approach.to_grasp:
-        pts = robot.SurfacePoints(q, half_open)
-        why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
-                                   cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
-        if why:
-            return f"{why} during the approach"
-        # The leaf must pass between the open pads: every observed leaf point
-        # keeps the margin from the robot, pads included.
-        if leaf_tree is not None and leaf_tree.query(pts)[0].min() < cfg.collision_margin:
-            return "robot-leaf during the approach (leaf not between the pads)"
+    # During the approach the leaf must pass between the open pads: every
+    # observed leaf point keeps the margin from the robot, pads included.
+    for path, when, leaf_why in (
+            (free, "on the way to the pre-grasp", ""),
+            (approach.to_grasp, "during the approach", " (leaf not between the pads)")):
+        for q in path:
+            pts = robot.SurfacePoints(q, half_open)
+            why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
+                                       cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+            if why:
+                return f"{why} {when}"
+            if leaf_tree is not None and leaf_tree.query(pts)[0].min() < cfg.collision_margin:
+                return f"robot-leaf {when}{leaf_why}"
     return ""
 
 

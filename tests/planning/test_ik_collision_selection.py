@@ -42,6 +42,14 @@ def test_gripper_through_the_fruit_is_rejected(robot):
     assert r.success
     why = RobotCollisionReason(robot.SurfacePoints(r.q), sdf, None, 0.005)
     assert why.startswith("robot-fruit")
+    # The same solid as a branch distance: named as the branch; the fruit is
+    # checked first when both are hit.
+    assert RobotCollisionReason(robot.SurfacePoints(r.q), None, sdf, 0.005).startswith(
+        "robot-branch")
+    assert RobotCollisionReason(robot.SurfacePoints(r.q), sdf, sdf, 0.005).startswith(
+        "robot-fruit")
+    far = (center - 1.0, center - 0.9)     # bounds away from the robot: nothing queried
+    assert RobotCollisionReason(robot.SurfacePoints(r.q), sdf, sdf, 0.005, far, far) == ""
 
 
 def test_leaf_pushed_into_the_fruit_is_rejected():
