@@ -100,9 +100,15 @@ def BranchCenterline(base, length: float, bend: float, lateral, n: int = 9) -> n
             + np.outer(bend * np.sin(np.pi * t), _unit(lateral)))
 
 
+def BranchPointsAtHeights(points: np.ndarray, z) -> np.ndarray:
+    """Points (N, 3) of the centre line ``points`` (rising in z) at heights
+    ``z`` (N,), linearly interpolated (clamped at the ends)."""
+    z = np.atleast_1d(np.asarray(z, float))
+    return np.stack([np.interp(z, points[:, 2], points[:, i]) for i in range(3)], 1)
+
+
 def _branch_point_at_height(points: np.ndarray, z: float) -> np.ndarray:
-    zs = points[:, 2]
-    return np.array([np.interp(z, zs, points[:, i]) for i in range(3)])
+    return BranchPointsAtHeights(points, z)[0]
 
 
 def OffsetBesideBranch(V_W: np.ndarray, branch: np.ndarray, e_lat: np.ndarray,
@@ -115,8 +121,7 @@ def OffsetBesideBranch(V_W: np.ndarray, branch: np.ndarray, e_lat: np.ndarray,
 
     def ok(x: float) -> bool:
         P = V + x * e_lat
-        bz = np.stack([np.interp(P[:, 2], branch[:, 2], branch[:, i]) for i in range(3)], 1)
-        off = P - bz
+        off = P - BranchPointsAtHeights(branch, P[:, 2])
         off[:, 2] = 0.0
         if np.min(np.linalg.norm(off, axis=1)) < clearance:
             return False

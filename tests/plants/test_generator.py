@@ -3,7 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from lmap_drake.plants.generator import GeneratePlant, MeshSignedDistance, SaveGroundTruth
+from lmap_drake.plants.generator import (BranchPointsAtHeights, GeneratePlant, MeshSignedDistance,
+                                         SaveGroundTruth)
 from lmap_drake.plants.suite import PaperSuite, RandomSuite
 from lmap_drake.scenario import PlantSceneConfig
 
@@ -75,9 +76,8 @@ def test_suite_leaf_meshes_have_no_degenerate_tets():
 
 def _horizontal_gap_to_branch_axis(m) -> np.ndarray:
     V = np.asarray(m.fruit_mesh_W.vertices)
-    b = np.stack([np.interp(V[:, 2], m.branch_points_W[:, 2], m.branch_points_W[:, i])
-                  for i in range(2)], 1)
-    return np.linalg.norm(V[:, :2] - b, axis=1)
+    b = BranchPointsAtHeights(m.branch_points_W, V[:, 2])
+    return np.linalg.norm(V[:, :2] - b[:, :2], axis=1)
 
 
 @pytest.mark.parametrize("lean, tilt", [(0.0, 10.0), (0.0, 25.0), (35.0, 10.0)])
@@ -97,9 +97,8 @@ def test_lean_turns_the_fruit_top_toward_the_branch():
         cfg.fruit.lean_deg = lean
         m = GeneratePlant(cfg, P_WC)
         top = m.stalk_W[0]
-        b = np.array([np.interp(top[2], m.branch_points_W[:, 2], m.branch_points_W[:, i])
-                      for i in range(2)])
-        tops[lean] = (np.linalg.norm(top[:2] - b), m.peduncle_axis_W)
+        b = BranchPointsAtHeights(m.branch_points_W, top[2])[0]
+        tops[lean] = (np.linalg.norm(top[:2] - b[:2]), m.peduncle_axis_W)
     assert tops[35.0][0] < tops[0.0][0] - 0.01          # top > 1 cm closer to the stem
     tilt = np.degrees(np.arccos(tops[35.0][1][2]))
     assert 25.0 < tilt < 45.0                            # 35 deg lean (+-10 deg own tilt)
