@@ -252,6 +252,14 @@ class PerceptionConfig:
     nms_threshold: float = 0.8
     # view fusion: a new instance joins an earlier one within this distance.
     fusion_match_distance: float = 0.008
+    # Free space from background pixels (every ``background_stride``-th
+    # pixel per row and column): their rays passed the plant. A +inf depth
+    # (no return) is taken as nothing within ``no_return_free_range`` m
+    # (0 = such pixels carve nothing). Right for the simulated camera; on
+    # hardware set it to 0: the RealSense client also maps dropouts (dark or
+    # glancing surfaces, too close) to +inf, and those would carve the fruit.
+    background_stride: int = 2
+    no_return_free_range: float = 2.0
 
 
 @dc.dataclass

@@ -32,6 +32,10 @@ class SemanticScene:
     flags: list[str] = dc.field(default_factory=list)
     # Added by perception: how many camera views were fused into these sets.
     num_views: int = 1
+    # Ends of camera rays (from X_WC) that met no plant part: background
+    # surfaces (robot included), or a point at the no-return range for
+    # pixels beyond the sensor's range. Only used to carve free space.
+    background_points_W: np.ndarray = dc.field(default_factory=_empty3)
 
     def is_empty(self) -> bool:
         return (len(self.branch_points_W) + len(self.leaf_points_W)

@@ -66,7 +66,8 @@ def Cases(source: str, num: int):
 def SceneNegatives(sem, voxel: float) -> np.ndarray:
     """The observed negatives of SSC (leaf, branch, free space; W, m)."""
     cam = np.asarray(sem.X_WC, float)[:3, 3]
-    obs = [p for p in (sem.fruit_points_W, sem.leaf_points_W, sem.branch_points_W) if len(p)]
+    obs = [p for p in (sem.fruit_points_W, sem.leaf_points_W, sem.branch_points_W,
+                       sem.background_points_W) if len(p)]
     free = FreeSpacePoints(cam, np.vstack(obs), sem.fruit_points_W, voxel)
     return np.vstack([np.asarray(p, float).reshape(-1, 3) for p in
                       (sem.leaf_points_W, sem.branch_points_W, free)])

@@ -43,11 +43,19 @@ def _match_instances(old_pts, old_inst, new_pts, new_inst, match_distance):
     return out
 
 
+def _SameCameraPose(X_a, X_b, tol_m: float = 1e-3, tol_rad: float = 1e-3) -> bool:
+    A, B = np.asarray(X_a, float), np.asarray(X_b, float)
+    cos = np.clip((np.trace(A[:3, :3].T @ B[:3, :3]) - 1) / 2, -1.0, 1.0)
+    return bool(np.linalg.norm(A[:3, 3] - B[:3, 3]) <= tol_m and np.arccos(cos) <= tol_rad)
+
+
 def FuseViews(previous: SemanticScene | None, new: SemanticScene, voxel_size: float = 0.003,
               match_distance: float = 0.008) -> SemanticScene:
     """Fuses ``new`` into ``previous`` (either may be empty; ``previous`` may
     be None). Returns a new SemanticScene with ``X_WC`` of the newest view,
-    ``num_views`` summed and flags recomputed (plus ``fused_views``)."""
+    ``num_views`` summed and flags recomputed (plus ``fused_views``). The
+    leaf comes from ``new`` only (it moved); background rays are united
+    when the camera pose is unchanged, else ``new``'s."""
     if previous is None:
         return new
     fused = SemanticScene(X_WC=np.asarray(new.X_WC, float).copy())
@@ -64,6 +72,13 @@ def FuseViews(previous: SemanticScene | None, new: SemanticScene, voxel_size: fl
                                     voxel_size, np.concatenate([old_i, new_i]))
         setattr(fused, f"{name}_points_W", pts)
         setattr(fused, f"{name}_instance", inst)
+    # Background rays are carved from the newest camera centre: an earlier
+    # view's rays only join when the camera has not moved (eye-to-hand).
+    fused.background_points_W = np.asarray(new.background_points_W, float).reshape(-1, 3)
+    if _SameCameraPose(previous.X_WC, new.X_WC):
+        fused.background_points_W = np.unique(np.concatenate(
+            [np.asarray(previous.background_points_W, float).reshape(-1, 3),
+             fused.background_points_W]), axis=0)
     fused.num_views = int(getattr(previous, "num_views", 1)) + int(getattr(new, "num_views", 1))
     flags = ["fused_views"]
     for name in _NAMES:

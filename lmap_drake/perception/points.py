@@ -20,7 +20,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from lmap_drake.labels import BRANCH, FRUIT, LEAF
+from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF
 from lmap_drake.scenario import PerceptionConfig
 from lmap_drake.types import SemanticScene
 
@@ -167,6 +167,8 @@ class PointParams:
     voxel_size: float = _PERCEPTION_DEFAULTS.voxel_size
     outlier_neighbors: int = _PERCEPTION_DEFAULTS.outlier_neighbors
     outlier_std_ratio: float = _PERCEPTION_DEFAULTS.outlier_std_ratio
+    background_stride: int = _PERCEPTION_DEFAULTS.background_stride
+    no_return_free_range: float = _PERCEPTION_DEFAULTS.no_return_free_range
 
     @staticmethod
     def FromConfig(cfg) -> "PointParams":
@@ -187,12 +189,41 @@ def ClassPoints(points_W: np.ndarray, params: PointParams) -> tuple[np.ndarray, 
     return VoxelDownsample(pts, params.voxel_size, inst)
 
 
+def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
+                      stride: int = 2, no_return_range: float = 0.0) -> np.ndarray:
+    """(N, 3) ends in W of the rays of every ``stride``-th ``background``
+    pixel (per row and column): the de-projected depth where it is finite and
+    > 0, the point at ``no_return_range`` m along the ray where the depth is
+    +inf (if ``no_return_range`` > 0). NaN or 0 depth (no data) gives no ray."""
+    if stride < 1:
+        raise ValueError(f"background_stride must be >= 1, got {stride}")
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim == 3:
+        d = d[..., 0]
+    sub = np.zeros(d.shape, bool)
+    sub[::stride, ::stride] = True
+    m = np.asarray(background, bool) & sub
+    with np.errstate(invalid="ignore"):
+        measured = np.isfinite(d) & (d > 0)
+        far = np.isposinf(d) & (no_return_range > 0)
+    v, u = np.nonzero(m & (measured | far))
+    z = np.where(measured[v, u], d[v, u], no_return_range)
+    # ``no_return_range`` is a distance along the ray, not a depth.
+    ray = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones(len(u))], axis=1)
+    scale = np.where(measured[v, u], z, z / np.linalg.norm(ray, axis=1))
+    p_C = ray * scale[:, None]
+    X = AsTransform(X_WC)
+    return p_C @ X[:3, :3].T + X[:3, 3]
+
+
 def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
                        params: PointParams, flags: list[str] | None = None) -> SemanticScene:
     """Semantic point sets in W from a per-pixel class map (``lmap_drake.labels``
     ids). Pixels beyond ``params.depth_cut`` or without valid depth are
-    dropped. Never raises on empty input: empty sets plus flags
-    (``no_valid_depth``, ``no_<class>_in_view``, ``empty_scene``)."""
+    dropped. Background pixels (robot included) give the ray ends of
+    ``BackgroundRayEnds`` (free-space carving). Never raises on empty input:
+    empty sets plus flags (``no_valid_depth``, ``no_<class>_in_view``,
+    ``empty_scene``)."""
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim == 3:
         d = d[..., 0]
@@ -209,6 +240,8 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
         setattr(scene, f"{name}_instance", inst)
         if len(pts) == 0:
             flags.append(f"no_{name}_in_view")
+    scene.background_points_W = BackgroundRayEnds(
+        class_map == BACKGROUND, d, K, X, params.background_stride, params.no_return_free_range)
     if scene.is_empty():
         flags.append("empty_scene")
     scene.flags = flags

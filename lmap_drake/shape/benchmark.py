@@ -69,9 +69,9 @@ def _scene(meshes):
     return scene, ids
 
 
-def _rays(X_WC, K, roi=None):
+def _rays(X_WC, K, roi=None, stride: int = 1):
     w, h = K["width"], K["height"]
-    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    u, v = np.meshgrid(np.arange(0, w, stride) + 0.5, np.arange(0, h, stride) + 0.5)
     u, v = u.ravel(), v.ravel()
     if roi is not None:
         m = (u >= roi[0]) & (u <= roi[2]) & (v >= roi[1]) & (v <= roi[3])
@@ -91,6 +91,17 @@ def _cast(meshes, X_WC, K, roi=None):
     gid = ans["geometry_ids"].numpy().astype(np.int64)
     hit = np.isfinite(t)
     return o[hit], d[hit], t[hit], gid[hit], ids
+
+
+def _background(meshes, X_WC, K, roi=None, stride: int = 2, no_return_range: float = 2.0):
+    """Ray ends of every ``stride``-th pixel that hits no mesh, at
+    ``no_return_range`` m (as perception's ``BackgroundRayEnds`` for +inf
+    depth in simulation)."""
+    scene, _ = _scene(meshes)
+    o, d = _rays(X_WC, K, roi, stride)
+    t = scene.cast_rays(o3d.core.Tensor(np.c_[o, d].astype(np.float32)))["t_hit"].numpy()
+    miss = ~np.isfinite(t)
+    return o[miss] + d[miss] * no_return_range
 
 
 def MakeSyntheticCase(seed: int, occluded: bool = True,
@@ -180,7 +191,8 @@ def RenderCase(name, fruit, branch_meshes, leaf, X_WC, K, gt_axis_W, noise=0.000
                gt_center_W=None) -> ShapeCase:
     """Ray-casts fruit / branch / leaf meshes (W, m) from camera ``X_WC``
     into an exactly labelled SemanticScene (points within 0.3 m of the
-    fruit) and packs the ground truth."""
+    fruit; the rays that miss every mesh as background ray ends) and packs
+    the ground truth."""
     from lmap_drake.shape.metrics import MeshCentroid
     rng = rng or np.random.default_rng(0)
     meshes = [fruit] + list(branch_meshes) + ([leaf] if leaf is not None else [])
@@ -203,6 +215,7 @@ def RenderCase(name, fruit, branch_meshes, leaf, X_WC, K, gt_axis_W, noise=0.000
             _, _, _, g0, i0 = _cast(meshes[:-1], X_WC, K, roi)
             visible_fraction = float(len(fr) / max((g0 == i0[0]).sum(), 1))
     sem = SemanticScene(
+        background_points_W=_background(meshes, X_WC, K, roi),
         branch_points_W=br, leaf_points_W=lf, fruit_points_W=fr,
         branch_instance=np.zeros(len(br), np.int64), leaf_instance=np.zeros(len(lf), np.int64),
         fruit_instance=np.zeros(len(fr), np.int64), X_WC=np.asarray(X_WC, float))

@@ -1,5 +1,6 @@
 """The shape-completion stage as one function: SemanticScene -> SceneEstimate
-(world frame W, metres). Branch completion, free space around the fruit,
+(world frame W, metres). Branch completion, free space around the fruit
+(carved along the rays to the observed points and the background ray ends),
 then SSC (or a baseline) on the largest fruit instance.
 """
 from __future__ import annotations
@@ -59,7 +60,8 @@ def CompleteScene(semantic: SemanticScene, decoder=None, mean_latent=None,
         out.fruit = FitHoma(decoder, mean_latent, fruit, cam, P)
     else:
         observed = [p for p in (semantic.fruit_points_W, semantic.leaf_points_W,
-                                semantic.branch_points_W) if len(p)]
+                                semantic.branch_points_W, semantic.background_points_W)
+                    if len(p)]
         free = FreeSpacePoints(cam, np.vstack(observed), fruit, free_space_voxel)
         timings["free_space_s"] = time.time() - t0
         negatives = [(semantic.leaf_points_W, 1.0), (semantic.branch_points_W, 1.0),

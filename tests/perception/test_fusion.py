@@ -70,3 +70,18 @@ def test_fusing_two_rendered_views_grows_the_fruit():
     assert len(fused.fruit_points_W) > max(n0, n1) + 20
     assert set(fused.fruit_instance.tolist()) <= {-1, 0}
     np.testing.assert_allclose(fused.leaf_points_W, scenes[1].leaf_points_W)
+
+
+def test_background_rays_unite_only_for_an_unmoved_camera():
+    old = _scene([[0, 0, 0]], [[0, 0.1, 0]], [[0.2, 0, 0]])
+    new = _scene([[0, 0, 0]], [[0, 0.2, 0]], [[0.2, 0, 0]])
+    old.background_points_W = np.array([[0, 0, 2.0], [0.1, 0, 2.0]])
+    new.background_points_W = np.array([[0, 0, 2.0], [0, 0.1, 2.0]])
+    f = FuseViews(old, new)
+    assert len(f.background_points_W) == 3        # the shared ray once
+    moved = _scene([[0, 0, 0]], [[0, 0.2, 0]], [[0.2, 0, 0]])
+    moved.background_points_W = new.background_points_W
+    moved.X_WC = np.eye(4)
+    moved.X_WC[0, 3] = 0.05
+    np.testing.assert_allclose(FuseViews(old, moved).background_points_W,
+                               new.background_points_W)

@@ -127,3 +127,41 @@ def test_semantic_scene_from_rendered_labels():
     if hasattr(s, "p_W_branch_base"):
         r = np.linalg.norm(scene.branch_points_W[:, :2] - np.asarray(s.p_W_branch_base)[:2], axis=1)
         assert r.max() < 0.015
+
+
+def test_background_ray_ends_measured_far_and_no_data():
+    from lmap_drake.labels import BACKGROUND
+    from lmap_drake.perception.points import BackgroundRayEnds
+    depth = np.full((6, 8), 1.0)
+    depth[0, 0], depth[0, 2], depth[2, 0] = np.inf, np.nan, 0.0
+    cm = np.full((6, 8), BACKGROUND)
+    cm[4, 4] = FRUIT
+    bg = cm == BACKGROUND
+    ends = BackgroundRayEnds(bg, depth, K, np.eye(4), stride=2, no_return_range=2.0)
+    # stride 2: 3 x 4 pixels; (4, 4) is fruit, (0, 2) NaN and (2, 0) 0 are no data
+    assert len(ends) == 12 - 3
+    far = np.linalg.norm(ends, axis=1) > 1.5
+    assert far.sum() == 1   # the +inf pixel, at 2 m along its ray
+    np.testing.assert_allclose(np.linalg.norm(ends[far]), 2.0)
+    np.testing.assert_allclose(ends[far][0] / 2.0, np.array([-3.5, -2.5, 10.0]) /
+                               np.linalg.norm([-3.5, -2.5, 10.0]))
+    assert np.allclose(ends[~far][:, 2], 1.0)   # measured: de-projected depth
+    # range 0: +inf pixels carve nothing
+    assert len(BackgroundRayEnds(bg, depth, K, np.eye(4), 2, 0.0)) == 12 - 4
+    with pytest.raises(ValueError, match="background_stride"):
+        BackgroundRayEnds(bg, depth, K, np.eye(4), stride=0)
+
+
+def test_semantic_scene_carries_background_rays_in_world():
+    from lmap_drake.labels import BACKGROUND
+    cm = np.full((6, 8), BACKGROUND)
+    cm[2:5, 2:6] = LEAF
+    depth = np.full((6, 8), np.inf)
+    depth[2:5, 2:6] = 0.5
+    X = np.eye(4)
+    X[:3, 3] = [1.0, 2.0, 3.0]
+    p = PointParams(outlier_neighbors=3, dbscan_min_points=1, background_stride=1)
+    scene = BuildSemanticScene(cm, depth, K, X, p)
+    assert len(scene.background_points_W) == 48 - 12
+    np.testing.assert_allclose(np.linalg.norm(scene.background_points_W - X[:3, 3], axis=1),
+                               p.no_return_free_range)

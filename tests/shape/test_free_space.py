@@ -73,3 +73,20 @@ def test_free_points_are_traversed_samples_not_voxel_centres():
     assert r_m.min() > 0.03                 # rays stop one voxel before the sphere
     free = FreeSpacePoints(cam, pts, fruit, 0.003)   # (rays deduplicated per half voxel)
     assert len(free) > 0.95 * len(idx) and np.linalg.norm(free - c, axis=1).min() > 0.03
+
+
+def test_background_rays_carve_beside_the_fruit():
+    """Rays that miss everything (ends at 2 m, as perception's background
+    ray ends) carve the space around the fruit's silhouette that rays to
+    observed points never cross; they carve nothing inside the sphere."""
+    rng = np.random.default_rng(3)
+    cam, c, pts = _scene(rng)
+    fruit = pts[np.linalg.norm(pts - c, axis=1) < 0.031]
+    d = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    bg_ends = 2.0 * d[np.linalg.norm(pts - c, axis=1) >= 0.031]   # the wall removed
+    only_fruit = FreeSpacePoints(cam, fruit, fruit, 0.003)
+    with_bg = FreeSpacePoints(cam, np.vstack([fruit, bg_ends]), fruit, 0.003)
+    beside = lambda f: int(((f[:, 1] > c[1]) & (np.linalg.norm(f - c, axis=1) < 0.045)).sum())
+    assert beside(only_fruit) == 0            # nothing passes beside the fruit's back half
+    assert beside(with_bg) > 100
+    assert np.linalg.norm(with_bg - c, axis=1).min() > 0.03 - 1e-9
