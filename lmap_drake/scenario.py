@@ -369,7 +369,7 @@ class PlannerConfig:
     visibility_voxel: float = 0.003
     collision_margin: float = 0.005
     energy_weight: float = 1.0
-    max_energy_per_node: float = 7.0e-7
+    max_energy_per_node: float = 5.9e-7
     method: str = "lmap"  # lmap | random | upward | min_overlap
 
 

@@ -18,13 +18,15 @@ unsafe energy and that lowest unsafe energy (so every unsafe record lies
 above it), how many records it separates correctly, and the sorted
 (energy, safe, petiole force, strain) rows, as JSON.
 
-The default ``PlannerConfig.max_energy_per_node`` = 7.0e-7 m^2 came from
-this script on 48 LMAP episodes: lambda 1 and 0 with the cap off on the
-12-scene suite (diagrams/suite.yaml; alone it gave 8.2e-7, separating all 24)
-and lambda 1 (cap 8e-7) and 0 on a random suite
-(``lmap-drake eval --scenarios 12 --seed 7``; 3 of its 12 lambda-1 episodes
-were hazards at 7.4-7.9e-7, inside the suite's gap). Validate a new value on
-scenes that were not used to fit it (another ``--seed``). The total energy does
+The default ``PlannerConfig.max_energy_per_node`` = 5.9e-7 m^2 came from
+this script on 57 records (27 unsafe; 53 separated, 4 safe ones above the
+cap): the suite's LMAP lambda 1 and 0 episodes of two evaluations (before and
+after free space along background rays), nine lambda-0 runs on the three
+small-leaf heavy scenes with caps 8e-7 / 1e-6 / 1.3e-6, and the earlier
+cap-off episodes. It replaced 7.0e-7 (48 episodes) when a suite episode was a
+hazard at 6.0e-7 (small leaf, petiole 15.3 N). Validate a new value on
+scenes that were not used to fit it (``lmap-drake eval --scenarios 12 --seed
+S``). The total energy does
 not separate small from large leaves (a small leaf is hazardous at an
 energy a large one bears); per node it does.
 """
