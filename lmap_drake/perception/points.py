@@ -206,14 +206,12 @@ def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, 
     with np.errstate(invalid="ignore"):
         measured = np.isfinite(d) & (d > 0)
         far = np.isposinf(d) & (no_return_range > 0)
-    v, u = np.nonzero(m & (measured | far))
-    z = np.where(measured[v, u], d[v, u], no_return_range)
-    # ``no_return_range`` is a distance along the ray, not a depth.
-    ray = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones(len(u))], axis=1)
-    scale = np.where(measured[v, u], z, z / np.linalg.norm(ray, axis=1))
-    p_C = ray * scale[:, None]
-    X = AsTransform(X_WC)
-    return p_C @ X[:3, :3].T + X[:3, 3]
+    # ``no_return_range`` is a distance along the ray: as a depth it shrinks
+    # by the ray's length per unit depth.
+    v, u = np.mgrid[0:d.shape[0], 0:d.shape[1]]
+    per_depth = np.sqrt(1 + ((u - K.cx) / K.fx) ** 2 + ((v - K.cy) / K.fy) ** 2)
+    z = np.where(far, no_return_range / per_depth, d)
+    return DeprojectPixels(z, m & (measured | far), K, X_WC)
 
 
 def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
