@@ -353,7 +353,13 @@ class PlannerConfig:
     score gives energy no absolute meaning (when every candidate is risky it
     still picks one). Per node, because the energy is a sum over the graph
     and grows with leaf size at equal strain. The default is calibrated on
-    simulated episodes by ``scripts/calibrate_energy_cap.py``."""
+    simulated episodes by ``scripts/calibrate_energy_cap.py``.
+
+    ``force_action`` ([grasp_id, direction_id, distance m]; empty = off):
+    execute this candidate of the LMAP table instead of the best-scoring one
+    (what-if runs and ``scripts/action_oracle.py``). It must pass the IK and
+    robot collision checks; the energy cap, leaf-fruit and early-stop
+    verdicts are kept in its ``reason`` but do not stop it."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -370,6 +376,7 @@ class PlannerConfig:
     collision_margin: float = 0.005
     energy_weight: float = 1.0
     max_energy_per_node: float = 5.9e-7
+    force_action: list[float] = dc.field(default_factory=list)
     method: str = "lmap"  # lmap | random | upward | min_overlap
 
 
@@ -533,6 +540,13 @@ def Validate(s: Scenario) -> None:
          f"perception.segmenter '{s.perception.segmenter}' unknown")
     need(s.planner.method in ("lmap", "random", "upward", "min_overlap"),
          f"planner.method '{s.planner.method}' unknown")
+    fa = s.planner.force_action
+    need(len(fa) in (0, 3) and (not fa or (float(fa[0]).is_integer() and
+                                           float(fa[1]).is_integer() and fa[2] > 0)),
+         "planner.force_action must be empty or [grasp_id, direction_id, distance m], "
+         f"got {list(fa)}")
+    need(not fa or s.planner.method == "lmap",
+         "planner.force_action picks an LMAP candidate: it needs planner.method 'lmap'")
     need(s.simulation_duration > 0, "simulation_duration must be > 0 s")
 
 

@@ -54,6 +54,14 @@ def test_bad_values_are_rejected():
         LoadScenario(scenario_text="{robot: {initial_q: [0, 1]}}")
     with pytest.raises(ScenarioError, match="segmenter"):
         LoadScenario(scenario_text="{perception: {segmenter: magic}}")
+    with pytest.raises(ScenarioError, match="force_action"):
+        LoadScenario(scenario_text="{planner: {force_action: [3, 2]}}")
+    with pytest.raises(ScenarioError, match="force_action"):
+        LoadScenario(scenario_text="{planner: {force_action: [3.5, 2, 0.04]}}")
+    with pytest.raises(ScenarioError, match="force_action.*lmap"):
+        LoadScenario(scenario_text="{planner: {method: upward, force_action: [3, 2, 0.04]}}")
+    ok = LoadScenario(scenario_text="{planner: {force_action: [3, 2, 0.04]}}")
+    assert list(ok.planner.force_action) == [3, 2, 0.04]
 
 
 def test_dump_round_trips(tmp_path):

@@ -310,6 +310,36 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     return out
 
 
+def ForcedCandidate(cands: list[Candidate], force_action) -> Candidate | None:
+    """The candidate named by ``planner.force_action`` ([grasp_id,
+    direction_id, distance m]), or None (off, or no such candidate)."""
+    if not force_action:
+        return None
+    g, d, dist = int(force_action[0]), int(force_action[1]), float(force_action[2])
+    for c in cands:
+        a = c.action
+        if a.grasp_id == g and a.direction_id == d and abs(a.distance - dist) < 1e-6:
+            return c
+    return None
+
+
+def _ChooseForced(result: PlanResult, forced: Candidate | None, force_action) -> PlanResult:
+    """``result`` with the forced candidate chosen, or status
+    'no_feasible_action' if it does not exist or failed the robot checks."""
+    g, d, dist = int(force_action[0]), int(force_action[1]), float(force_action[2])
+    name = f"forced action (grasp {g}, direction {d}, {dist * 100:g} cm)"
+    if forced is None:
+        result.status = "no_feasible_action"
+        result.message = f"{name} is not among the {len(result.candidates)} candidates"
+    elif forced.q_pulled is None or forced.deformed_leaf_W is None:
+        result.status = "no_feasible_action"
+        result.message = f"{name} failed the robot checks: {forced.reason}"
+    else:
+        result.chosen = forced
+        result.message = f"{name}: {forced.reason or 'passes every check'}"
+    return result
+
+
 def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions: list,
                           cfg: PlannerConfig, method: str = "lmap") -> PlanResult:
     """Paper Sec. III-C-2/3: leaf-fruit checks, visibility with early stop
@@ -339,18 +369,22 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     by_dir: dict[tuple, list[Candidate]] = {}
     for c in cands:
         by_dir.setdefault((c.action.grasp_id, c.action.direction_id), []).append(c)
+    forced = ForcedCandidate(cands, cfg.force_action)
     for dir_cands in by_dir.values():
         reached = False
         for c in sorted(dir_cands, key=lambda c: c.action.distance):
             if reached and c.feasible:
                 c.reason = "beyond the distance that reaches 95 % visibility"
-            if not c.feasible:
+            # A forced action is scored whatever the planner thinks of it.
+            is_forced = c is forced and c.deformed_leaf_W is not None
+            if not (c.feasible or is_forced):
                 continue
             why = LeafFruitCollisionReason(ctx.leaf_W, c.deformed_leaf_W, ctx.fruit_sdf,
                                            cfg.collision_margin)
             if why:
-                c.reason = why
-                continue
+                c.reason = c.reason or why
+                if not is_forced:
+                    continue
             seen = vis.Seen(np.vstack([c.deformed_leaf_W, ctx.branch_obs_W,
                                        ctx.robot.SurfacePoints(c.q_pulled)]))
             c.seen = int(seen.sum())
@@ -373,6 +407,8 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
                     c.reason = (f"predicted energy per leaf node {e:.2e} m^2 above "
                                 f"max_energy_per_node {cap:.2e} (damage risk)")
             feasible = [c for c in feasible if c.feasible]
+    if cfg.force_action:
+        return _ChooseForced(result, forced, cfg.force_action)
     if not feasible:
         reasons: dict[str, int] = {}
         for c in cands:

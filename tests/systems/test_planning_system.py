@@ -41,8 +41,10 @@ def _X_WC():
     return s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
 
 
-def _plan(scene, energy_weight=1.0, max_energy=None):
+def _plan(scene, energy_weight=1.0, max_energy=None, force_action=None):
     s = Scenario()
+    if force_action is not None:
+        s.planner.force_action = force_action
     if max_energy is not None:
         s.planner.max_energy_per_node = max_energy
     s.planner.num_grasps = 6
@@ -99,6 +101,30 @@ def test_energy_cap_rejects_risky_actions():
     assert key(capped.chosen) == key(best)
     none_left = _plan(_scene(), max_energy=0.5 * e[0])
     assert none_left.status == "no_feasible_action" and "above max_energy_per_node" in none_left.message
+
+
+def test_force_action_executes_the_named_candidate_whatever_its_score():
+    free = _plan(_scene(), max_energy=0.0)
+    key = lambda c: [c.action.grasp_id, c.action.direction_id, c.action.distance]
+    # The worst-scoring feasible action, and one the energy cap would reject.
+    worst = min((c for c in free.candidates if c.feasible), key=lambda c: c.score)
+    forced = _plan(_scene(), max_energy=0.0, force_action=key(worst))
+    assert forced.status == "ok" and key(forced.chosen) == key(worst)
+    assert forced.chosen.seen == worst.seen and "forced action" in forced.message
+    assert key(free.chosen) != key(worst)
+    e = sorted(c.EnergyPerNode() for c in free.candidates if c.feasible)
+    risky = max((c for c in free.candidates if c.feasible), key=lambda c: c.EnergyPerNode())
+    capped = _plan(_scene(), max_energy=e[0] * 1.01, force_action=key(risky))
+    assert capped.status == "ok" and key(capped.chosen) == key(risky)
+    assert "above max_energy_per_node" in capped.chosen.reason
+    assert capped.chosen.seen >= 0 and capped.chosen.q_pulled is not None
+    # Robot-check failures and unknown candidates are refused, with the reason.
+    failed = next(c for c in free.candidates if c.deformed_leaf_W is None)
+    refused = _plan(_scene(), force_action=key(failed))
+    assert refused.status == "no_feasible_action" and refused.chosen is None
+    assert failed.reason.split(" (")[0] in refused.message
+    missing = _plan(_scene(), force_action=[99, 0, 0.04])
+    assert missing.status == "no_feasible_action" and "not among" in missing.message
 
 
 def test_no_action_needed_when_the_leaf_is_aside():
