@@ -155,8 +155,7 @@ def main() -> int:
                 entry["rows"].append({
                     "action": list(_Key(ch)), "lmap_choice": True,
                     "predicted_visibility": (rec.get("predicted_visibility") or {}).get("chosen"),
-                    "energy_per_node": ch.get("energy_per_node"),
-                    "attachment_stretch": ch.get("attachment_stretch"), "planner_reason": "",
+                    "energy_per_node": ch.get("energy_per_node"), "planner_reason": "",
                     "outcome": _Outcome(rec)})
             cands = Ranked(rec.get("candidates", []), rec.get("seen_max") or 0,
                            _Key(ch) if ch else None, a.top)
@@ -182,7 +181,6 @@ def main() -> int:
                 # the forced episode re-plans: its prediction should match
                 "replanned_predicted_visibility": pv, "executed_as_planned": same,
                 "energy_per_node": c.get("energy_per_node"),
-                "attachment_stretch": c.get("attachment_stretch"),
                 "planner_reason": c.get("reason", ""), "outcome": o})
             print(f"[oracle] [{k}/{len(forced)}] {n} {list(_Key(c))}: predicted "
                   f"{c['predicted_visibility']:.2f}, measured {o['visibility_final']}, "

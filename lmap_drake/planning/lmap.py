@@ -16,7 +16,6 @@ from pydrake.math import RigidTransform, RotationMatrix
 from lmap_drake.deformation.action import Action, PullDirections
 from lmap_drake.deformation.graph import FREE
 from lmap_drake.deformation.predict import PredictDeformations
-from lmap_drake.deformation.risk import AttachmentStretch
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
 from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
                                            RobotCollisionReason)
@@ -40,7 +39,6 @@ class Candidate:
     reason: str = ""              # empty = feasible
     energy: float = float("nan")
     num_leaf_nodes: int = 0       # deformable nodes of the action's graph
-    attachment_stretch: float = float("nan")  # deformation.risk.AttachmentStretch
     n_vis: int = -1
     seen: int = -1
     score: float = float("nan")
@@ -64,8 +62,6 @@ class Candidate:
                 "dp_W": a.dp_W.round(4).tolist(), "feasible": self.feasible,
                 "reason": self.reason, "energy": None if np.isnan(self.energy) else self.energy,
                 "energy_per_node": self.EnergyPerNode(),
-                "attachment_stretch": (None if np.isnan(self.attachment_stretch)
-                                       else self.attachment_stretch),
                 "n_vis": self.n_vis, "seen": self.seen,
                 "score": None if np.isnan(self.score) else self.score}
 
@@ -367,7 +363,6 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     for c, p in zip(live, predictions):
         c.energy = float(p.energy)
         c.num_leaf_nodes = int(np.count_nonzero(np.asarray(p.node_kind) == FREE))
-        c.attachment_stretch = AttachmentStretch(p.nodes_W, p.node_kind, p.deformed_nodes_W)
         c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
     vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
     t0 = time.perf_counter()
