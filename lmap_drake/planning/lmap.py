@@ -310,12 +310,16 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     return out
 
 
+def _ForcedKey(force_action) -> tuple[int, int, float]:
+    return int(force_action[0]), int(force_action[1]), float(force_action[2])
+
+
 def ForcedCandidate(cands: list[Candidate], force_action) -> Candidate | None:
     """The candidate named by ``planner.force_action`` ([grasp_id,
     direction_id, distance m]), or None (off, or no such candidate)."""
     if not force_action:
         return None
-    g, d, dist = int(force_action[0]), int(force_action[1]), float(force_action[2])
+    g, d, dist = _ForcedKey(force_action)
     for c in cands:
         a = c.action
         if a.grasp_id == g and a.direction_id == d and abs(a.distance - dist) < 1e-6:
@@ -326,7 +330,7 @@ def ForcedCandidate(cands: list[Candidate], force_action) -> Candidate | None:
 def _ChooseForced(result: PlanResult, forced: Candidate | None, force_action) -> PlanResult:
     """``result`` with the forced candidate chosen, or status
     'no_feasible_action' if it does not exist or failed the robot checks."""
-    g, d, dist = int(force_action[0]), int(force_action[1]), float(force_action[2])
+    g, d, dist = _ForcedKey(force_action)
     name = f"forced action (grasp {g}, direction {d}, {dist * 100:g} cm)"
     if forced is None:
         result.status = "no_feasible_action"
