@@ -75,8 +75,9 @@ def _Key(row: dict) -> tuple:
 
 
 def _Outcome(rec: dict) -> dict:
+    from lmap_drake.evaluation.tables import IsSafe
     o = rec.get("outcome") or {}
-    safe = bool(o) and not (o["plant_hazard"] or o["leaf_damage"] or o["fruit_collision"])
+    safe = bool(o) and IsSafe(rec)
     return {"status": rec.get("status"), "message": rec.get("message", "")[:300],
             "visibility_initial": o.get("visibility_initial"),
             "visibility_final": o.get("visibility_final"),
