@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.common.schema import Rotation, Transform
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
-from pydrake.geometry import Rgba
+from pydrake.geometry import LightParameter, Rgba
 from pydrake.math import RollPitchYaw
 from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import SimulatorConfig
@@ -225,10 +225,70 @@ class PlantSceneConfig:
 
 
 @dc.dataclass
+class CameraNoiseConfig:
+    """The simulated camera's sensor model (``lmap_drake/station/camera_noise.py``),
+    applied to camera0's colour and depth images; labels are untouched.
+    ``enabled: false`` gives the renderer's perfect images.
+
+    Defaults (an L515 / D4xx-like sensor at the plant's 0.4-0.9 m):
+
+    - ``depth_sigma_0 + depth_sigma_z2 z^2`` (m): 1.5 mm at 0.5 m, 2.6 mm at
+      0.8 m, 4.0 mm at 1 m; Intel quotes <= 2.5 mm precision (1 sigma) at
+      1 m for the L515 and an RMS error of ~1 mm at 0.5 m growing with z^2 for
+      the D415 (2 % at 2 m). ``correlated_fraction`` of the variance-weighted
+      noise is smooth over ``correlated_length_px`` (the low-frequency
+      "wobble" of time-of-flight and stereo depth).
+    - grazing incidence (deg): returns fade out between ``grazing_start_deg``
+      and ``grazing_full_deg`` between the ray and the surface normal (dark,
+      glancing leaf rims and fruit silhouettes are where an L515 loses depth).
+    - ``thin_width_px``: surfaces narrower than this many pixels (a petiole,
+      a peduncle, far twigs) lose ``thin_dropout`` of their returns.
+    - ``mixed_pixel_fraction`` of the pixels at a depth jump larger than
+      ``edge_jump`` (m) become flying pixels between the two surfaces (or
+      no return when the far side is empty).
+    - ``speckle_dropout``: scattered missing returns anywhere.
+    - ``depth_unit``: quantisation, 0.25 mm (the L515's depth unit; D4xx 1 mm).
+    - colour: per-scene ``exposure_variation`` (+-15 % gain),
+      ``white_balance_variation`` (+-5 % per channel) and
+      ``illumination_gradient`` (+-12 % across the image), then per-pixel
+      noise sqrt(read_noise^2 + shot_noise^2 I) on the 0-255 scale (about
+      2-3 levels, a consumer CMOS in good light).
+
+    ``seed_offset`` is added to the scenario's ``random_seed`` for the
+    noise."""
+    enabled: bool = True
+    depth_sigma_0: float = 0.001
+    depth_sigma_z2: float = 0.002
+    correlated_fraction: float = 0.5
+    correlated_length_px: float = 6.0
+    grazing_start_deg: float = 72.0
+    grazing_full_deg: float = 86.0
+    thin_width_px: float = 3.0
+    thin_dropout: float = 0.5
+    edge_jump: float = 0.01
+    mixed_pixel_fraction: float = 0.3
+    speckle_dropout: float = 0.002
+    depth_unit: float = 0.00025
+    exposure_variation: float = 0.15
+    white_balance_variation: float = 0.05
+    illumination_gradient: float = 0.12
+    read_noise: float = 1.5
+    shot_noise: float = 0.15
+    seed_offset: int = 0
+
+
+@dc.dataclass
 class PerceptionConfig:
     """Segmentation and point-cloud parameters (paper Sec. III-A-1). See
     ``lmap_drake/perception/``. Lengths in metres."""
-    segmenter: str = "label"  # label | color_depth | grounded_sam
+    # segnet (the default: trained RGB-D network, no labels) | color_depth
+    # (classical colour + depth) | label (the simulator's labels: an oracle
+    # for ablations) | grounded_sam (local GroundingDINO + SAM files)
+    segmenter: str = "segnet"
+    # segnet: weights (relative to the repository root; made by
+    # scripts/train_segnet.py) and torch device.
+    segnet_weights: str = "models/segnet/segnet.pt"
+    segnet_device: str = "cpu"
     depth_cut: float = 1.5
     dbscan_eps: float = 0.008
     dbscan_min_points: int = 30
@@ -260,6 +320,10 @@ class PerceptionConfig:
     # glancing surfaces, too close) to +inf, and those would carve the fruit.
     background_stride: int = 2
     no_return_free_range: float = 2.0
+    # ... but only where no pixel with a return lies within this many pixels:
+    # a narrower no-return patch is a dropout (glancing rim, thin part,
+    # speckle) next to a surface, not open space.
+    no_return_margin_px: float = 6.0
 
 
 @dc.dataclass
@@ -396,6 +460,10 @@ class Scenario:
     robot: RobotConfig = dc.field(default_factory=RobotConfig)
     cameras: typing.Mapping[str, CameraConfig] = dc.field(
         default_factory=lambda: {"camera0": DefaultCameraConfig()})
+    camera_noise: CameraNoiseConfig = dc.field(default_factory=CameraNoiseConfig)
+    # Lights of the simulated cameras' renderer (Drake ``LightParameter``);
+    # empty = the renderer's default headlight at the camera.
+    lights: list[LightParameter] = dc.field(default_factory=list)
     plant_scene: PlantSceneConfig = dc.field(default_factory=PlantSceneConfig)
     perception: PerceptionConfig = dc.field(default_factory=PerceptionConfig)
     shape: ShapeConfig = dc.field(default_factory=ShapeConfig)
@@ -536,7 +604,7 @@ def Validate(s: Scenario) -> None:
          "plant_scene.leaf.shape must be 'ovate' or 'elliptic'")
     need(0.06 <= s.plant_scene.leaf.length <= 0.16,
          "plant_scene.leaf.length must be in [0.06, 0.16] m")
-    need(s.perception.segmenter in ("label", "color_depth", "grounded_sam"),
+    need(s.perception.segmenter in ("segnet", "label", "color_depth", "grounded_sam"),
          f"perception.segmenter '{s.perception.segmenter}' unknown")
     need(s.planner.method in ("lmap", "random", "upward", "min_overlap"),
          f"planner.method '{s.planner.method}' unknown")

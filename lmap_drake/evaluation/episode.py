@@ -15,6 +15,7 @@ from lmap_drake.diagram import EpisodeResources, MakeEpisodeDiagram
 from lmap_drake.plants.outcome import Summarize
 from lmap_drake.plants.simworld import PlantWorldSim
 from lmap_drake.scenario import Scenario
+from lmap_drake.station.camera_noise import CameraProfile
 
 
 def ShapeErrors(estimate, model) -> dict | None:
@@ -126,6 +127,8 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
         "scenario": scenario.plant_scene.name or "default",
         "method": scenario.planner.method,
         "energy_weight": scenario.planner.energy_weight,
+        "perception": {"segmenter": scenario.perception.segmenter,
+                       "camera": CameraProfile(scenario.camera_noise)},
         "status": "aborted" if grasp_error else st.mode,
         "message": grasp_error or st.message,
         "plan_status": plan.status if plan is not None else None,

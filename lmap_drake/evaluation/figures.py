@@ -8,16 +8,52 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from lmap_drake.viz import ColorizeLabels, RgbArray
+from lmap_drake.labels import BRANCH, CLASS_NAMES, FRUIT, LEAF
+from lmap_drake.viz import RgbArray
 
 
-def Overlay(rgb, label, alpha: float = 0.45) -> np.ndarray:
-    """RGB with the class colours blended over labelled pixels."""
+# Colours that stand out from green leaves and red / yellow / green fruit.
+OVERLAY_COLORS = {BRANCH: (0, 170, 255), LEAF: (255, 225, 0), FRUIT: (255, 0, 200)}
+
+
+def Overlay(rgb, class_map: np.ndarray, alpha: float = 0.5, title: str = "") -> np.ndarray:
+    """The RGB image, desaturated, with each segmented class (a HxW map of
+    ``lmap_drake.labels`` ids) tinted in a contrasting colour and outlined,
+    and a legend: a glance shows what the segmenter found."""
+    from PIL import ImageDraw
+    from scipy import ndimage
     base = RgbArray(rgb).astype(float)
-    colors = ColorizeLabels(label).astype(float)
-    mask = colors.sum(axis=2) > 0
-    base[mask] = (1 - alpha) * base[mask] + alpha * colors[mask]
-    return base.astype(np.uint8)
+    grey = base.mean(axis=2, keepdims=True)
+    base = 0.5 * base + 0.5 * grey
+    cls = np.asarray(class_map)
+    for c, color in OVERLAY_COLORS.items():
+        m = cls == c
+        if not m.any():
+            continue
+        base[m] = (1 - alpha) * base[m] + alpha * np.asarray(color, float)
+        edge = m & ~ndimage.binary_erosion(m)
+        base[edge] = color
+    img = Image.fromarray(np.clip(base, 0, 255).astype(np.uint8))
+    draw = ImageDraw.Draw(img)
+    y = 4
+    for text, color in ([(title, (255, 255, 255))] if title else []) + [
+            (CLASS_NAMES[c], OVERLAY_COLORS[c]) for c in (BRANCH, LEAF, FRUIT)]:
+        draw.rectangle([4, y, 4 + 7 * len(text) + 6, y + 13], fill=(0, 0, 0))
+        draw.text((7, y + 1), text, fill=color)
+        y += 16
+    return np.asarray(img)
+
+
+def _EpisodeSegmenter(result):
+    """The episode's own segmenter (the Perception system's), so the
+    overlays show what the pipeline saw."""
+    try:
+        return result.world.diagram.GetSubsystemByName("perception").segmenter
+    except Exception:  # a diagram without the perception stage
+        from lmap_drake.perception.points import Intrinsics
+        from lmap_drake.perception.segmentation import MakeSegmenter
+        s = result.world.scenario
+        return MakeSegmenter(s.perception, Intrinsics.FromCameraConfig(s.cameras["camera0"]))
 
 
 def _EqualAxes(ax) -> None:
@@ -36,8 +72,12 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     files = []
+    segmenter = _EpisodeSegmenter(result)
     for tag, images in (("before", result.images_before), ("after", result.images_after)):
-        Image.fromarray(Overlay(images["rgb_image"], images["label_image"])).save(
+        seg = segmenter.Segment(images["rgb_image"].data, images["depth_image"].data,
+                                images["label_image"].data)
+        Image.fromarray(Overlay(images["rgb_image"], seg.class_map,
+                                title=f"segmenter: {segmenter.name} ({tag})")).save(
             out / f"rgb_{tag}_segmented.png")
         files.append(f"rgb_{tag}_segmented.png")
     st = result.status

@@ -173,7 +173,17 @@ def Table2Row(records: list[dict]) -> dict:
     v0 = _mean_std(r["outcome"]["visibility_initial"] for r in ok)
     row["visibility_initial_mean"], row["visibility_initial_std"] = v0["mean"], v0["std"]
     row["move_distance_cm_mean"] = _mean_std(dist)["mean"]
+    row["perception"] = PerceptionLabel(ok)
     return row
+
+
+def PerceptionLabel(records) -> str:
+    """'segmenter / camera profile' of the records (several joined by ', ';
+    records made before the field existed count as 'label / ideal')."""
+    seen = sorted({f"{p.get('segmenter', '?')} / {p.get('camera', '?')}"
+                   for p in (r.get("perception", {"segmenter": "label", "camera": "ideal"})
+                             for r in records)})
+    return ", ".join(seen) or "-"
 
 
 def Table2(records: list[dict]) -> dict:
@@ -291,8 +301,8 @@ def Markdown(tables: dict, title: str = "lmap-drake eval", notes: str = "") -> s
         L += [notes, ""]
     L += ["## Table II analogue: action planning (safety, visibility)", "",
           "| Method | Move distance | Safe | Plant hazard | Fruit collision | Leaf damage "
-          "| Visibility fraction | Initial visibility | Errors |",
-          "|---|---|---|---|---|---|---|---|---|"]
+          "| Visibility fraction | Initial visibility | Errors | Perception (segmenter / camera) |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
     for m, rows in t2.items():
         if m == "initial_visibility":
             continue
@@ -304,7 +314,8 @@ def Markdown(tables: dict, title: str = "lmap-drake eval", notes: str = "") -> s
                      f"{r['fruit_collision']} / {n} | {r['leaf_damage']} / {n} | "
                      f"{_f(r['visibility_mean'])} ± {_f(r['visibility_std'])} | "
                      f"{_f(r['visibility_initial_mean'])} ± "
-                     f"{_f(r['visibility_initial_std'])} | {r['n_errors']} |")
+                     f"{_f(r['visibility_initial_std'])} | {r['n_errors']} | "
+                     f"{r.get('perception', '-')} |")
     iv = t2.get("initial_visibility", {})
     L += ["", f"Initial visibility over {iv.get('scenarios', 0)} scenario(s): "
           f"{_f(iv.get('mean'))} ± {_f(iv.get('std'))}. Unsafe trials count their initial "

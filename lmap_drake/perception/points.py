@@ -169,6 +169,7 @@ class PointParams:
     outlier_std_ratio: float = _PERCEPTION_DEFAULTS.outlier_std_ratio
     background_stride: int = _PERCEPTION_DEFAULTS.background_stride
     no_return_free_range: float = _PERCEPTION_DEFAULTS.no_return_free_range
+    no_return_margin_px: float = _PERCEPTION_DEFAULTS.no_return_margin_px
 
     @staticmethod
     def FromConfig(cfg) -> "PointParams":
@@ -190,11 +191,18 @@ def ClassPoints(points_W: np.ndarray, params: PointParams) -> tuple[np.ndarray, 
 
 
 def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
-                      stride: int = 2, no_return_range: float = 0.0) -> np.ndarray:
+                      stride: int = 2, no_return_range: float = 0.0,
+                      no_return_margin_px: float = 0.0) -> np.ndarray:
     """(N, 3) ends in W of the rays of every ``stride``-th ``background``
     pixel (per row and column): the de-projected depth where it is finite and
     > 0, the point at ``no_return_range`` m along the ray where the depth is
-    +inf (if ``no_return_range`` > 0). NaN or 0 depth (no data) gives no ray."""
+    +inf (if ``no_return_range`` > 0) and no pixel with a return lies within
+    ``no_return_margin_px`` pixels. NaN or 0 depth (no data) gives no ray.
+
+    The margin tells dropouts from empty space: a real sensor loses returns
+    at glancing rims, on thin parts and in speckles, always next to surfaces
+    it does see, and those rays may well end on the fruit; only a no-return
+    region wider than the margin is taken as open space."""
     if stride < 1:
         raise ValueError(f"background_stride must be >= 1, got {stride}")
     d = np.asarray(depth, dtype=np.float64)
@@ -206,6 +214,11 @@ def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, 
     with np.errstate(invalid="ignore"):
         measured = np.isfinite(d) & (d > 0)
         far = np.isposinf(d) & (no_return_range > 0)
+    if no_return_margin_px > 0 and far.any():
+        from scipy import ndimage
+        returns = np.isfinite(d) & (d > 0)
+        if returns.any():
+            far &= ndimage.distance_transform_edt(~returns) > no_return_margin_px
     # ``no_return_range`` is a distance along the ray: as a depth it shrinks
     # by the ray's length per unit depth.
     v, u = np.mgrid[0:d.shape[0], 0:d.shape[1]]
@@ -239,7 +252,8 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
         if len(pts) == 0:
             flags.append(f"no_{name}_in_view")
     scene.background_points_W = BackgroundRayEnds(
-        class_map == BACKGROUND, d, K, X, params.background_stride, params.no_return_free_range)
+        class_map == BACKGROUND, d, K, X, params.background_stride, params.no_return_free_range,
+        params.no_return_margin_px)
     if scene.is_empty():
         flags.append("empty_scene")
     scene.flags = flags

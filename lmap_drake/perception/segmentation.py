@@ -1,9 +1,13 @@
 """Per-pixel semantic segmentation of an RGB-D view into background, branch,
 leaf and fruit (ids from ``lmap_drake.labels``) with instance ids.
 
-Three backends behind one interface (``Segmenter.Segment``), chosen by
+Four backends behind one interface (``Segmenter.Segment``), chosen by
 ``PerceptionConfig.segmenter``:
 
+- ``segnet`` (the default): a small RGB-D U-Net trained here on randomised
+  simulator renders (``lmap_drake/perception/segnet.py``,
+  ``scripts/train_segnet.py``); no labels at run time, finds green fruit on
+  green leaves from the depth's shape.
 - ``label``: decodes the simulator's label image (exact; tests, ablations).
 - ``color_depth``: classical, needs no labels or weights, works on real
   RGB-D. Colour (HSV) separates saturated red/orange/yellow fruit from green
@@ -31,7 +35,7 @@ from scipy import ndimage
 from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
 from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
 
-SEGMENTERS = ("label", "color_depth", "grounded_sam")
+SEGMENTERS = ("segnet", "color_depth", "label", "grounded_sam")
 CLASS_IDS = {"branch": BRANCH, "leaf": LEAF, "fruit": FRUIT}
 
 
@@ -442,6 +446,35 @@ class GroundedSamSegmenter(Segmenter):
         return ComposeMasks(masks[:, 0].cpu().numpy(), phrases, (H, W))
 
 
+class SegNetSegmenter(Segmenter):
+    """The trained RGB-D network (``lmap_drake.perception.segnet``) on the
+    bounding box of the returns within the depth cut; everything outside it,
+    and every return beyond the cut, is background. Instances: per-class
+    connected components cut at depth jumps."""
+    name = "segnet"
+
+    def __init__(self, K: Intrinsics, weights_file: str | Path, depth_cut: float = 1.5,
+                 device: str = "cpu"):
+        from lmap_drake.perception.segnet import LoadSegNet
+        self.K, self.depth_cut, self.device = K, float(depth_cut), device
+        self.net = LoadSegNet(weights_file, device)
+
+    def Segment(self, rgb, depth, label=None) -> Segmentation:
+        from lmap_drake.perception.segnet import CropBox, PredictLogits, SegNetInputs
+        rgb = _rgb3(rgb)
+        d = _depth2(depth)
+        cls = np.zeros(d.shape, np.int64)
+        valid = ValidDepthMask(d, self.depth_cut)
+        box = CropBox(valid, 16)
+        if box is None:
+            return Segmentation(cls, np.full(d.shape, -1, np.int64), ["no_valid_depth"])
+        x = SegNetInputs(rgb, d, self.K, self.depth_cut)
+        cls[box] = PredictLogits(self.net, x[:, box[0], box[1]], self.device).argmax(0)
+        with np.errstate(invalid="ignore"):
+            cls[np.isfinite(d) & (d > self.depth_cut)] = BACKGROUND
+        return Segmentation(cls, InstancesFromComponents(cls, d, 0.02))
+
+
 def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
     """The backend named by ``cfg.segmenter`` (a ``PerceptionConfig``)."""
     name = cfg.segmenter
@@ -455,6 +488,11 @@ def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
         return ColorDepthSegmenter(K, params)
     if name == "grounded_sam":
         return GroundedSamSegmenter(cfg)
+    if name == "segnet":
+        from lmap_drake.paths import REPO_ROOT
+        path = Path(cfg.segnet_weights)
+        return SegNetSegmenter(K, path if path.is_absolute() else REPO_ROOT / path,
+                               cfg.depth_cut, cfg.segnet_device)
     raise SegmenterError(f"perception.segmenter '{name}' unknown; choose one of "
                          f"{', '.join(SEGMENTERS)}")
 

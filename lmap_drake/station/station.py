@@ -35,6 +35,7 @@ from pydrake.systems.sensors import RgbdSensor
 from lmap_drake.labels import ROBOT, EncodeLabel
 from lmap_drake.plants.scene import AddPlaceholderPlant, AddProceduralPlant
 from lmap_drake.scenario import Scenario
+from lmap_drake.station.camera_noise import CameraNoise
 from lmap_drake.station.robot import (GRIPPER_JOINTS, UR5_JOINTS, AddUr5AndGripper,
                                       MakeControllerPlant)
 
@@ -184,10 +185,12 @@ def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None,
 
     # Cameras on RenderEngineVtk (EGL, no display needed).
     renderers = set()
-    for name, cam in scenario.cameras.items():
+    for index, (name, cam) in enumerate(scenario.cameras.items()):
         if cam.renderer_name not in renderers:
             params = RenderEngineVtkParams()
             params.default_clear_color = cam.background.rgba[:3]
+            if scenario.lights:
+                params.lights = list(scenario.lights)
             scene_graph.AddRenderer(cam.renderer_name, MakeRenderEngineVtk(params))
             renderers.add(cam.renderer_name)
         color_camera, depth_camera = cam.MakeCameras()
@@ -198,8 +201,21 @@ def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None,
                        color_camera=color_camera, depth_camera=depth_camera))
         builder.Connect(scene_graph.get_query_output_port(),
                         sensor.query_object_input_port())
-        builder.ExportOutput(sensor.color_image_output_port(), f"{name}.rgb_image")
-        builder.ExportOutput(sensor.depth_image_32F_output_port(), f"{name}.depth_image")
+        rgb_port = sensor.color_image_output_port()
+        depth_port = sensor.depth_image_32F_output_port()
+        if scenario.camera_noise.enabled:
+            info = color_camera.core().intrinsics()
+            noise = builder.AddNamedSystem(f"camera_noise_{name}", CameraNoise(
+                scenario.camera_noise,
+                (info.focal_x(), info.focal_y(), info.center_x(), info.center_y()),
+                scenario.random_seed + scenario.camera_noise.seed_offset + 7919 * index,
+                info.width(), info.height()))
+            builder.Connect(rgb_port, noise.GetInputPort("rgb_in"))
+            builder.Connect(depth_port, noise.GetInputPort("depth_in"))
+            rgb_port = noise.GetOutputPort("rgb_image")
+            depth_port = noise.GetOutputPort("depth_image")
+        builder.ExportOutput(rgb_port, f"{name}.rgb_image")
+        builder.ExportOutput(depth_port, f"{name}.depth_image")
         builder.ExportOutput(sensor.label_image_output_port(), f"{name}.label_image")
 
     if meshcat is not None:

@@ -12,6 +12,8 @@ K = Intrinsics(8, 6, 10.0, 10.0, 3.5, 2.5)
 
 # Camera 0.3 m in front of the placeholder leaf, looking along +y_W (z_C = +y_W,
 # y_C = -z_W): the leaf's front face is the plane y_W = -0.101.
+# the renderer's exact images (this file tests de-projection, not the sensor model)
+IDEAL = "{camera_noise: {enabled: false}}"
 FACING_LEAF = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
                "focal: !FocalLength {x: 228.4, y: 228.5}, center_x: 161.3, center_y: 118.7, "
                "X_PB: {base_frame: world, translation: [0.5, -0.40, 0.355], "
@@ -21,7 +23,7 @@ FACING_LEAF = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
 def test_deprojection_of_rendered_plane_within_2mm():
     from lmap_drake.scenario import LoadScenario
     from lmap_drake.station import MakeStation
-    s = LoadScenario(scenario_text=FACING_LEAF)
+    s = LoadScenario(scenario_text=[FACING_LEAF, IDEAL])
     station = MakeStation(s)
     ctx = station.CreateDefaultContext()
     depth = station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0]
@@ -152,6 +154,30 @@ def test_background_ray_ends_measured_far_and_no_data():
         BackgroundRayEnds(bg, depth, K, np.eye(4), stride=0)
 
 
+def test_no_return_pixels_next_to_returns_are_dropouts_not_free_space():
+    """A sensor dropout (a glancing rim, a speckle) lies beside surfaces it
+    sees; only no-return pixels farther than the margin from any return
+    carve free space."""
+    from lmap_drake.perception.points import BackgroundRayEnds
+    depth = np.full((40, 40), np.inf)
+    depth[10:30, 10:30] = 0.5          # a surface
+    depth[20, 20] = np.inf             # a speckle inside it
+    depth[10:30, 29] = np.inf          # a dropout column along its rim
+    bg = ~np.isfinite(depth)
+    ends = BackgroundRayEnds(bg, depth, K, np.eye(4), 1, 2.0, no_return_margin_px=4.0)
+    u = np.rint(ends[:, 0] / ends[:, 2] * K.fx + K.cx).astype(int)
+    v = np.rint(ends[:, 1] / ends[:, 2] * K.fy + K.cy).astype(int)
+    carved = np.zeros(depth.shape, bool)
+    carved[v, u] = True
+    assert carved.sum() == len(ends) > 0
+    assert not carved[20, 20] and not carved[10:30, 29:33].any()
+    rows, cols = np.nonzero(np.isfinite(depth))
+    for y, x in zip(v, u):
+        assert np.hypot(rows - y, cols - x).min() > 4.0
+    every = BackgroundRayEnds(bg, depth, K, np.eye(4), 1, 2.0, no_return_margin_px=0.0)
+    assert len(every) == bg.sum()
+
+
 def test_semantic_scene_carries_background_rays_in_world():
     from lmap_drake.labels import BACKGROUND
     cm = np.full((6, 8), BACKGROUND)
@@ -160,7 +186,8 @@ def test_semantic_scene_carries_background_rays_in_world():
     depth[2:5, 2:6] = 0.5
     X = np.eye(4)
     X[:3, 3] = [1.0, 2.0, 3.0]
-    p = PointParams(outlier_neighbors=3, dbscan_min_points=1, background_stride=1)
+    p = PointParams(outlier_neighbors=3, dbscan_min_points=1, background_stride=1,
+                    no_return_margin_px=0.0)
     scene = BuildSemanticScene(cm, depth, K, X, p)
     assert len(scene.background_points_W) == 48 - 12
     np.testing.assert_allclose(np.linalg.norm(scene.background_points_W - X[:3, 3], axis=1),

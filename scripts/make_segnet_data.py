@@ -1,0 +1,182 @@
+#!/usr/bin/env python
+"""Randomised simulator renders for training the segmentation network
+(``lmap_drake/perception/segnet.py``): domain randomisation of the plant
+(random pepper family shapes, sizes, tilts, occlusion 0.3-0.95, leaf and
+branch sizes), of every colour (leaf, branch, fruit with half of the fruits
+green, stripes, background), of the lights (1-3 directional lights, tinted),
+of the camera pose (+-8 cm, +-8 deg around the default) and arm pose, and of
+the camera model (depth noise 0.5-2x, dropout and flying-pixel rates).
+
+    python scripts/make_segnet_data.py --out out/segnet_data --count 400 --seed 10000
+
+Each sample ``NNNNN.npz`` holds the network input (``SegNetInputs``, float16,
+cropped to the plant and robot returns plus a margin) and the truth class
+map (uint8, background / branch / leaf / fruit; the robot is background),
+with ``fruit_kind`` (red / orange / yellow / green). Sample ``i`` depends only
+on ``seed + i``, so a run can be extended or resumed (existing files are
+kept). Seeds used here must stay apart from the evaluation suites'
+(``RandomSuite(N, S)`` draws plants from its own seed ``S`` and never uses
+these colours or lights).
+"""
+from __future__ import annotations
+
+import argparse
+import colorsys
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+FRUIT_KINDS = ("red", "orange", "yellow", "green")
+FRUIT_HUES = {"red": (-8.0, 8.0), "orange": (18.0, 32.0), "yellow": (40.0, 55.0),
+              "green": (75.0, 130.0)}
+
+
+def _rgba(h_deg: float, s: float, v: float):
+    from pydrake.geometry import Rgba
+    return Rgba(*colorsys.hsv_to_rgb((h_deg % 360.0) / 360.0, s, v), 1.0)
+
+
+def RandomRenderScenario(seed: int):
+    """(Scenario, fruit_kind) for sample ``seed``: a random procedural plant
+    with randomised colours, lights, camera pose, arm pose and camera model."""
+    from pydrake.common.schema import Rotation
+    from pydrake.geometry import LightParameter, Rgba
+    from pydrake.math import RollPitchYaw
+
+    from lmap_drake.plants.suite import RandomSuite
+    from lmap_drake.scenario import Scenario
+
+    rng = np.random.default_rng(seed)
+    s = Scenario()
+    s.random_seed = int(seed)
+    plant = next(iter(RandomSuite(1, int(rng.integers(1 << 30))).values()))
+    plant.occlusion = float(rng.uniform(0.3, 0.95))
+    plant.leaf.color = _rgba(rng.uniform(75, 135), rng.uniform(0.45, 0.85), rng.uniform(0.3, 0.7))
+    plant.branch.color = _rgba(rng.uniform(40, 110), rng.uniform(0.3, 0.7), rng.uniform(0.22, 0.55))
+    kind = str(rng.choice(FRUIT_KINDS, p=[0.2, 0.15, 0.15, 0.5]))
+    lo, hi = FRUIT_HUES[kind]
+    if kind == "green":
+        plant.fruit.color = _rgba(rng.uniform(lo, hi), rng.uniform(0.45, 0.9), rng.uniform(0.25, 0.65))
+    else:
+        plant.fruit.color = _rgba(rng.uniform(lo, hi), rng.uniform(0.8, 1.0), rng.uniform(0.55, 0.95))
+    plant.fruit.stripe_color = Rgba(*(np.asarray(plant.fruit.color.rgba[:3]) *
+                                      rng.uniform(0.6, 0.85)), 1.0)
+    s.plant_scene = plant
+
+    cam = s.cameras["camera0"]
+    X = cam.X_PB.GetDeterministicValue()
+    rpy = RollPitchYaw(X.rotation()).vector() + np.radians(rng.uniform(-8, 8, 3))
+    cam.X_PB.translation = X.translation() + rng.uniform([-0.08, -0.12, -0.08], [0.08, 0.1, 0.08])
+    cam.X_PB.rotation = Rotation(RollPitchYaw(rpy))
+    cam.background = _rgba(rng.uniform(0, 360), rng.uniform(0, 0.5), rng.uniform(0.3, 0.95))
+
+    lights = []
+    for _ in range(int(rng.integers(1, 4))):
+        light = LightParameter()
+        light.type = "directional"
+        light.frame = "camera"
+        d = np.array([rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8), 1.0])
+        light.direction = d / np.linalg.norm(d)
+        light.intensity = float(rng.uniform(0.35, 1.1))
+        light.color = Rgba(*(1.0 - rng.uniform(0, 0.15, 3)), 1.0)
+        lights.append(light)
+    s.lights = lights
+
+    q = np.asarray(s.robot.initial_q) + np.concatenate([rng.uniform(-0.25, 0.25, 3), np.zeros(3)])
+    s.robot.initial_q = [float(x) for x in q]
+
+    n = s.camera_noise
+    scale = rng.uniform(0.5, 2.0)
+    n.depth_sigma_0 *= scale
+    n.depth_sigma_z2 *= scale
+    n.mixed_pixel_fraction = float(rng.uniform(0.1, 0.5))
+    n.thin_dropout = float(rng.uniform(0.2, 0.8))
+    n.grazing_start_deg = float(rng.uniform(65, 78))
+    n.speckle_dropout = float(rng.uniform(0.0, 0.01))
+    return s, kind
+
+
+def RenderSample(seed: int, margin: int = 24) -> dict:
+    """Renders sample ``seed``; returns the arrays stored in its ``.npz``."""
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from lmap_drake.perception.points import Intrinsics
+    from lmap_drake.perception.segmentation import TruthClassMap
+    from lmap_drake.perception.segnet import CropBox, SegNetInputs
+    from lmap_drake.station import MakeStation
+
+    s, kind = RandomRenderScenario(seed)
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakeStation(s))
+    q = builder.AddSystem(ConstantVectorSource(s.robot.initial_q))
+    builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
+    g = builder.AddSystem(ConstantVectorSource([s.robot.initial_gripper_width]))
+    builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
+    diagram = builder.Build()
+    ctx = station.GetMyContextFromRoot(diagram.CreateDefaultContext())
+    rgb = np.array(station.GetOutputPort("camera0.rgb_image").Eval(ctx).data)
+    depth = np.array(station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0])
+    label = np.array(station.GetOutputPort("camera0.label_image").Eval(ctx).data[..., 0])
+    truth = TruthClassMap(label).astype(np.uint8)
+    K = Intrinsics.FromCameraConfig(s.cameras["camera0"])
+    x = SegNetInputs(rgb, depth, K, s.perception.depth_cut)
+    box = CropBox((x[3] > 0) | (truth > 0), margin)
+    if box is None or not (truth == 3).any():
+        raise ValueError("no fruit in view")
+    return {"inputs": x[:, box[0], box[1]].astype(np.float16), "truth": truth[box],
+            "fruit_kind": kind}
+
+
+def _work(args) -> str:
+    seed, out = args
+    path = Path(out) / f"{seed:06d}.npz"
+    if path.exists():
+        return "kept"
+    try:
+        sample = RenderSample(seed)
+    except Exception as err:  # a generator refusal or an empty view: skip the seed
+        return f"skipped {seed}: {type(err).__name__}: {err}"
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **sample)
+    tmp.rename(path)
+    return "made"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="output folder")
+    ap.add_argument("--count", type=int, default=400)
+    ap.add_argument("--seed", type=int, default=10000, help="first sample seed")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args(argv)
+    if args.count < 1 or args.workers < 1:
+        print("error: --count and --workers must be >= 1", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    from tqdm import tqdm
+    jobs = [(args.seed + i, str(out)) for i in range(args.count)]
+    t0 = time.time()
+    counts: dict[str, int] = {}
+    if args.workers == 1:
+        results = map(_work, jobs)
+    else:
+        import multiprocessing as mp
+        # a fresh process every 25 scenes: a long-lived one grew by ~35 MB a
+        # scene (renderer and plant caches)
+        pool = mp.get_context("spawn").Pool(args.workers, maxtasksperchild=25)
+        results = pool.imap_unordered(_work, jobs)
+    for r in tqdm(results, total=len(jobs), desc="rendering", unit="scene"):
+        key = r.split(" ")[0]
+        counts[key] = counts.get(key, 0) + 1
+        if key == "skipped":
+            tqdm.write(r)
+    print(f"{counts} in {time.time() - t0:.0f} s -> {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

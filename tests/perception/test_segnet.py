@@ -1,0 +1,91 @@
+"""The trained RGB-D segmentation network (lmap_drake/perception/segnet.py)
+and its segmenter: input features, weights loading, and segmentation
+quality on rendered scenes that were not in its training data (training
+seeds start at 10000; these plants come from RandomSuite seeds 3 and 4)."""
+import numpy as np
+import pytest
+
+from lmap_drake.labels import BRANCH, FRUIT, LEAF
+from lmap_drake.paths import REPO_ROOT
+from lmap_drake.perception.points import Intrinsics
+from lmap_drake.perception.segmentation import ClassIou, MakeSegmenter, TruthClassMap
+from lmap_drake.perception.segnet import (NUM_INPUTS, LoadSegNet, SegNet, SegNetInputs,
+                                          SegNetWeightsError, SmoothedNormals)
+from lmap_drake.scenario import LoadScenario, PerceptionConfig
+
+K = Intrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
+
+
+def test_inputs_shape_and_normals_of_a_tilted_plane():
+    v, u = np.mgrid[0:48, 0:64]
+    x = (u - K.cx) / K.fx
+    z = 0.5 / (1.0 - x * np.tan(np.radians(30.0)))   # plane z = 0.5 + tan(30) X
+    rgb = np.zeros((48, 64, 4), np.uint8)
+    inp = SegNetInputs(rgb, z, K, 1.5)
+    assert inp.shape == (NUM_INPUTS, 48, 64) and inp.dtype == np.float32
+    n = SmoothedNormals(z, np.ones(z.shape, bool), K.fx, K.fy, K.cx, K.cy)
+    expected = np.array([np.sin(np.radians(30.0)), 0.0, -np.cos(np.radians(30.0))])
+    np.testing.assert_allclose(n[10:-10, 10:-10].reshape(-1, 3).mean(0), expected, atol=0.02)
+    far = z.copy()
+    far[:, :10] = 3.0          # beyond the cut: no return flag, zero normal
+    inp = SegNetInputs(rgb, far, K, 1.5)
+    assert np.all(inp[3][:, :10] == 0) and np.all(inp[5:8][:, :, :10] == 0)
+
+
+def test_missing_or_bad_weights_name_the_file(tmp_path):
+    with pytest.raises(SegNetWeightsError, match="nope.pt"):
+        LoadSegNet(tmp_path / "nope.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a torch file")
+    with pytest.raises(SegNetWeightsError, match="bad.pt"):
+        LoadSegNet(bad)
+    cfg = PerceptionConfig(segnet_weights=str(tmp_path / "gone.pt"))
+    with pytest.raises(SegNetWeightsError, match="gone.pt"):
+        MakeSegmenter(cfg, K)
+
+
+def test_any_input_size_gives_logits_of_that_size():
+    from lmap_drake.perception.segnet import PredictLogits
+    net = SegNet((4, 8, 8, 8)).eval()
+    out = PredictLogits(net, np.zeros((NUM_INPUTS, 37, 53), np.float32))
+    assert out.shape == (4, 37, 53)
+
+
+def test_shipped_weights_are_small_and_say_how_they_were_made():
+    path = REPO_ROOT / PerceptionConfig().segnet_weights
+    assert path.stat().st_size < 3e6
+    meta = LoadSegNet(path).meta
+    assert meta["seed_range"][0] >= 10000 and meta["train_samples"] >= 100
+
+
+def _render(text):
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+    from lmap_drake.station import MakeStation
+    s = LoadScenario(scenario_text=text)
+    b = DiagramBuilder()
+    st = b.AddSystem(MakeStation(s))
+    b.Connect(b.AddSystem(ConstantVectorSource(s.robot.initial_q)).get_output_port(),
+              st.GetInputPort("ur5.position"))
+    b.Connect(b.AddSystem(ConstantVectorSource([0.085])).get_output_port(),
+              st.GetInputPort("gripper.position"))
+    ctx = st.GetMyContextFromRoot(b.Build().CreateDefaultContext())
+    return s, [np.array(st.GetOutputPort(f"camera0.{k}_image").Eval(ctx).data)
+               for k in ("rgb", "depth", "label")]
+
+
+@pytest.mark.parametrize("color", [[0.2, 0.5, 0.1], [0.75, 0.05, 0.05]], ids=["green", "red"])
+def test_segnet_finds_the_fruit_on_the_noisy_camera(color):
+    """A green pepper on a green leaf and a red one, each rendered with the
+    default (noisy) camera: the network's classes overlap the truth."""
+    rgba = color + [1.0]
+    s, (rgb, depth, label) = _render(
+        "{plant_scene: {kind: procedural, occlusion: 0.6, fruit: {variant: elongated, "
+        f"color: {{rgba: {rgba}}}, tilt_azimuth_deg: 200.0}}}}}}")
+    seg = MakeSegmenter(s.perception, Intrinsics.FromCameraConfig(s.cameras["camera0"]))
+    assert seg.name == "segnet"
+    out = seg.Segment(rgb, depth)
+    truth = TruthClassMap(label)
+    assert ClassIou(out.class_map, truth, FRUIT) > 0.8
+    assert ClassIou(out.class_map, truth, LEAF) > 0.8
+    assert ClassIou(out.class_map, truth, BRANCH) > 0.6
