@@ -81,6 +81,10 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
     def make(s, m, grasp):
         return MakeEpisodeDiagram(s, resources, m, grasp)
     world = PlantWorldSim(scenario, meshcat, progress, make_diagram=make)
+    if world.model.occlusion_clamped:
+        progress(f"warning: the leaf hides at most {world.model.occlusion_predicted:.2f} of the "
+                 f"fruit, not the requested plant_scene.occlusion "
+                 f"{world.model.occlusion_requested:.2f} (clamped; recorded in episode.json)")
 
     def controller():
         c = world.diagram.GetSubsystemByName("arm_controller")
@@ -128,7 +132,13 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
         "energy_weight": scenario.planner.energy_weight,
         "status": "aborted" if grasp_error else st.mode,
         "message": grasp_error or st.message,
-        "plan_status": plan.status if plan is not None else None,
+        # ok | no_action_needed | no_fruit | no_feasible_action | stage_error
+        "plan_status": plan.status if plan is not None else (
+            "stage_error" if st.failed_stage else None),
+        "failed_stage": st.failed_stage or None,
+        "plant": {"occlusion_requested": world.model.occlusion_requested,
+                  "occlusion_predicted": world.model.occlusion_predicted,
+                  "occlusion_clamped": world.model.occlusion_clamped},
         "chosen_action": chosen,
         # The planner's own visibility model (voxels of the estimated fruit):
         # seen initially, at most (fruit alone) and after the chosen action.
