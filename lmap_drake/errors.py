@@ -37,7 +37,7 @@ def OneLine(err: BaseException) -> str:
     name = type(err).__name__
     if not text:
         return name
-    if isinstance(err, (InputError,)) or name in ("RuntimeError", "ValueError"):
+    if isinstance(err, InputError) or name in ("RuntimeError", "ValueError"):
         return text
     return f"{name}: {text}"
 
@@ -50,18 +50,24 @@ def ExitCode(err: BaseException) -> int:
     return EXIT_ERROR
 
 
-def RunMain(main, argv=None, debug: bool | None = None, prog: str = "") -> int:
-    """Calls ``main(argv)`` and turns any exception into one line on stderr
-    and an exit code (see the module docstring). ``--debug`` in ``argv`` (or
-    ``sys.argv``), or ``debug=True``, prints the traceback as well. SIGTERM
-    is treated like Ctrl-C, so cleanups run."""
+def RunMain(main, argv=None, prog: str = "", strip_debug: bool = False) -> int:
+    """Calls ``main(argv)`` (``main()`` when ``argv`` is None and
+    ``strip_debug``) and turns any exception into one line on stderr and an
+    exit code (see the module docstring). ``--debug`` in ``argv`` (or
+    ``sys.argv``) prints the traceback as well; with ``strip_debug`` it is
+    removed first (for scripts whose parsers do not know it). SIGTERM is
+    treated like Ctrl-C, so cleanups run."""
     import signal
     import sys
     import traceback
 
-    args = list(sys.argv[1:] if argv is None else argv)
-    if debug is None:
-        debug = "--debug" in args
+    args = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in args
+    if strip_debug and debug:
+        if argv is None:
+            sys.argv[:] = [a for a in sys.argv if a != "--debug"]
+        else:
+            argv = [a for a in argv if a != "--debug"]
 
     def _term(signum, frame):
         raise KeyboardInterrupt(f"signal {signum}")
@@ -71,13 +77,16 @@ def RunMain(main, argv=None, debug: bool | None = None, prog: str = "") -> int:
         old = None
     prefix = f"{prog}: " if prog else ""
     try:
-        return int(main(argv) or 0)
+        code = main() if (argv is None and strip_debug) else main(argv)
+        return int(code or 0)
     except KeyboardInterrupt:
         print(f"{prefix}interrupted", file=sys.stderr, flush=True)
         if debug:
             traceback.print_exc()
         return EXIT_INTERRUPTED
     except SystemExit as err:  # argparse's own exits (usage errors: 2)
+        if isinstance(err.code, str):
+            print(f"{prefix}error: {err.code}", file=sys.stderr, flush=True)
         return err.code if isinstance(err.code, int) else (0 if err.code is None else 1)
     except BaseException as err:  # noqa: BLE001 - the one top-level handler
         if debug:
