@@ -91,9 +91,8 @@ def RunMain(main, argv=None, prog: str = "", strip_debug: bool = False) -> int:
     except BaseException as err:  # noqa: BLE001 - the one top-level handler
         if debug:
             traceback.print_exc()
-        print(f"{prefix}error: {OneLine(err)}"
-              + ("" if debug else " (--debug shows the traceback)"), file=sys.stderr,
-              flush=True)
+        hint = "" if debug or isinstance(err, InputError) else " (--debug shows the traceback)"
+        print(f"{prefix}error: {OneLine(err)}{hint}", file=sys.stderr, flush=True)
         return ExitCode(err)
     finally:
         if old is not None:

@@ -479,7 +479,7 @@ def _RawYaml(text: str, where: str = "the YAML text"):
     try:
         return yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as err:
-        detail = " ".join(str(err).split())
+        detail = " ".join(str(err).replace('in "<unicode string>", ', "").split())
         raise ScenarioError(f"{where} is not valid YAML: {detail}") from None
 
 
