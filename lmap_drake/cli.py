@@ -203,7 +203,8 @@ def _main(argv=None) -> int:
     ev.add_argument("--workers", type=int, default=2, help="worker processes")
     ev.add_argument("--visibility_success", type=float, default=0.95,
                     help="Table V: final visibility counted as sufficient")
-    ev.add_argument("--output", default=None, help="output folder (default: out/eval-<timestamp>-<random>/)")
+    ev.add_argument("--output", default=None,
+                    help="output folder (default: out/eval-<timestamp>-<random>/)")
     ev.add_argument("--debug", action="store_true", help="show tracebacks")
     ev.add_argument("--resume", action="store_true",
                     help="continue OUTPUT/episodes.jsonl: skip episodes already recorded "
