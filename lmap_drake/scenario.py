@@ -532,8 +532,8 @@ def LoadScenario(*, filename: str | Path | None = None,
                                 f"scenarios, got a {type(raw_all).__name__}")
         name = scenario_name or DEFAULT_SCENARIO_NAME
         if name not in raw_all:
-            raise ScenarioError(
-                f"scenario '{name}' not in {path}; it has: {', '.join(map(str, raw_all)) or 'none'}")
+            have = ", ".join(map(str, raw_all)) or "none"
+            raise ScenarioError(f"scenario '{name}' not in {path}; it has: {have}")
         where = f"{path} (scenario '{name}')"
         if raw_all[name] is not None and not isinstance(raw_all[name], dict):
             raise ScenarioError(f"{where}: a scenario must be a map of sections, got "

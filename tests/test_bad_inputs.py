@@ -416,7 +416,8 @@ def test_deformation_error_in_the_diagram_becomes_stage_error(scenario):
     from lmap_drake.systems.deformation import DeformationPrediction
     from lmap_drake.systems.planning import ActionCandidates, ActionSelection
     from lmap_drake.types import SceneEstimate, SemanticScene
-    leaf = np.random.default_rng(0).uniform(-0.03, 0.03, (200, 3)) * [1, 1, 0.01] + [0.5, -0.1, 0.35]
+    rng = np.random.default_rng(0)
+    leaf = rng.uniform(-0.03, 0.03, (200, 3)) * [1, 1, 0.01] + [0.5, -0.1, 0.35]
     scene = SceneEstimate(semantic=SemanticScene(leaf_points_W=leaf))
     action = Action(leaf[0], np.eye(3), np.array([0, 0, 0.04]), grasp_id=0, direction_id=0)
     b = DiagramBuilder()
