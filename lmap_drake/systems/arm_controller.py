@@ -29,7 +29,8 @@ Output ports:
 Trajectories are cubic in joint space, timed so no joint exceeds a fraction
 of the UR5 velocity limit (pi rad/s). The episode aborts cleanly (holds
 position, ``aborted`` with a message) when the planner finds no feasible
-action, the fruit is not seen, or IK fails for the approach or the pull; it
+action, the fruit is not seen, IK fails for the approach or the pull, or a
+stage it evaluates raises (``stage_error: <stage>: ...``, ``failed_stage``); it
 skips the manipulation (``done``, ``no_action_needed``) when the fruit is
 already visible enough. In simulation the grasp is made by the episode
 runner (it rebuilds the station with the leaf fixed between the pads, see
