@@ -400,10 +400,14 @@ def test_empty_candidate_set_has_a_reason():
     r = SelectFromPredictions(ctx, CandidateSet("ok", scene), [], PlannerConfig())
     assert r.status == "no_feasible_action"
     assert r.message.startswith("no feasible action: no candidates were generated")
-    cset = CandidateSet("ok", scene, dropped_grasps=[{"grasp_id": 0,
-                                                     "reason": "within 6 cm of the branch"}])
-    r = SelectFromPredictions(ctx, cset, [], PlannerConfig())
-    assert "all 1 grasp(s) were dropped (within 6 cm of the branch)" in r.message
+    assert "the 15 grasps have no pull direction within" in r.message
+    dropped = [{"grasp_id": 0, "reason": "within 6 cm of the branch"}]
+    r = SelectFromPredictions(ctx, CandidateSet("ok", scene, dropped_grasps=dropped), [],
+                              PlannerConfig())
+    assert "1 of 15 grasps were dropped (within 6 cm of the branch), the other 14" in r.message
+    r = SelectFromPredictions(ctx, CandidateSet("ok", scene, dropped_grasps=dropped), [],
+                              PlannerConfig(num_grasps=1))
+    assert r.message.endswith("all 1 grasps were dropped (within 6 cm of the branch)")
 
 
 def test_deformation_error_in_the_diagram_becomes_stage_error(scenario):

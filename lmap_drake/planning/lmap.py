@@ -441,11 +441,16 @@ def NoActionReason(cands: list[Candidate], dropped_grasps: list[dict],
     """Why no candidate is left, never empty: the rejection reasons grouped
     by wording with counts, or why no candidate was generated."""
     if not cands:
-        if dropped_grasps:
-            return (f"no candidates were generated: all {len(dropped_grasps)} grasp(s) were "
-                    f"dropped ({dropped_grasps[0].get('reason', 'unknown reason')})")
-        return ("no candidates were generated (no grasp with a pull direction within "
-                f"{cfg.max_branch_angle_deg:g} deg of the branch)")
+        n, k = cfg.num_grasps, len(dropped_grasps)
+        why = dropped_grasps[0].get("reason", "unknown reason") if k else ""
+        no_dir = (f"no pull direction within planner.max_branch_angle_deg "
+                  f"({cfg.max_branch_angle_deg:g} deg) of the line to the branch")
+        if k >= n:
+            return f"no candidates were generated: all {k} grasps were dropped ({why})"
+        if k:
+            return (f"no candidates were generated: {k} of {n} grasps were dropped ({why}), "
+                    f"the other {n - k} have {no_dir}")
+        return f"no candidates were generated: the {n} grasps have {no_dir}"
     reasons: dict[str, int] = {}
     for c in cands:
         k = re.sub(r"\d[\d.e+-]*", "#", c.reason.split(" (")[0]) or "unknown"
