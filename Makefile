@@ -1,5 +1,5 @@
 # Two commands for a fresh machine (Debian/Ubuntu, Python 3.11):
-#   make run    one simulated episode on the default scenario (output in out/<timestamp>/)
+#   make run    one simulated episode on the default scenario (output in out/<timestamp>-<random>/)
 #   make test   the test suite
 # Both install what they need on first use: system libraries through apt
 # (sudo if not root) and a virtualenv in .venv with the package in editable mode.

@@ -1,20 +1,28 @@
 """``lmap-drake``: command-line entry point.
 
     lmap-drake run [--scenario_file F] [--scenario_name N] [--scenario_text YAML]
-                   [--output DIR] [--hardware [--dry-run]]
+                   [--output DIR] [--overwrite] [--hardware [--dry-run]] [--debug]
     lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
                     [--distances D,..] [--random_seeds K] [--scenario_names A,B]
-                    [--workers W] [--output DIR] [--resume]
+                    [--workers W] [--output DIR] [--resume] [--debug]
+
+Exit codes: 0 done, 1 error, 2 bad input (scenario, weights, calibration,
+output folder, arguments), 3 episode aborted / no feasible action,
+130 interrupted. Errors are one line on stderr; --debug adds the traceback.
 """
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import sys
 import time
 from pathlib import Path
 
+from lmap_drake.errors import EXIT_ABORTED, EXIT_BAD_INPUT, InputError, RunMain
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
+
+
+class UsageError(InputError):
+    """A bad command-line value."""
 
 
 def _add_scenario_args(p: argparse.ArgumentParser) -> None:
@@ -25,7 +33,8 @@ def _add_scenario_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario_text", default="{}",
                    help="YAML overrides applied last, e.g. \"{random_seed: 3}\"")
     p.add_argument("--output", default=None,
-                   help="output folder (default: out/<timestamp>/)")
+                   help="output folder (default: out/<timestamp>-<random>/); written "
+                        "complete or not at all")
 
 
 def _stage(msg: str) -> None:
@@ -33,24 +42,19 @@ def _stage(msg: str) -> None:
 
 
 def cmd_run(args) -> int:
-    from lmap_drake.scenario import LoadScenario, ScenarioError
-    from lmap_drake.episode import RunStationSnapshot
+    from lmap_drake.outputs import DefaultOutputFolder, OutputFolder
+    from lmap_drake.scenario import LoadScenario
 
-    try:
-        scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
-                                scenario_text=args.scenario_text)
-    except ScenarioError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
+                            scenario_text=args.scenario_text)
     if args.dry_run and not args.hardware:
-        print("error: --dry-run needs --hardware", file=sys.stderr)
-        return 2
-    out = Path(args.output) if args.output else Path("out") / _dt.datetime.now().strftime(
-        "%Y%m%d-%H%M%S")
-    out.mkdir(parents=True, exist_ok=True)
-    _stage(f"scenario '{args.scenario_name}' from {args.scenario_file}; output {out}")
+        raise UsageError("--dry-run needs --hardware")
+    final = Path(args.output) if args.output else DefaultOutputFolder()
+    folder = OutputFolder(final, overwrite=args.overwrite)
+    _stage(f"scenario '{args.scenario_name}' from {args.scenario_file}; output {final}")
     t0 = time.time()
-    try:
+    status = "done"
+    with folder as out:
         if args.hardware:
             from lmap_drake.station.hardware.run import RunHardwareSnapshot
             files = RunHardwareSnapshot(scenario, out, dry_run=args.dry_run, progress=_stage)
@@ -59,70 +63,115 @@ def cmd_run(args) -> int:
             files = RunScriptedPullEpisode(scenario, out, progress=_stage)
         elif scenario.plant_scene.kind == "procedural":
             from lmap_drake.episode import RunLmapEpisode
-            files = RunLmapEpisode(scenario, out, progress=_stage)
+            files, status = RunLmapEpisode(scenario, out, progress=_stage)
         else:
+            from lmap_drake.episode import RunStationSnapshot
             files = RunStationSnapshot(scenario, out, hardware=False, progress=_stage)
-    except RuntimeError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
-    _stage(f"done in {time.time() - t0:.1f} s; wrote " + ", ".join(sorted(files)))
+    if folder.final != final:
+        _stage(f"warning: {final} was filled by another run meanwhile; this run's outputs "
+               f"are in {folder.final}")
+    _stage(f"done in {time.time() - t0:.1f} s; wrote {folder.final}/: "
+           + ", ".join(sorted(files)))
+    if status != "done":
+        _stage(f"episode {status} (exit code {EXIT_ABORTED})")
+        return EXIT_ABORTED
     return 0
+
+
+def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
+    from lmap_drake.evaluation import tables as T
+    if args.scenarios < 0:
+        raise UsageError(f"--scenarios must be >= 1 (0: use --scenario_file), got "
+                         f"{args.scenarios}")
+    if args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if not 0.0 < args.visibility_success <= 1.0:
+        raise UsageError(f"--visibility_success must be in (0, 1], got {args.visibility_success}")
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if not methods:
+        raise UsageError(f"--methods is empty; choose from {', '.join(T.METHODS)}")
+    unknown = [m for m in methods if m not in T.METHODS]
+    if unknown:
+        raise UsageError(f"--methods: unknown {', '.join(unknown)}; choose from "
+                         f"{', '.join(T.METHODS)}")
+    try:
+        distances = [float(d) for d in args.distances.split(",") if d.strip()]
+    except ValueError:
+        raise UsageError(f"--distances must be comma-separated metres, got "
+                         f"{args.distances!r}") from None
+    if any(m in T.BASELINES for m in methods):
+        if not distances:
+            raise UsageError("--distances is empty but a baseline method needs at least one")
+        bad = [d for d in distances if not (d > 0 and d < float("inf"))]
+        if bad:
+            raise UsageError(f"--distances must be positive metres, got {bad}")
+    if "random" in methods and args.random_seeds < 1:
+        raise UsageError(f"--random_seeds must be >= 1 for the random method, got "
+                         f"{args.random_seeds}")
+    return methods, distances
 
 
 def cmd_eval(args) -> int:
     from lmap_drake.evaluation import tables as T
-    from lmap_drake.evaluation.run_eval import RunEvaluation
-    from lmap_drake.scenario import _RawYaml
+    from lmap_drake.evaluation.run_eval import ResolveSpecs, RunEvaluation
+    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
+    from lmap_drake.scenario import LoadScenario, _RawYaml, _ReadScenarioFile
 
-    out = Path(args.output) if args.output else Path("out") / (
-        "eval-" + _dt.datetime.now().strftime("%Y%m%d-%H%M%S"))
-    out.mkdir(parents=True, exist_ok=True)
+    methods, distances = _CheckEvalArgs(args)
+    LoadScenario(scenario_text=args.scenario_text)      # fail now on a bad override
+    out = Path(args.output) if args.output else DefaultOutputFolder(prefix="eval-")
     if args.scenarios:
         from lmap_drake.plants.suite import RandomSuite, SuiteYaml
+        EnsureWritableFolder(out)
         suite_file = out / "suite.yaml"
-        suite_file.write_text(SuiteYaml(RandomSuite(args.scenarios, args.seed),
-                                        f"# RandomSuite({args.scenarios}, {args.seed})"))
+        text = SuiteYaml(RandomSuite(args.scenarios, args.seed),
+                         f"# RandomSuite({args.scenarios}, {args.seed})")
+        if not (args.resume and suite_file.exists() and suite_file.read_text() == text):
+            suite_file.write_text(text)
     else:
         suite_file = Path(args.scenario_file)
-    if not suite_file.exists():
-        print(f"error: scenario file not found: {suite_file}", file=sys.stderr)
-        return 2
-    names = list(_RawYaml(suite_file.read_text()) or {})
+    raw = _RawYaml(_ReadScenarioFile(suite_file), str(suite_file))
+    if not isinstance(raw, dict) or not raw:
+        raise UsageError(f"{suite_file} holds no named scenarios")
+    names = list(raw)
     if args.scenario_names:
         wanted = [n for n in args.scenario_names.split(",") if n]
         missing = [n for n in wanted if n not in names]
         if missing:
-            print(f"error: not in {suite_file}: {', '.join(missing)}", file=sys.stderr)
-            return 2
+            raise UsageError(f"not in {suite_file}: {', '.join(missing)}")
         names = wanted
-    try:
-        methods = [m for m in args.methods.split(",") if m]
-        distances = [float(d) for d in args.distances.split(",") if d]
-        specs = T.EpisodeSpecs(names, methods, distances, args.random_seeds, args.seed,
-                               args.scenario_text)
-        from lmap_drake.scenario import LoadScenario
-        LoadScenario(scenario_text=args.scenario_text)      # fail now on a bad override
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    try:
-        summary = RunEvaluation(specs, suite_file, out, workers=args.workers,
-                                resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
-                                threshold=args.visibility_success)
-    except FileExistsError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    specs = T.EpisodeSpecs(names, methods, distances, args.random_seeds, args.seed,
+                           args.scenario_text)
+    if not specs:
+        raise UsageError("no episodes to run (check --methods, --distances, --random_seeds)")
+    ResolveSpecs(specs, suite_file)      # loads every episode's scenario: bad input fails now
+    EnsureWritableFolder(out)
+    summary = RunEvaluation(specs, suite_file, out, workers=args.workers,
+                            resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
+                            threshold=args.visibility_success)
     for eid, msg in summary["errors"]:
         print(f"error in {eid}: {msg}", file=sys.stderr)
     return 1 if summary["errors"] else 0
 
 
 def main(argv=None) -> int:
+    """The entry point: one top-level handler turns every error into a
+    one-line message and an exit code (``lmap_drake.errors``)."""
+    return RunMain(_main, argv, prog="lmap-drake")
+
+
+def _main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="lmap-drake", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run one simulated episode on a scenario")
     _add_scenario_args(run)
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace an existing non-empty output folder")
+    run.add_argument("--debug", action="store_true", help="show tracebacks")
     run.add_argument("--hardware", action="store_true",
                      help="use the hardware station instead of the simulation")
     run.add_argument("--dry-run", action="store_true",
@@ -154,7 +203,9 @@ def main(argv=None) -> int:
     ev.add_argument("--workers", type=int, default=2, help="worker processes")
     ev.add_argument("--visibility_success", type=float, default=0.95,
                     help="Table V: final visibility counted as sufficient")
-    ev.add_argument("--output", default=None, help="output folder (default: out/eval-<time>/)")
+    ev.add_argument("--output", default=None,
+                    help="output folder (default: out/eval-<timestamp>-<random>/)")
+    ev.add_argument("--debug", action="store_true", help="show tracebacks")
     ev.add_argument("--resume", action="store_true",
                     help="continue OUTPUT/episodes.jsonl: skip episodes already recorded "
                          "(errors are re-run)")

@@ -91,12 +91,13 @@ def RunScriptedPullEpisode(scenario: Scenario, out: Path,
 
 
 def RunLmapEpisode(scenario: Scenario, out: Path,
-                   progress: Callable[[str], None] = print) -> list[str]:
+                   progress: Callable[[str], None] = print) -> tuple[list[str], str]:
     """The full LMAP loop in simulation (see ``lmap_drake.evaluation.episode``):
     writes ``scenario.yaml``, ``episode.json``, ``candidates.json``, before/
     after RGB with the segmentation overlaid, ``action_and_shapes.png``,
     the ground truth, ``diagram.svg`` and ``scene.html`` (Meshcat recording
-    with leaf snapshots)."""
+    with leaf snapshots). Returns (files, the episode's status: ``done``,
+    ``aborted``, ...)."""
     import json
 
     from lmap_drake.diagram import WriteDiagramSvg
@@ -126,9 +127,9 @@ def RunLmapEpisode(scenario: Scenario, out: Path,
     (out / "scene.html").write_text(meshcat.StaticHtml())
     files.append("scene.html")
     r = result.record
-    progress(f"episode {r['status']}: {r['message']}")
+    progress(f"episode {r['status']}: {r['message'] or '(no message)'}")
     progress("outcome: " + json.dumps(r["outcome"]))
     if r["shape_initial"] and r["shape_final"]:
         progress(f"Chamfer {r['shape_initial']['chamfer_cm']:.2f} cm -> "
                  f"{r['shape_final']['chamfer_cm']:.2f} cm; wall {r['wall_seconds']:.0f} s")
-    return files
+    return files, str(r["status"])

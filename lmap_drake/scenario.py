@@ -8,8 +8,8 @@ Units: metres, seconds, radians unless a field name says otherwise
 (``*_deg``, ``*_cm``). Frames: ``W`` world, ``B`` robot base, ``C`` camera.
 """
 import collections.abc
-
 import dataclasses as dc
+import re
 import typing
 from pathlib import Path
 
@@ -23,6 +23,7 @@ from pydrake.systems.analysis import SimulatorConfig
 from pydrake.systems.sensors import CameraConfig
 from pydrake.geometry import SceneGraphConfig
 
+from lmap_drake.errors import InputError
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
 from lmap_drake.station.hardware_config import HardwareConfig
 
@@ -472,8 +473,9 @@ class Scenario:
     hardware: HardwareConfig = dc.field(default_factory=HardwareConfig)
 
 
-class ScenarioError(ValueError):
-    """A scenario file or override could not be loaded."""
+class ScenarioError(InputError, ValueError):
+    """A scenario file or override could not be loaded, or holds a bad value.
+    The message names the key path and the file (or ``--scenario_text``)."""
 
 
 def _schema_fields(schema) -> dict | None:
@@ -510,12 +512,29 @@ def _unknown_keys(schema, data, path: str) -> list[str]:
     return out
 
 
-def _RawYaml(text: str):
-    """Plain-YAML parse that keeps Drake's tagged values (``!Rpy``) as maps."""
+def _RawYaml(text: str, where: str = "the YAML text"):
+    """Plain-YAML parse that keeps Drake's tagged values (``!Rpy``) as maps.
+    A duplicate key or malformed YAML raises ScenarioError naming ``where``
+    (Drake's loader would silently keep the last duplicate)."""
     import yaml
 
     class _Loader(yaml.SafeLoader):
-        pass
+        def construct_mapping(self, node, deep=False):
+            if isinstance(node, yaml.MappingNode):
+                seen: dict = {}
+                for key_node, _ in node.value:
+                    if key_node.tag == "tag:yaml.org,2002:merge":
+                        continue
+                    key = key_node.value if isinstance(key_node, yaml.ScalarNode) else None
+                    if key is None:
+                        continue
+                    line = key_node.start_mark.line + 1
+                    if key in seen:
+                        raise ScenarioError(
+                            f"duplicate key '{key}' in {where} (line {line}; first at line "
+                            f"{seen[key]})")
+                    seen[key] = line
+            return super().construct_mapping(node, deep=deep)
 
     def _tagged(loader, suffix, node):
         if isinstance(node, yaml.MappingNode):
@@ -525,58 +544,88 @@ def _RawYaml(text: str):
         return loader.construct_scalar(node)
 
     _Loader.add_multi_constructor("!", _tagged)
-    return yaml.load(text, Loader=_Loader)
+    try:
+        return yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as err:
+        detail = " ".join(str(err).replace('in "<unicode string>", ', "").split())
+        raise ScenarioError(f"{where} is not valid YAML: {detail}") from None
 
 
 def _explain(err: Exception, raw: dict | None, root: str, where: str) -> ScenarioError:
-    msg = str(err)
+    msg = " ".join(str(err).split())
     if raw is not None:
         bad = _unknown_keys(Scenario, raw, root)
         if bad:
             msg = (f"unknown key(s) {', '.join(bad)} in {where}; valid keys are the "
                    f"fields of the Scenario dataclasses in lmap_drake/scenario.py "
-                   f"(Drake said: {err})")
+                   f"(Drake said: {msg})")
             return ScenarioError(msg)
     return ScenarioError(f"could not load scenario from {where}: {msg}")
+
+
+def _ReadScenarioFile(path: Path) -> str:
+    if not path.exists():
+        raise ScenarioError(f"scenario file not found: {path}")
+    if path.is_dir():
+        raise ScenarioError(f"scenario file {path} is a directory, not a YAML file")
+    try:
+        return path.read_text()
+    except UnicodeDecodeError:
+        raise ScenarioError(f"scenario file {path} is not a UTF-8 text file") from None
+    except OSError as err:
+        raise ScenarioError(f"cannot read scenario file {path}: {err.strerror or err}") from None
 
 
 def LoadScenario(*, filename: str | Path | None = None,
                  scenario_name: str | None = None,
                  scenario_text: str | list[str] = "{}") -> Scenario:
     """Loads a scenario: defaults, then ``scenario_name`` from ``filename``,
-    then the YAML overrides in ``scenario_text`` (a list: applied in order).
+    then the YAML overrides in ``scenario_text`` (a list: applied in order),
+    then ``Validate``.
 
-    Raises ScenarioError naming the file and the unknown key on bad input.
+    Raises ScenarioError naming the key path and the file (or
+    ``--scenario_text``) on any bad input: a missing, unreadable or malformed
+    file, duplicate or unknown keys, wrong types, bad values.
     """
     result = Scenario()
+    sources: list[tuple[dict, str]] = []
     if filename is not None:
         path = Path(filename)
-        if not path.exists():
-            raise ScenarioError(f"scenario file not found: {path}")
-        text = path.read_text()
-        raw_all = _RawYaml(text) or {}
+        text = _ReadScenarioFile(path)
+        raw_all = _RawYaml(text, str(path))
+        if raw_all is None:
+            raw_all = {}
+        if not isinstance(raw_all, dict):
+            raise ScenarioError(f"{path}: the top level must map scenario names to "
+                                f"scenarios, got a {type(raw_all).__name__}")
         name = scenario_name or DEFAULT_SCENARIO_NAME
         if name not in raw_all:
-            raise ScenarioError(
-                f"scenario '{name}' not in {path}; it has: {', '.join(raw_all) or 'none'}")
+            have = ", ".join(map(str, raw_all)) or "none"
+            raise ScenarioError(f"scenario '{name}' not in {path}; it has: {have}")
+        where = f"{path} (scenario '{name}')"
+        if raw_all[name] is not None and not isinstance(raw_all[name], dict):
+            raise ScenarioError(f"{where}: a scenario must be a map of sections, got "
+                                f"{raw_all[name]!r}")
         try:
             result = yaml_load_typed(schema=Scenario, data=text, child_name=name,
                                      defaults=result)
         except Exception as err:  # Drake raises RuntimeError
-            raise _explain(err, raw_all[name], name, f"{path} (scenario '{name}')") from err
+            raise _explain(err, raw_all[name], name, where) from None
+        sources.append((raw_all[name] or {}, where))
     texts = [scenario_text] if isinstance(scenario_text, str) else list(scenario_text)
     for text in texts:
         if not text or text.strip() in ("", "{}"):
             continue
-        try:
-            raw = _RawYaml(text)
-        except Exception as err:
-            raise ScenarioError(f"--scenario_text is not valid YAML: {err}") from err
+        raw = _RawYaml(text, "--scenario_text")
+        if not isinstance(raw, dict):
+            raise ScenarioError(f"--scenario_text must be a YAML map such as "
+                                f"\"{{planner: {{energy_weight: 0.5}}}}\", got {text!r}")
         try:
             result = yaml_load_typed(schema=Scenario, data=text, defaults=result)
         except Exception as err:
-            raise _explain(err, raw, "", "--scenario_text") from err
-    Validate(result)
+            raise _explain(err, raw, "", "--scenario_text") from None
+        sources.append((raw, "--scenario_text"))
+    Validate(result, sources)
     return result
 
 
@@ -584,38 +633,329 @@ def LoadDefaultScenario() -> Scenario:
     return LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name=DEFAULT_SCENARIO_NAME)
 
 
-def Validate(s: Scenario) -> None:
-    """Checks values the type system cannot; raises ScenarioError."""
-    def need(cond, msg):
+# Value rules for Validate: key path -> rule. Rules: ">0", ">=0", ">=1",
+# "(lo,hi)" / "[lo,hi]" (open / closed ends), "finite"; "Nx<rule>" = a
+# list of N values each obeying <rule>, "+x<rule>" = a non-empty list.
+# Every float anywhere in the scenario's own dataclasses must be finite.
+_RULES = {
+    "random_seed": ">=0",
+    "simulation_duration": ">0",
+    "robot.initial_q": "6xfinite",
+    "robot.kp": "6x>=0",
+    "robot.kd": "6x>=0",
+    "robot.initial_gripper_width": "[0,0.085]",
+    "robot.gripper_kp": ">=0",
+    "robot.gripper_kd": ">=0",
+    "plant_scene.p_W_branch_base": "3xfinite",
+    "plant_scene.occlusion": "(0,1)",
+    "plant_scene.branch.radius": ">0",
+    "plant_scene.branch.length": ">0",
+    "plant_scene.leaf.length": "[0.06,0.16]",
+    "plant_scene.leaf.width": ">0",
+    "plant_scene.leaf.petiole_length": ">0",
+    "plant_scene.leaf.petiole_width": ">0",
+    "plant_scene.leaf.thickness": ">0",
+    "plant_scene.leaf.target_tets": "[100,20000]",
+    "plant_scene.leaf.element_size": ">=0",
+    "plant_scene.leaf.youngs_modulus": ">0",
+    "plant_scene.leaf.poissons_ratio": "[0,0.5)",
+    "plant_scene.leaf.mass_density": ">0",
+    "plant_scene.leaf.stiffness_damping": ">=0",
+    "plant_scene.leaf.mass_damping": ">=0",
+    "plant_scene.leaf.clearance": ">=0",
+    "plant_scene.leaf.min_fruit_clearance": ">=0",
+    "plant_scene.leaf.attach_above_fruit": ">=0",
+    "plant_scene.leaf.bend_radius": ">0",
+    "plant_scene.fruit.size": "3x>0",
+    "plant_scene.fruit.lobes": ">=0",
+    "plant_scene.fruit.stripes": ">=0",
+    "plant_scene.fruit.height_on_branch": ">0",
+    "plant_scene.fruit.gap_to_branch": ">=0",
+    "plant_scene.fruit.peduncle_length": ">0",
+    "plant_scene.fruit.peduncle_radius": ">0",
+    "plant_scene.pull.pregrasp_distance": ">0",
+    "plant_scene.pull.pregrasp_opening": "(0,0.085]",
+    "plant_scene.pull.direction_W": "3xfinite",
+    "plant_scene.pull.distance": ">0",
+    "plant_scene.pull.duration": ">0",
+    "plant_scene.pull.hold": ">=0",
+    "plant_scene.outcome.tear_stretch": ">0",
+    "plant_scene.outcome.strain_percentile": "(0,100]",
+    "plant_scene.outcome.petiole_max_force": ">0",
+    "plant_scene.outcome.fruit_penetration": ">=0",
+    "plant_scene.outcome.fruit_contact_force": ">=0",
+    "plant_scene.outcome.sample_period": ">0",
+    "plant_scene.branch_length": ">0",
+    "plant_scene.branch_radius": ">0",
+    "plant_scene.fruit_center_W": "3xfinite",
+    "plant_scene.fruit_size": "3x>0",
+    "plant_scene.fruit_lobes": ">=0",
+    "plant_scene.leaf_center_W": "3xfinite",
+    "plant_scene.leaf_size": "3x>0",
+    "perception.depth_cut": ">0",
+    "perception.dbscan_eps": ">0",
+    "perception.dbscan_min_points": ">=1",
+    "perception.voxel_size": ">0",
+    "perception.outlier_neighbors": ">=1",
+    "perception.outlier_std_ratio": ">0",
+    "perception.branch_max_width": ">0",
+    "perception.box_threshold": "[0,1]",
+    "perception.text_threshold": "[0,1]",
+    "perception.nms_threshold": "[0,1]",
+    "perception.fusion_match_distance": ">=0",
+    "perception.background_stride": ">=1",
+    "perception.no_return_free_range": ">=0",
+    "shape.latent_size": ">=1",
+    "shape.free_space_voxel": ">0",
+    "shape.w_sur": ">=0",
+    "shape.w_neg": ">=0",
+    "shape.w_ped": ">=0",
+    "shape.w_reg": ">=0",
+    "shape.w_neg_completed_branch": ">=0",
+    "shape.reestimate_w_ped": ">=0",
+    "shape.reestimate_w_neg_completed_branch": ">=0",
+    "shape.learning_rate": ">0",
+    "shape.iterations": ">=1",
+    "shape.num_peduncle_points": ">=1",
+    "shape.loss_length_unit": ">0",
+    "shape.max_surface_points": ">=1",
+    "shape.max_negative_points": ">=1",
+    "shape.negative_margin": ">=0",
+    "shape.max_negative_candidates": ">=1",
+    "shape.peduncle_max_distance": ">0",
+    "shape.peduncle_cone_deg": "(0,180]",
+    "shape.refresh_every": ">=1",
+    "shape.mesh_spacing": ">0",
+    "shape.branch_slab": ">0",
+    "shape.branch_radius_factor": ">0",
+    "shape.branch_mesh_res": ">0",
+    "shape.branch_match_distance": ">0",
+    "deformation.voxel_size": ">0",
+    "deformation.edge_radius": ">0",
+    "deformation.vein_distance": ">=0",
+    "deformation.vein_weights": "3x>0",
+    "deformation.handle_grid": ">=1",
+    "deformation.handle_size": ">0",
+    "deformation.fixed_branch_distance": ">0",
+    "deformation.max_iterations": ">=1",
+    "deformation.relative_tolerance": ">0",
+    "deformation.leaf_branch_edge_radius": ">0",
+    "deformation.leaf_branch_weight": ">0",
+    "deformation.max_grasp_distance": ">0",
+    "deformation.handle_fallback_neighbors": ">=1",
+    "deformation.interpolation_neighbors": ">=1",
+    "deformation.interpolation_radius": ">0",
+    "deformation.interpolation_sigma": ">0",
+    "perception.no_return_margin_px": ">=0",
+    "camera_noise.depth_sigma_0": ">=0",
+    "camera_noise.depth_sigma_z2": ">=0",
+    "camera_noise.correlated_fraction": "[0,1]",
+    "camera_noise.correlated_length_px": ">=0",
+    "camera_noise.grazing_start_deg": "[0,90]",
+    "camera_noise.grazing_full_deg": "[0,90]",
+    "camera_noise.thin_width_px": ">=0",
+    "camera_noise.thin_dropout": "[0,1]",
+    "camera_noise.edge_jump": ">0",
+    "camera_noise.mixed_pixel_fraction": "[0,1]",
+    "camera_noise.speckle_dropout": "[0,1]",
+    "camera_noise.depth_unit": ">=0",
+    "camera_noise.exposure_variation": "[0,1)",
+    "camera_noise.white_balance_variation": "[0,1)",
+    "camera_noise.illumination_gradient": "[0,1)",
+    "camera_noise.read_noise": ">=0",
+    "camera_noise.shot_noise": ">=0",
+    "planner.num_grasps": ">=1",
+    "planner.grasp_inset": ">=0",
+    "planner.num_directions": "[1,14]",
+    "planner.max_branch_angle_deg": "(0,180]",
+    "planner.distances": "+x>0",
+    "planner.early_stop_fraction": "(0,1]",
+    "planner.pregrasp_distance": ">0",
+    "planner.pregrasp_opening": "(0,0.085]",
+    "planner.grasp_close_width": "[0,0.085]",
+    "planner.gripper_close_speed": ">0",
+    "planner.grasp_attach_opening": "[0,0.085]",
+    "planner.min_branch_distance": ">=0",
+    "planner.visibility_voxel": ">0",
+    "planner.collision_margin": ">=0",
+    "planner.energy_weight": ">=0",
+    "planner.max_energy_per_node": ">=0",
+}
+_ENUMS = {
+    "plant_scene.kind": ("placeholder", "procedural"),
+    "plant_scene.leaf.shape": ("ovate", "elliptic"),
+    "plant_scene.fruit.variant": ("blocky", "elongated", "conical"),  # plants.pepper.VARIANTS
+    "shape.method": ("ssc", "homa", "supeps"),                       # shape.completion.METHODS
+    "deformation.arap_method": ("lbfgs", "plain"),
+    "planner.method": ("lmap", "random", "upward", "min_overlap"),
+    "perception.segmenter": ("segnet", "color_depth", "label", "grounded_sam"),
+    "perception.sam_model_type": ("vit_h", "vit_l", "vit_b"),
+}
+
+
+def _Get(obj, path: str):
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def _InRaw(raw, path: str) -> bool:
+    """True if the dotted ``path`` (or a prefix of it holding a non-map) is
+    written in the raw YAML map ``raw``."""
+    node = raw
+    for part in path.split("."):
+        if not isinstance(node, dict):
+            return True
+        if part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def _IsNumber(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def _RuleError(v, rule: str) -> str:
+    """'' if the scalar ``v`` obeys ``rule``, else what is wrong."""
+    if not _IsNumber(v):
+        return f"must be a number, got {v!r}"
+    if not np.isfinite(v):
+        return f"must be finite, got {v}"
+    if rule == "finite":
+        return ""
+    if rule.startswith(">="):
+        lo = float(rule[2:])
+        return "" if v >= lo else f"must be >= {rule[2:]}, got {v}"
+    if rule.startswith(">"):
+        lo = float(rule[1:])
+        return "" if v > lo else f"must be > {rule[1:]}, got {v}"
+    lo_s, hi_s = rule[1:-1].split(",")
+    lo, hi = float(lo_s), float(hi_s)
+    ok = (v > lo if rule[0] == "(" else v >= lo) and (v < hi if rule[-1] == ")" else v <= hi)
+    return "" if ok else f"must be in {rule}, got {v}"
+
+
+def _FiniteTransform(X) -> bool:
+    try:
+        if not X.IsDeterministic():
+            return True
+        return bool(np.all(np.isfinite(X.GetDeterministicValue().GetAsMatrix4())))
+    except Exception:  # noqa: BLE001 - Drake refuses a non-finite rotation
+        return False
+
+
+def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> None:
+    """Checks values the type system cannot (list lengths, ranges,
+    enumerations, finiteness, consistency) before anything is built; raises
+    ScenarioError naming the key path and where it was set. ``sources``:
+    (raw YAML map, description) in the order they were applied."""
+    def where(path: str) -> str:
+        for raw, desc in reversed(list(sources)):
+            if _InRaw(raw, path):
+                return desc
+        return "the built-in defaults"
+
+    def fail(path: str, msg: str):
+        raise ScenarioError(f"{path} {msg} (set in {where(path)})")
+
+    def need(cond, path: str, msg: str):
         if not cond:
-            raise ScenarioError(msg)
-    need(len(s.robot.initial_q) == 6, "robot.initial_q needs 6 joint values (rad)")
-    need(len(s.robot.kp) == 6 and len(s.robot.kd) == 6, "robot.kp and robot.kd need 6 values")
-    need(0.0 <= s.robot.initial_gripper_width <= 0.085,
-         "robot.initial_gripper_width must be in [0, 0.085] m")
-    need("camera0" in s.cameras, "cameras must contain 'camera0' (the pipeline's camera)")
+            fail(path, msg)
+
+    # Every number of our own dataclasses is finite (NaN passes comparisons).
+    def walk(obj, path):
+        for f in dc.fields(obj):
+            v = getattr(obj, f.name)
+            p = f"{path}.{f.name}" if path else f.name
+            if dc.is_dataclass(v):
+                walk(v, p)
+            elif _IsNumber(v) and not np.isfinite(v):
+                fail(p, f"must be finite, got {v}")
+            elif isinstance(v, (list, tuple)):
+                for i, x in enumerate(v):
+                    if _IsNumber(x) and not np.isfinite(x):
+                        fail(p, f"must be finite, got {list(v)} (item {i})")
+            elif isinstance(v, Transform) and not _FiniteTransform(v):
+                fail(p, "must be a finite pose (translation and rotation)")
+    walk(s, "")
+
+    for path, rule in _RULES.items():
+        v = _Get(s, path)
+        m = re.fullmatch(r"(\d+|\+)x(.*)", rule)
+        if m:
+            n, item = m.groups()
+            if not isinstance(v, (list, tuple)):
+                fail(path, f"must be a list, got {v!r}")
+            if n == "+":
+                need(len(v) >= 1, path, f"needs at least one value, got {list(v)}")
+            else:
+                need(len(v) == int(n), path, f"needs {n} values, got {len(v)}: {list(v)}")
+            for x in v:
+                err = _RuleError(x, item)
+                if err:
+                    fail(path, f"values {err.replace('must', 'must each')} in {list(v)}")
+        else:
+            err = _RuleError(v, rule)
+            if err:
+                fail(path, err)
+    for path, choices in _ENUMS.items():
+        v = _Get(s, path)
+        need(v in choices, path, f"'{v}' unknown; choose one of {', '.join(choices)}")
+
+    cn = s.camera_noise
+    need(cn.grazing_start_deg <= cn.grazing_full_deg, "camera_noise.grazing_start_deg",
+         f"must be <= grazing_full_deg ({cn.grazing_full_deg}), got {cn.grazing_start_deg}")
+    need("camera0" in s.cameras, "cameras",
+         "must contain 'camera0' (the pipeline's camera)")
     for name, cam in s.cameras.items():
-        need(cam.name == name, f"cameras.{name}.name must equal its key '{name}'")
-        need(cam.depth and cam.rgb, f"cameras.{name} needs rgb and depth enabled")
-    need(s.plant_scene.kind in ("placeholder", "procedural"),
-         f"plant_scene.kind '{s.plant_scene.kind}' unknown; use 'procedural' or 'placeholder'")
-    need(0.0 <= s.plant_scene.occlusion <= 1.0, "plant_scene.occlusion must be in [0, 1]")
-    need(s.plant_scene.leaf.shape in ("ovate", "elliptic"),
-         "plant_scene.leaf.shape must be 'ovate' or 'elliptic'")
-    need(0.06 <= s.plant_scene.leaf.length <= 0.16,
-         "plant_scene.leaf.length must be in [0.06, 0.16] m")
-    need(s.perception.segmenter in ("segnet", "label", "color_depth", "grounded_sam"),
-         f"perception.segmenter '{s.perception.segmenter}' unknown")
-    need(s.planner.method in ("lmap", "random", "upward", "min_overlap"),
-         f"planner.method '{s.planner.method}' unknown")
+        p = f"cameras.{name}"
+        need(cam.name == name, f"{p}.name", f"must equal its key '{name}', got '{cam.name}'")
+        need(cam.depth and cam.rgb, p, "needs rgb and depth enabled")
+        need(cam.width >= 1 and cam.height >= 1, p,
+             f"width and height must be >= 1, got {cam.width} x {cam.height}")
+        need(np.isfinite(cam.fps) and cam.fps > 0, f"{p}.fps", f"must be > 0, got {cam.fps}")
+        need(0 < cam.clipping_near < cam.clipping_far, p,
+             f"needs 0 < clipping_near < clipping_far, got {cam.clipping_near}, "
+             f"{cam.clipping_far}")
+        need(0 < cam.z_near < cam.z_far, p,
+             f"needs 0 < z_near < z_far, got {cam.z_near}, {cam.z_far}")
+        fx, fy = cam.focal_x(), cam.focal_y()
+        need(np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0, f"{p}.focal",
+             f"must be > 0, got {fx}, {fy}")
+        need(_FiniteTransform(cam.X_PB), f"{p}.X_PB", "must be a finite pose")
+    need(_FiniteTransform(s.robot.X_WB), "robot.X_WB", "must be a finite pose")
+
+    ps = s.plant_scene
+    need(ps.fruit.height_on_branch < ps.branch.length, "plant_scene.fruit.height_on_branch",
+         f"{ps.fruit.height_on_branch} m puts the fruit above the branch top "
+         f"(plant_scene.branch.length {ps.branch.length} m)")
+    need(abs(ps.branch.bend) < ps.branch.length, "plant_scene.branch.bend",
+         f"must be smaller than the branch length, got {ps.branch.bend}")
+    need(float(np.linalg.norm(ps.pull.direction_W)) > 1e-9, "plant_scene.pull.direction_W",
+         "must not be zero")
+    from lmap_drake.plants.pepper import PepperShape
+    fr = ps.fruit
+    try:
+        PepperShape(size=tuple(fr.size), lobes=fr.lobes, lobe_depth=fr.lobe_depth,
+                    variant=fr.variant, squareness=fr.squareness, shoulder=fr.shoulder,
+                    taper=fr.taper, cone=fr.cone).validate()
+    except ValueError as err:
+        fail("plant_scene.fruit", f"is not a valid pepper shape: {err}")
+    need(s.shape.weights_file or s.shape.method == "supeps", "shape.weights_file",
+         "is empty; the ssc and homa methods need the DeepSDF weights")
     fa = s.planner.force_action
     need(len(fa) in (0, 3) and (not fa or (float(fa[0]).is_integer() and
                                            float(fa[1]).is_integer() and fa[2] > 0)),
-         "planner.force_action must be empty or [grasp_id, direction_id, distance m], "
+         "planner.force_action", "must be empty or [grasp_id, direction_id, distance m], "
          f"got {list(fa)}")
-    need(not fa or s.planner.method == "lmap",
-         "planner.force_action picks an LMAP candidate: it needs planner.method 'lmap'")
-    need(s.simulation_duration > 0, "simulation_duration must be > 0 s")
+    need(not fa or s.planner.method == "lmap", "planner.force_action",
+         "picks an LMAP candidate: it needs planner.method 'lmap'")
+    from lmap_drake.station.hardware_config import ValidateHardwareConfig
+    try:
+        ValidateHardwareConfig(s.hardware)
+    except ValueError as err:
+        fail("hardware", str(err).replace("hardware config: ", ""))
 
 
 def DumpScenario(s: Scenario, filename: str | Path) -> None:

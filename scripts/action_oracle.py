@@ -209,4 +209,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="action_oracle.py", strip_debug=True))  # one-line errors; --debug

@@ -144,4 +144,7 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="bench_deformation.py", strip_debug=True))  # one-line errors; --debug

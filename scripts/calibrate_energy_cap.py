@@ -95,4 +95,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="calibrate_energy_cap.py", strip_debug=True))  # one-line errors; --debug

@@ -466,4 +466,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="eval_deformation_vs_fem.py", strip_debug=True))  # one-line errors; --debug

@@ -186,4 +186,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="eval_segmentation.py", strip_debug=True))  # one-line errors; --debug

@@ -177,4 +177,7 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="eval_shape.py", strip_debug=True))  # one-line errors; --debug

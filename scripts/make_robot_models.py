@@ -245,4 +245,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="make_robot_models.py", strip_debug=True))  # one-line errors; --debug

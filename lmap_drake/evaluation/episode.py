@@ -82,40 +82,55 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
     def make(s, m, grasp):
         return MakeEpisodeDiagram(s, resources, m, grasp)
     world = PlantWorldSim(scenario, meshcat, progress, make_diagram=make)
+    if world.model.occlusion_clamped:
+        progress(f"warning: the leaf hides at most {world.model.occlusion_predicted:.2f} of the "
+                 f"fruit, not the requested plant_scene.occlusion "
+                 f"{world.model.occlusion_requested:.2f} (clamped; recorded in episode.json)")
 
     def controller():
         c = world.diagram.GetSubsystemByName("arm_controller")
         return c, c.GetMyContextFromRoot(world.context)
     animate = LeafAnimator(meshcat, world)
-    world.AdvanceTo(0.25)
-    animate()
-    before = world.Images()
-    vis0 = world.Visibility()
+    before = vis0 = None
     sim_wall = 0.0
-    grasp_error = ""
-    while world.time < max_time:
-        t0 = time.perf_counter()
-        world.AdvanceTo(world.time + 0.05)
-        sim_wall += time.perf_counter() - t0
+    grasp_error = diagram_error = ""
+    try:
+        world.AdvanceTo(0.25)
         animate()
-        c, cctx = controller()
-        st = c.Status(cctx)
-        if st.finished:
-            break
-        # The simulated grasp is made as the pads close on the leaf (opening
-        # at most ``grasp_attach_opening``), before a fast squeeze can push
-        # the thin FEM leaf out from between them; see simworld.Grasp.
-        closing = st.mode == "close_gripper" and world.GripperWidth() <= \
-            scenario.planner.grasp_attach_opening
-        if (closing or st.mode == "grasp_wait") and not st.grasp_acknowledged:
-            try:
-                world.Grasp()
-            except RuntimeError as err:
-                grasp_error = str(err)
-                progress(f"aborted: {err}")
-                break
+        before = world.Images()
+        vis0 = world.Visibility()
+        while world.time < max_time:
+            t0 = time.perf_counter()
+            world.AdvanceTo(world.time + 0.05)
+            sim_wall += time.perf_counter() - t0
+            animate()
             c, cctx = controller()
-            c.AcknowledgeGrasp(cctx)
+            st = c.Status(cctx)
+            if st.finished:
+                break
+            # The simulated grasp is made as the pads close on the leaf (opening
+            # at most ``grasp_attach_opening``), before a fast squeeze can push
+            # the thin FEM leaf out from between them; see simworld.Grasp.
+            closing = st.mode == "close_gripper" and world.GripperWidth() <= \
+                scenario.planner.grasp_attach_opening
+            if (closing or st.mode == "grasp_wait") and not st.grasp_acknowledged:
+                try:
+                    world.Grasp()
+                except RuntimeError as err:
+                    grasp_error = str(err)
+                    progress(f"aborted: {err}")
+                    break
+                c, cctx = controller()
+                c.AcknowledgeGrasp(cctx)
+    # A failure inside the Diagram outside the controller's own stage
+    # handling (e.g. a Perception event, the plant) ends the episode with a
+    # status and a message in episode.json, not a traceback.
+    except Exception as err:  # noqa: BLE001
+        diagram_error = (f"stage_error: diagram at t = {world.time:.2f} s: "
+                         f"{type(err).__name__}: {' '.join(str(err).split())}")
+        progress(f"aborted: {diagram_error}")
+        if before is None:
+            before, vis0 = world.Images(), world.Visibility()
     c, cctx = controller()
     st = c.Status(cctx)
     after = world.Images()
@@ -129,9 +144,15 @@ def RunEpisode(scenario: Scenario, meshcat=None, progress: Callable[[str], None]
         "energy_weight": scenario.planner.energy_weight,
         "perception": {"segmenter": scenario.perception.segmenter,
                        "camera": CameraProfile(scenario.camera_noise)},
-        "status": "aborted" if grasp_error else st.mode,
-        "message": grasp_error or st.message,
-        "plan_status": plan.status if plan is not None else None,
+        "status": "aborted" if grasp_error or diagram_error else st.mode,
+        "message": diagram_error or grasp_error or st.message,
+        # ok | no_action_needed | no_fruit | no_feasible_action | stage_error
+        "plan_status": "stage_error" if diagram_error else (
+            plan.status if plan is not None else ("stage_error" if st.failed_stage else None)),
+        "failed_stage": "diagram" if diagram_error else (st.failed_stage or None),
+        "plant": {"occlusion_requested": world.model.occlusion_requested,
+                  "occlusion_predicted": world.model.occlusion_predicted,
+                  "occlusion_clamped": world.model.occlusion_clamped},
         "chosen_action": chosen,
         # The planner's own visibility model (voxels of the estimated fruit):
         # seen initially, at most (fruit alone) and after the chosen action.

@@ -44,8 +44,43 @@ def DistanceLabel(distance: float | None) -> str:
     return f"{cm:g}cm"
 
 
-def EpisodeId(spec: dict) -> str:
+def SpecKey(spec: dict) -> str:
+    """What an episode is, without its settings: scenario|method|distance|seed."""
     return f"{spec['scenario']}|{spec['method']}|{DistanceLabel(spec['distance'])}|s{spec['seed']}"
+
+
+def EpisodeId(spec: dict) -> str:
+    """``SpecKey`` plus, once resolved (``run_eval.ResolveSpecs``), a short
+    hash of the episode's resolved scenario (suite entry, ``--scenario_text``
+    and the method's overrides): the same episode with other settings has
+    another id."""
+    h = spec.get("scenario_hash")
+    return SpecKey(spec) + (f"|{h}" if h else "")
+
+
+def ResumeConflicts(records: list[dict], specs: list[dict]) -> list[str]:
+    """Why ``records`` (an ``episodes.jsonl``) cannot be continued with
+    ``specs`` without mixing results of different settings: a recorded
+    episode that is one of ``specs`` but was run on another resolved
+    scenario (its id's hash differs), or records made with another
+    eval-wide ``--scenario_text``. Empty when resuming is safe."""
+    ids = {s["episode_id"] for s in specs}
+    by_key = {SpecKey(s): s for s in specs}
+    texts = {s.get("scenario_text", "{}") for s in specs}
+    out = []
+    for eid, r in LatestRecords(records).items():
+        e = r.get("eval", {})
+        try:
+            key = SpecKey(e)
+        except KeyError:
+            continue
+        if key in by_key and eid not in ids:
+            out.append(f"{key}: recorded as {eid}, now {by_key[key]['episode_id']} "
+                       f"(the resolved scenario differs)")
+        elif "base_scenario_text" in e and texts and e["base_scenario_text"] not in texts:
+            out.append(f"{eid}: recorded with --scenario_text {e['base_scenario_text']!r}, "
+                       f"now {sorted(texts)[0]!r}")
+    return out
 
 
 def EpisodeSpecs(scenarios: list[str], methods=METHODS, distances=DEFAULT_DISTANCES,
@@ -451,9 +486,44 @@ def WriteTables(records: list[dict], out: Path, threshold: float = VISIBILITY_SU
     return files
 
 
+def RepairLog(path: Path) -> int:
+    """Sets aside the lines of an ``episodes.jsonl`` that are not complete
+    JSON records (a torn last line of a killed run, or a record glued onto
+    one): they are appended to ``<name>.torn`` and the log is rewritten
+    (atomically) with the good lines, each ending in a newline, so their
+    episodes are re-run and nothing is appended to a torn line. Returns how
+    many lines were set aside."""
+    import os
+    path = Path(path)
+    if not path.exists():
+        return 0
+    text = path.read_text(errors="replace")
+    good, bad = [], []
+    for line in text.splitlines():
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+            ok = isinstance(rec, dict) and isinstance(rec.get("eval"), dict) \
+                and "episode_id" in rec["eval"]
+        except json.JSONDecodeError:
+            ok = False
+        (good if ok else bad).append(line)
+    if not bad and (not text or text.endswith("\n")):
+        return 0
+    if bad:
+        with open(path.with_name(path.name + ".torn"), "a") as f:
+            f.write("".join(line + "\n" for line in bad))
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("".join(line + "\n" for line in good))
+    os.replace(tmp, path)
+    return len(bad)
+
+
 def ReadRecords(path: Path) -> list[dict]:
     """Records of an ``episodes.jsonl`` (missing file: none; a torn last
-    line from an interrupted run is skipped)."""
+    line from an interrupted run is skipped here; ``RepairLog`` sets such
+    lines aside before a resumed run appends)."""
     path = Path(path)
     if not path.exists():
         return []

@@ -42,7 +42,10 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
         pts = robot_points_W if box is None else NearBox(
             robot_points_W, box[0] - margin, box[1] + margin)
         if len(pts):
-            d = distance(pts)
+            d = np.asarray(distance(pts), float)
+            if np.isfinite(margin) and not np.all(np.isfinite(d)):
+                # NaN passes every comparison: a non-finite distance rejects.
+                return f"robot-{name} (non-finite {name} distance)"
             if d.min() < margin:
                 return f"robot-{name} ({d.min() * 1000:.1f} mm)"
     return ""
@@ -56,8 +59,10 @@ def LeafFruitCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, fruit_s
     fruit is not a collision caused by the action)."""
     if fruit_sdf is None or deformed_W is None or len(deformed_W) == 0:
         return ""
-    d1 = fruit_sdf(deformed_W)
-    d0 = fruit_sdf(rest_W)
+    d1 = np.asarray(fruit_sdf(deformed_W), float)
+    d0 = np.asarray(fruit_sdf(rest_W), float)
+    if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):
+        return "leaf-fruit (non-finite fruit SDF)"
     bad = (d1 < margin) & (d1 < d0 - 1e-3)
     if bad.any():
         return f"leaf-fruit ({d1[bad].min() * 1000:.1f} mm)"

@@ -24,7 +24,9 @@ from lmap_drake.planning.visibility import CountNewlySeen, VisibilityModel
 from lmap_drake.scenario import DeformationConfig, PlannerConfig
 from lmap_drake.types import SceneEstimate
 
-STATUSES = ("ok", "no_action_needed", "no_feasible_action", "no_fruit")
+# "stage_error": a stage of the planner (candidates, deformation prediction,
+# selection) failed; ``message`` names the stage and the error.
+STATUSES = ("ok", "no_action_needed", "no_feasible_action", "no_fruit", "stage_error")
 
 
 @dc.dataclass
@@ -104,6 +106,9 @@ class PlanningContext:
     X_WC: np.ndarray
     robot: RobotModel
     q_current: np.ndarray
+    # camera0's field of view as tangents (x_min, x_max, y_min, y_max) of the
+    # optical frame; None = unbounded. Bounds the visibility model's grid.
+    image_tan: tuple | None = None
 
     def __post_init__(self):
         sem = self.scene.semantic
@@ -274,13 +279,22 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     if ctx.scene.fruit is None:
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
                             message="no fruit estimate: nothing to reveal")
+    if not np.all(np.isfinite(ctx.scene.fruit.vertices_W)) or len(ctx.scene.fruit.faces) == 0:
+        return CandidateSet("no_fruit", ctx.scene, timings=timings,
+                            message="the fruit estimate is empty or not finite")
     t0 = time.perf_counter()
-    vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel)
+    vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel,
+                          ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.branch_obs_W]))
     timings["visibility_s"] += time.perf_counter() - t0
     out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
                        timings=timings)
     n_init, n_max = int(seen_init.sum()), int(vis.max_seen.sum())
+    if n_max == 0:
+        out.status = "no_fruit"
+        out.message = ("the fruit estimate is outside camera0's view: no part of it could "
+                       "be seen, so no action can reveal it")
+        return out
     if n_init >= cfg.early_stop_fraction * n_max:
         out.status, out.message = "no_action_needed", f"fruit already {n_init / n_max:.0%} visible"
         return out
@@ -414,16 +428,34 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     if cfg.force_action:
         return _ChooseForced(result, forced, cfg.force_action)
     if not feasible:
-        reasons: dict[str, int] = {}
-        for c in cands:
-            k = re.sub(r"\d[\d.e+-]*", "#", c.reason.split(" (")[0])   # group by wording
-            reasons[k] = reasons.get(k, 0) + 1
         result.status = "no_feasible_action"
-        result.message = "no feasible action: " + ", ".join(
-            f"{k}: {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+        result.message = "no feasible action: " + NoActionReason(cands, cset.dropped_grasps,
+                                                                 cfg)
         return result
     result.chosen = max(feasible, key=lambda c: c.score)
     return result
+
+
+def NoActionReason(cands: list[Candidate], dropped_grasps: list[dict],
+                   cfg: PlannerConfig) -> str:
+    """Why no candidate is left, never empty: the rejection reasons grouped
+    by wording with counts, or why no candidate was generated."""
+    if not cands:
+        n, k = cfg.num_grasps, len(dropped_grasps)
+        why = dropped_grasps[0].get("reason", "unknown reason") if k else ""
+        no_dir = (f"no pull direction within planner.max_branch_angle_deg "
+                  f"({cfg.max_branch_angle_deg:g} deg) of the line to the branch")
+        if k >= n:
+            return f"no candidates were generated: all {k} grasps were dropped ({why})"
+        if k:
+            return (f"no candidates were generated: {k} of {n} grasps were dropped ({why}), "
+                    f"the other {n - k} have {no_dir}")
+        return f"no candidates were generated: the {n} grasps have {no_dir}"
+    reasons: dict[str, int] = {}
+    for c in cands:
+        k = re.sub(r"\d[\d.e+-]*", "#", c.reason.split(" (")[0]) or "unknown"
+        reasons[k] = reasons.get(k, 0) + 1
+    return ", ".join(f"{k}: {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
 
 
 def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,

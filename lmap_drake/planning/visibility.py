@@ -28,34 +28,68 @@ def VoxelCenters(points: np.ndarray, voxel: float) -> np.ndarray:
     return (keys + 0.5) * voxel
 
 
+# Upper bound on the visibility grid (pixels): a 3 mm-voxel fruit seen
+# anywhere in a 640 x 480 image needs far less. A larger window (a fruit
+# estimate of absurd size, or spanning the camera plane) is made coarser.
+MAX_GRID_PIXELS = 4_000_000
+NEAR = 0.01   # m: voxels closer to the camera plane than this are not seen
+
+
 class VisibilityModel:
     """Holds the camera and the completed fruit's surface voxels; answers
-    which of them are seen given occluders."""
+    which of them are seen given occluders.
 
-    def __init__(self, X_WC: np.ndarray, fruit_surface_W: np.ndarray, voxel: float = 0.003):
+    The grid covers only the fruit voxels in front of the camera (depth >
+    ``NEAR``) and, when ``image_tan`` = (x_min, x_max, y_min, y_max) (the
+    camera image's extent as tangents x/z, y/z of the optical frame) is
+    given, inside the image; voxels outside are never seen. So a camera
+    looking away sees nothing (``max_seen`` all False) instead of asking for
+    an unbounded grid; the grid never exceeds ``MAX_GRID_PIXELS``."""
+
+    def __init__(self, X_WC: np.ndarray, fruit_surface_W: np.ndarray, voxel: float = 0.003,
+                 image_tan: tuple | None = None):
         self.voxel = voxel
         self.X_CW = np.linalg.inv(np.asarray(X_WC, float))
         self.fruit_W = VoxelCenters(fruit_surface_W, voxel)
         if len(self.fruit_W) == 0:
             raise ValueError("visibility needs a non-empty fruit surface")
         p_C = self._to_camera(self.fruit_W)
-        depth = float(np.median(p_C[:, 2]))
+        z = p_C[:, 2]
+        visible = np.isfinite(p_C).all(axis=1) & (z > NEAR)
+        if image_tan is not None and visible.any():
+            tx, ty = p_C[:, 0] / np.maximum(z, NEAR), p_C[:, 1] / np.maximum(z, NEAR)
+            x0, x1, y0, y1 = image_tan
+            visible &= (tx >= x0) & (tx <= x1) & (ty >= y0) & (ty <= y1)
+        self._visible = visible
+        depth = float(np.median(z[visible])) if visible.any() else 1.0
         self.f = depth / voxel              # one pixel ~ one voxel at the fruit
-        uv = self._project(p_C)
         margin = 40
-        self.lo = uv.min(axis=0) - margin
-        self.shape = tuple((uv.max(axis=0) - self.lo + margin + 1).astype(int)[::-1])
-        self._fruit_pix = self._pixels(uv)
-        self._fruit_z = p_C[:, 2]
-        self._z_far = float(p_C[:, 2].max()) + voxel
+        if visible.any():
+            uv = self._project(p_C[visible])
+            lo, hi = uv.min(axis=0), uv.max(axis=0)
+            cells = float(np.prod(hi - lo + 2 * margin + 1))
+            if cells > MAX_GRID_PIXELS:      # coarser pixels, bounded grid
+                self.f *= float(np.sqrt(MAX_GRID_PIXELS / cells)) * 0.9
+                margin = 4
+        uv = self._project(p_C)
+        if visible.any():
+            self.lo = uv[visible].min(axis=0) - margin
+            self.shape = tuple((uv[visible].max(axis=0) - self.lo + margin + 1)
+                               .astype(int)[::-1])
+        else:
+            self.lo, self.shape = np.zeros(2, np.int64), (1, 1)
+        self._fruit_pix = np.where(visible, self._pixels(uv), -1)
+        self._fruit_z = z
+        self._z_far = float(z[visible].max()) + voxel if visible.any() else NEAR
         self.max_seen = self.Seen(np.zeros((0, 3)))
 
     def _to_camera(self, p_W: np.ndarray) -> np.ndarray:
         return p_W @ self.X_CW[:3, :3].T + self.X_CW[:3, 3]
 
     def _project(self, p_C: np.ndarray) -> np.ndarray:
-        z = np.maximum(p_C[:, 2], 1e-6)
-        return np.round(self.f * p_C[:, :2] / z[:, None]).astype(np.int64)
+        z = np.maximum(p_C[:, 2], NEAR)
+        uv = np.nan_to_num(self.f * p_C[:, :2] / z[:, None], nan=-2.0**40)
+        return np.round(np.clip(uv, -2.0**40, 2.0**40)).astype(np.int64)
 
     def _pixels(self, uv: np.ndarray) -> np.ndarray:
         rc = uv - self.lo
@@ -73,18 +107,19 @@ class VisibilityModel:
             # only what lies in front of the fruit's far side and projects
             # into the window can occlude it
             p_C = self._to_camera(occ)
-            keep = (p_C[:, 2] > 1e-3) & (p_C[:, 2] < self._z_far)
+            keep = (p_C[:, 2] > NEAR) & (p_C[:, 2] < self._z_far)
             uv = self.f * p_C[keep, :2] / p_C[keep, 2:3] - self.lo
             h, w = self.shape
             inwin = (uv[:, 0] > -3) & (uv[:, 0] < w + 3) & (uv[:, 1] > -3) & (uv[:, 1] < h + 3)
             occ = VoxelCenters(occ[keep][inwin], self.voxel)
         if len(occ):
             p_C = self._to_camera(occ)
-            front = p_C[:, 2] > 1e-3
+            front = p_C[:, 2] > NEAR
             p_C = p_C[front]
             uv = self._project(p_C)
             # splat radius: the voxel's pixel footprint at its depth
             rad = np.ceil(0.5 * self.f * self.voxel * np.sqrt(2) / p_C[:, 2]).astype(int)
+            rad = np.minimum(rad, 64)          # bounded work for an occluder at the lens
             all_pix, all_z = [], []
             for r in np.unique(rad):
                 sel = rad == r

@@ -17,7 +17,22 @@ import trimesh
 
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape,
                                     OrientTets, TriangulateLeaf, HalfWidth)
+from lmap_drake.errors import InputError
 from lmap_drake.plants.pepper import MakePepper, PepperShape
+
+# A generated plant's occlusion (ray cast from camera0) may differ from the
+# requested ``plant_scene.occlusion`` by at most OCCLUSION_TOLERANCE. When
+# the leaf cannot hide as much as requested, the most it can hide is used if
+# that is within OCCLUSION_CLAMP of the request (a documented clamp, recorded
+# as ``occlusion_requested`` / ``occlusion_clamped`` in ground_truth.json and
+# episode.json). Anything else is a PlantGenerationError.
+OCCLUSION_TOLERANCE = 0.05
+OCCLUSION_CLAMP = 0.2
+
+
+class PlantGenerationError(InputError, ValueError):
+    """The requested plant cannot be built as described (the message says
+    which scenario key to change)."""
 
 
 @dc.dataclass
@@ -45,6 +60,8 @@ class PlantModel:
     leaf_midrib_W: np.ndarray        # unit blade midrib direction (base -> tip)
     leaf_swing_deg: float
     occlusion_predicted: float       # fraction of camera-visible fruit surface hidden
+    occlusion_requested: float = float("nan")   # plant_scene.occlusion
+    occlusion_clamped: bool = False  # the leaf could not hide as much as requested
 
     @property
     def branch_axis_W(self) -> np.ndarray:
@@ -67,6 +84,8 @@ class PlantModel:
                 "leaf_attach_W": self.leaf_attach_W.tolist(),
                 "leaf_swing_deg": self.leaf_swing_deg,
                 "occlusion_predicted": self.occlusion_predicted,
+                "occlusion_requested": self.occlusion_requested,
+                "occlusion_clamped": self.occlusion_clamped,
                 "leaf_num_vertices": int(len(self.leaf_rest_W)),
                 "leaf_num_tets": int(len(self.leaf_tets))}
 
@@ -129,7 +148,8 @@ def OffsetBesideBranch(V_W: np.ndarray, branch: np.ndarray, e_lat: np.ndarray,
         return not strip.any() or float(np.min(off[strip] @ e_lat)) > 0.0
     lo, hi = -0.3, 0.3
     if not ok(hi):
-        raise ValueError("cannot place the fruit beside the branch within 0.3 m")
+        raise PlantGenerationError("cannot place the fruit beside the branch within 0.3 m "
+                                   "(check plant_scene.fruit.size and gap_to_branch)")
     for _ in range(40):
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if ok(mid) else (mid, hi)
@@ -233,6 +253,13 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     axis = R_WO[:, 2]
     top = center + R_WO @ pepper.p_O_peduncle
     tip = top + axis * fr.peduncle_length
+    top_W = float(branch[-1, 2])
+    if tip[2] + 0.005 > top_W:
+        raise PlantGenerationError(
+            f"the fruit's peduncle ends {tip[2] + 0.005 - top_W:.3f} m above the branch top "
+            f"(z {top_W:.3f} m): the fruit would hang off the branch; lower "
+            f"plant_scene.fruit.height_on_branch ({fr.height_on_branch} m) or lengthen "
+            f"plant_scene.branch.length ({b.length} m)")
     stalk_end = _branch_point_at_height(branch, tip[2] + 0.005) + e_lat * 0.5 * b.radius
     phi = np.arctan2(*(pepper.mesh.vertices[pepper.mesh.faces].mean(1)[:, [1, 0]].T))
     stripes = (np.cos(fr.stripes * (phi - 0.3)) > 0.75) if fr.stripes > 0 else \
@@ -249,6 +276,11 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     fruit_front = float(np.max((fruit.vertices - base) @ d_fwd))
     reach = fruit_front + lf.clearance
     z_attach = float(fruit.vertices[:, 2].max()) + lf.attach_above_fruit
+    if z_attach > top_W:
+        raise PlantGenerationError(
+            f"the leaf would attach {z_attach - top_W:.3f} m above the branch top: lower "
+            f"plant_scene.fruit.height_on_branch ({fr.height_on_branch} m) or "
+            f"plant_scene.leaf.attach_above_fruit, or lengthen plant_scene.branch.length")
     attach = _branch_point_at_height(branch, z_attach) + d_fwd * b.radius * 0.5
     samples = trimesh.sample.sample_surface_even(fruit, 1500, seed=0)[0]
     others = [trimesh.creation.cylinder(b.radius, b.length,
@@ -295,6 +327,20 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
         V, midrib = build(swing, reach)
         tets = OrientTets(V, tets)
     occ_final = occlusion(swing, reach)
+    at_most = target >= occ.max()        # the leaf cannot hide more than this
+    miss = target - occ_final
+    if at_most and miss > OCCLUSION_CLAMP:
+        raise PlantGenerationError(
+            f"plant_scene.occlusion {target:.2f}: this leaf hides at most {occ_final:.2f} of "
+            f"the fruit from camera0 (more than {OCCLUSION_CLAMP} below the request); use a "
+            f"larger leaf (plant_scene.leaf.length / width) or a lower occlusion")
+    if not at_most and abs(miss) > OCCLUSION_TOLERANCE:
+        raise PlantGenerationError(
+            f"plant_scene.occlusion {target:.2f} cannot be reached: the generated leaf hides "
+            f"{occ_final:.2f} of the fruit from camera0 (tolerance {OCCLUSION_TOLERANCE}); "
+            f"the leaf swing search covers -20..90 deg, so very low occlusions are out of "
+            f"reach: raise plant_scene.occlusion")
+    clamped = at_most and miss > OCCLUSION_TOLERANCE
     lat = _unit(np.cross(midrib, d_fwd))
     normal = _unit(np.cross(midrib, lat))
     if normal @ d_fwd < 0:
@@ -306,7 +352,8 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
         peduncle_axis_W=axis, peduncle_tip_W=tip, stalk_W=np.array([top, stalk_end]),
         fruit_volume=float(fruit.volume), leaf_rest_W=V, leaf_tets=tets,
         leaf_uv=nodes[:, :2], leaf_fixed=fixed, leaf_attach_W=attach, leaf_normal_W=normal,
-        leaf_midrib_W=midrib, leaf_swing_deg=swing, occlusion_predicted=occ_final)
+        leaf_midrib_W=midrib, leaf_swing_deg=swing, occlusion_predicted=occ_final,
+        occlusion_requested=target, occlusion_clamped=bool(clamped))
 
 
 def LeafPointAt(model: PlantModel, u: float, v: float) -> np.ndarray:

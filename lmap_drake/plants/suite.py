@@ -59,32 +59,58 @@ def PaperSuite() -> dict[str, PlantSceneConfig]:
     return out
 
 
-def RandomSuite(n: int, seed: int) -> dict[str, PlantSceneConfig]:
-    """``n`` random plant scenes from ``seed`` (deterministic)."""
+def _Buildable(cfg: PlantSceneConfig) -> bool:
+    """True if ``GeneratePlant`` builds ``cfg`` as requested from the default
+    camera (its occlusion is reachable, the fruit hangs on the branch)."""
+    from lmap_drake.plants.generator import GeneratePlant, PlantGenerationError
+    from lmap_drake.scenario import DefaultCameraConfig
+    p_WC = DefaultCameraConfig().X_PB.GetDeterministicValue().translation()
+    try:
+        GeneratePlant(cfg, p_WC)
+    except PlantGenerationError:
+        return False
+    return True
+
+
+def RandomSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneConfig]:
+    """``n`` random plant scenes from ``seed`` (deterministic). A draw the
+    plant generator cannot build as requested (e.g. a small leaf that cannot
+    hide the drawn occlusion) is replaced by the next draw."""
     rng = np.random.default_rng(seed)
     out = {}
     for i in range(n):
-        cfg = PlantSceneConfig(kind="procedural")
-        shape = SamplePepperShape(rng)
-        f = cfg.fruit
-        f.variant, f.size, f.lobes = shape.variant, list(shape.size), shape.lobes
-        f.lobe_depth, f.squareness, f.shoulder = shape.lobe_depth, shape.squareness, shape.shoulder
-        f.taper, f.cone = shape.taper, shape.cone
-        f.lobe_phase_deg = float(np.degrees(shape.lobe_phase))
-        f.color = Rgba(*[(0.75, 0.05, 0.05), (0.95, 0.75, 0.05), (0.95, 0.45, 0.05),
-                         (0.2, 0.5, 0.1)][int(rng.integers(4))], 1.0)
-        f.stripes = int(rng.choice([0, 0, 3, 4]))
-        f.tilt_deg = float(rng.uniform(0, 20))
-        f.tilt_azimuth_deg = float(rng.uniform(0, 360))
-        cfg.leaf.length = float(rng.uniform(0.08, 0.15))
-        cfg.leaf.width = float(cfg.leaf.length * rng.uniform(0.45, 0.65))
-        cfg.leaf.shape = str(rng.choice(["ovate", "elliptic"]))
-        cfg.branch.radius = float(rng.uniform(0.004, 0.011))
-        cfg.branch.bend = float(rng.uniform(-0.02, 0.02))
-        cfg.occlusion = float(rng.uniform(0.5, 0.9))
+        for _ in range(max_draws):
+            cfg = _RandomScene(rng)
+            if _Buildable(cfg):
+                break
+        else:
+            raise ValueError(f"RandomSuite({n}, {seed}): no buildable scene in {max_draws} draws")
         cfg.name = f"random_{seed}_{i:03d}"
         out[cfg.name] = cfg
     return out
+
+
+def _RandomScene(rng) -> PlantSceneConfig:
+    """One random plant scene drawn from ``rng``."""
+    cfg = PlantSceneConfig(kind="procedural")
+    shape = SamplePepperShape(rng)
+    f = cfg.fruit
+    f.variant, f.size, f.lobes = shape.variant, list(shape.size), shape.lobes
+    f.lobe_depth, f.squareness, f.shoulder = shape.lobe_depth, shape.squareness, shape.shoulder
+    f.taper, f.cone = shape.taper, shape.cone
+    f.lobe_phase_deg = float(np.degrees(shape.lobe_phase))
+    f.color = Rgba(*[(0.75, 0.05, 0.05), (0.95, 0.75, 0.05), (0.95, 0.45, 0.05),
+                     (0.2, 0.5, 0.1)][int(rng.integers(4))], 1.0)
+    f.stripes = int(rng.choice([0, 0, 3, 4]))
+    f.tilt_deg = float(rng.uniform(0, 20))
+    f.tilt_azimuth_deg = float(rng.uniform(0, 360))
+    cfg.leaf.length = float(rng.uniform(0.08, 0.15))
+    cfg.leaf.width = float(cfg.leaf.length * rng.uniform(0.45, 0.65))
+    cfg.leaf.shape = str(rng.choice(["ovate", "elliptic"]))
+    cfg.branch.radius = float(rng.uniform(0.004, 0.011))
+    cfg.branch.bend = float(rng.uniform(-0.02, 0.02))
+    cfg.occlusion = float(rng.uniform(0.5, 0.9))
+    return cfg
 
 
 def SuiteYaml(suite: dict[str, PlantSceneConfig], header: str = "") -> str:

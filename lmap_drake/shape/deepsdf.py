@@ -30,6 +30,7 @@ import torch
 torch.set_num_threads(int(__import__("os").environ.get("LMAP_TORCH_THREADS", "1")))
 from torch import nn
 
+from lmap_drake.errors import WeightsError
 from lmap_drake.paths import REPO_ROOT
 
 FORMAT = "lmap_drake.deepsdf.v1"
@@ -38,8 +39,9 @@ CLAMP = 0.01            # m, SDF clamp distance used in training (DeepSDF's delt
 TRAIN_SCRIPT = "scripts/train_deepsdf.py"
 
 
-class MissingWeightsError(FileNotFoundError):
-    """The decoder weights file does not exist."""
+class MissingWeightsError(WeightsError):
+    """The decoder weights file does not exist, or cannot be read as a
+    DeepSDF checkpoint (the message names the file)."""
 
 
 class DeepSDFDecoder(nn.Module):
@@ -138,19 +140,7 @@ def _from_hortimapping(state: dict) -> tuple[DeepSDFDecoder, dict]:
     return dec, {"source": "hortimapping"}
 
 
-def LoadDecoder(weights_file: str | Path, mean_latent_file: str | Path | None = None
-                ) -> tuple[DeepSDFDecoder, np.ndarray, dict]:
-    """Loads ``(decoder, mean_latent (C,), checkpoint_extra)``. Accepts this
-    project's format and HortiMapping-style checkpoints (whose mean latent,
-    if any, comes from ``mean_latent_file`` (.npy or .pt) or is zero).
-    A missing file raises ``MissingWeightsError`` naming the path and the
-    script that writes it."""
-    path = ResolveWeightsPath(weights_file)
-    if not path.is_file():
-        raise MissingWeightsError(
-            f"DeepSDF weights not found: {path}. Train them with "
-            f"`.venv/bin/python {TRAIN_SCRIPT}` (writes models/deepsdf/pepper_decoder.pt) "
-            f"or set shape.weights_file to a HortiMapping-style checkpoint.")
+def _DecoderFromFile(path: Path, mean_latent_file) -> tuple:
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
     if isinstance(ckpt, dict) and ckpt.get("format") == FORMAT:
         cfg = ckpt["config"]
@@ -172,6 +162,33 @@ def LoadDecoder(weights_file: str | Path, mean_latent_file: str | Path | None = 
                 if isinstance(lat, dict):
                     lat = lat.get("latent_codes", {}).get("weight", lat)
                 mean = torch.as_tensor(lat).float().reshape(-1, dec.latent_size).mean(0).numpy()
+    return dec, mean, extra
+
+
+def LoadDecoder(weights_file: str | Path, mean_latent_file: str | Path | None = None
+                ) -> tuple[DeepSDFDecoder, np.ndarray, dict]:
+    """Loads ``(decoder, mean_latent (C,), checkpoint_extra)``. Accepts this
+    project's format and HortiMapping-style checkpoints (whose mean latent,
+    if any, comes from ``mean_latent_file`` (.npy or .pt) or is zero).
+    A missing file raises ``MissingWeightsError`` naming the path and the
+    script that writes it."""
+    path = ResolveWeightsPath(weights_file)
+    if not path.is_file():
+        raise MissingWeightsError(
+            f"DeepSDF weights not found: {path}. Train them with "
+            f"`.venv/bin/python {TRAIN_SCRIPT}` (writes models/deepsdf/pepper_decoder.pt) "
+            f"or set shape.weights_file to a HortiMapping-style checkpoint.")
+    try:
+        dec, mean, extra = _DecoderFromFile(path, mean_latent_file)
+    except MissingWeightsError:
+        raise
+    except Exception as err:  # noqa: BLE001 - garbage, truncated, wrong format
+        raise MissingWeightsError(
+            f"cannot read DeepSDF weights {path}"
+            + (f" (mean latent file {mean_latent_file})" if mean_latent_file else "")
+            + f": {type(err).__name__}: "
+            f"{' '.join(str(err).split())[:200]} (expected a checkpoint written by "
+            f"{TRAIN_SCRIPT} or a HortiMapping-style one; see shape.weights_file)") from None
     dec.eval()
     for p in dec.parameters():
         p.requires_grad_(False)

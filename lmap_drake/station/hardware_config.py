@@ -19,6 +19,7 @@ from pydrake.common.schema import Transform
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.math import RigidTransform
 
+from lmap_drake.errors import InputError
 from lmap_drake.paths import REPO_ROOT
 
 
@@ -115,7 +116,7 @@ class CameraCalibration:
     notes: str = ""
 
 
-class CalibrationError(ValueError):
+class CalibrationError(InputError, ValueError):
     """The calibration file is missing or malformed."""
 
 
@@ -137,6 +138,8 @@ def LoadCameraCalibration(filename: str) -> CameraCalibration:
     path = ResolveConfigPath(filename)
     if not path.exists():
         raise CalibrationError(f"camera calibration file not found: {path}")
+    if not path.is_file():
+        raise CalibrationError(f"camera calibration file {path} is not a file")
     try:
         calib = yaml_load_typed(schema=CameraCalibration, filename=str(path),
                                 defaults=CameraCalibration())
@@ -146,7 +149,24 @@ def LoadCameraCalibration(filename: str) -> CameraCalibration:
         raise CalibrationError(
             f"{path}: X_WC.base_frame must be 'world' or 'robot_base', "
             f"got '{calib.X_WC.base_frame}'")
+    try:
+        ok = (not calib.X_WC.IsDeterministic()) or bool(np.all(np.isfinite(
+            calib.X_WC.GetDeterministicValue().GetAsMatrix4())))
+    except Exception:  # noqa: BLE001 - Drake refuses a non-finite rotation
+        ok = False
+    if not ok or not calib.X_WC.IsDeterministic():
+        raise CalibrationError(f"{path}: X_WC must be a fixed, finite pose (translation and "
+                               f"rotation); got a non-finite or random one")
     return calib
+
+
+def CheckCalibrationSerial(calib: CameraCalibration, serial: str, filename: str) -> None:
+    """Refuses a calibration made for another camera (``camera_serial`` set
+    and different from the connected camera's ``serial``)."""
+    if calib.camera_serial and serial and calib.camera_serial != str(serial):
+        raise CalibrationError(
+            f"the calibration file {filename} is for camera {calib.camera_serial}, the "
+            f"connected camera is {serial}")
 
 
 def CalibrationX_WC(calib: CameraCalibration, X_WB: RigidTransform) -> RigidTransform:

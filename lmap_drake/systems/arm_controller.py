@@ -29,7 +29,8 @@ Output ports:
 Trajectories are cubic in joint space, timed so no joint exceeds a fraction
 of the UR5 velocity limit (pi rad/s). The episode aborts cleanly (holds
 position, ``aborted`` with a message) when the planner finds no feasible
-action, the fruit is not seen, or IK fails for the approach or the pull; it
+action, the fruit is not seen, IK fails for the approach or the pull, or a
+stage it evaluates raises (``stage_error: <stage>: ...``, ``failed_stage``); it
 skips the manipulation (``done``, ``no_action_needed``) when the fruit is
 already visible enough. In simulation the grasp is made by the episode
 runner (it rebuilds the station with the leaf fixed between the pads, see
@@ -76,6 +77,7 @@ class ControllerStatus:
     final_estimate: SceneEstimate | None = None
     stage_seconds: dict = dc.field(default_factory=dict)
     mode_log: list = dc.field(default_factory=list)
+    failed_stage: str = ""              # set when a stage raised (status stage_error)
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -90,6 +92,23 @@ class ControllerStatus:
     @property
     def finished(self) -> bool:
         return self.mode in ("done", "aborted")
+
+
+class _StageFailure(Exception):
+    def __init__(self, stage: str, error: Exception):
+        super().__init__(stage)
+        self.stage, self.error = stage, error
+
+
+def _Stage(stage: str, evaluate, context):
+    """``evaluate(context)``; an exception becomes a _StageFailure naming
+    the stage (Perception, ShapeCompletion, the planner stages)."""
+    try:
+        return evaluate(context)
+    except MotionError:
+        raise
+    except Exception as err:  # noqa: BLE001
+        raise _StageFailure(stage, err) from err
 
 
 class ArmController(LeafSystem):
@@ -196,6 +215,10 @@ class ArmController(LeafSystem):
             st.trajectory = None
             st.q_hold = self._x.Eval(context)[:6].copy()
             self._enter(st, "aborted", t, f"IK failure: {err}")
+        except _StageFailure as err:
+            self._Fail(context, st, t, err.stage, err.error)
+        except Exception as err:  # noqa: BLE001 - never an exception out of the Diagram
+            self._Fail(context, st, t, f"arm_controller ({st.mode})", err)
         state.get_mutable_abstract_state(self._state).set_value(st)
         return EventStatus.Succeeded() if st.mode != before else EventStatus.DidNothing()
 
@@ -246,18 +269,26 @@ class ArmController(LeafSystem):
         elif mode == "observe":
             if t - st.t_mode >= 0.05:  # Perception fuses the new view on a step
                 t0 = time.perf_counter()
-                st.final_estimate = self._final.Eval(context)
+                st.final_estimate = _Stage("shape_reestimation", self._final.Eval, context)
                 st.stage_seconds["reestimation_s"] = time.perf_counter() - t0
                 self._enter(st, "done", t, "action executed; shape re-estimated on the "
                             "fused views")
 
+    def _Fail(self, context, st: ControllerStatus, t: float, stage: str, err) -> None:
+        """Holds the arm and aborts with status stage_error naming the stage."""
+        st.trajectory, st.gripper_ramp = None, None
+        st.q_hold = self._x.Eval(context)[:6].copy()
+        st.failed_stage = stage
+        self._enter(st, "aborted", t, f"stage_error: {stage}: {type(err).__name__}: "
+                    f"{' '.join(str(err).split())}")
+
     def _Plan(self, context, st: ControllerStatus, t: float) -> None:
         t0 = time.perf_counter()
-        self._sem.Eval(context)
+        _Stage("perception", self._sem.Eval, context)
         t1 = time.perf_counter()
-        st.initial_estimate = self._est.Eval(context)
+        st.initial_estimate = _Stage("shape_completion", self._est.Eval, context)
         t2 = time.perf_counter()
-        plan = self._plan.Eval(context)
+        plan = _Stage("planning", self._plan.Eval, context)
         t3 = time.perf_counter()
         st.plan = plan
         st.stage_seconds.update(segmentation_s=t1 - t0, shape_completion_s=t2 - t1,
@@ -268,6 +299,8 @@ class ArmController(LeafSystem):
             self._enter(st, "done", t, "no action needed: " + plan.message)
             return
         if plan.status != "ok":
+            if plan.status == "stage_error":
+                st.failed_stage = plan.message.split(":")[0]
             self._enter(st, "aborted", t, f"{plan.status}: {plan.message}")
             return
         c = plan.chosen

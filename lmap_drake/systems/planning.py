@@ -42,6 +42,18 @@ def _ScenarioCameraPose(scenario: Scenario) -> np.ndarray:
     return scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
 
 
+def _ImageTangents(scenario: Scenario) -> tuple:
+    """camera0's image extent as tangents (x_min, x_max, y_min, y_max)."""
+    c = scenario.cameras["camera0"]
+    fx, fy = c.focal_x(), c.focal_y()
+    cx, cy = c.principal_point()
+    return (-cx / fx, (c.width - cx) / fx, -cy / fy, (c.height - cy) / fy)
+
+
+def _StageError(stage: str, err: Exception) -> str:
+    return f"{stage}: {type(err).__name__}: {' '.join(str(err).split())}"
+
+
 class ActionCandidates(LeafSystem):
     """See the module docstring."""
 
@@ -50,6 +62,7 @@ class ActionCandidates(LeafSystem):
         self._scenario = scenario
         self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
         self._X_WC = _ScenarioCameraPose(scenario)
+        self._image_tan = _ImageTangents(scenario)
         self.DeclareAbstractInputPort(
             "scene_estimate", AbstractValue.Make(SceneEstimate(semantic=SemanticScene())))
         self.DeclareVectorInputPort("ur5.position", 6)
@@ -69,7 +82,8 @@ class ActionCandidates(LeafSystem):
         return self._robot
 
     def Context(self, scene: SceneEstimate, q: np.ndarray) -> PlanningContext:
-        return PlanningContext(scene, self._X_WC, self._robot, np.asarray(q, float))
+        return PlanningContext(scene, self._X_WC, self._robot, np.asarray(q, float),
+                               self._image_tan)
 
     def _calc_set(self, context, output) -> None:
         scene = self.get_input_port(0).Eval(context)
@@ -79,8 +93,13 @@ class ActionCandidates(LeafSystem):
             # and without deformation predictions.
             output.set_value(CandidateSet("baseline", scene))
             return
-        output.set_value(GenerateCandidates(self.Context(scene, q), self._scenario.planner,
-                                            self._scenario.deformation))
+        try:
+            cset = GenerateCandidates(self.Context(scene, q), self._scenario.planner,
+                                      self._scenario.deformation)
+        except Exception as err:  # noqa: BLE001 - a stage failure becomes a status
+            cset = CandidateSet("stage_error", scene,
+                                message=_StageError("action_candidates", err))
+        output.set_value(cset)
 
 
 class ActionSelection(LeafSystem):
@@ -99,21 +118,39 @@ class ActionSelection(LeafSystem):
             "plan", lambda: AbstractValue.Make(PlanResult("no_fruit", "lmap")), self._calc)
 
     def _calc(self, context, output) -> None:
+        """The plan; a failure of this stage or of the deformation
+        prediction becomes a PlanResult with status 'stage_error' and a
+        message naming the stage (never an exception out of the Diagram)."""
         import time
         cset = self.get_input_port(0).Eval(context)
         cfg = self._scenario.planner
         if cfg.method != "lmap":
             q = self.get_input_port(2).Eval(context)
             ctx = self._candidates.Context(cset.scene, q)
-            output.set_value(PlanBaseline(ctx, cfg, cfg.method, max(cfg.distances),
-                                          seed=self._scenario.random_seed))
+            try:
+                plan = PlanBaseline(ctx, cfg, cfg.method, max(cfg.distances),
+                                    seed=self._scenario.random_seed)
+            except Exception as err:  # noqa: BLE001
+                plan = PlanResult("stage_error", cfg.method,
+                                  message=_StageError(f"{cfg.method} baseline", err))
+            output.set_value(plan)
             return
         t0 = time.perf_counter()
-        predictions = self.get_input_port(1).Eval(context) if cset.status == "ok" else []
+        try:
+            predictions = self.get_input_port(1).Eval(context) if cset.status == "ok" else []
+        except Exception as err:  # noqa: BLE001 - e.g. DeformationError
+            output.set_value(PlanResult("stage_error", cfg.method, candidates=list(
+                cset.candidates), message=_StageError("deformation_prediction", err)))
+            return
         deformation_s = time.perf_counter() - t0
         q = self.get_input_port(2).Eval(context)
         ctx = self._candidates.Context(cset.scene, q)
-        result = SelectFromPredictions(ctx, cset, list(predictions), self._scenario.planner)
+        try:
+            result = SelectFromPredictions(ctx, cset, list(predictions), self._scenario.planner)
+        except Exception as err:  # noqa: BLE001
+            output.set_value(PlanResult("stage_error", cfg.method,
+                                        message=_StageError("action_selection", err)))
+            return
         result.timings["deformation_s"] = deformation_s
         result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
         output.set_value(result)

@@ -18,7 +18,9 @@ SMALL = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
 
 
 def _diagram(segmenter="label", connect_label=True, extra=""):
-    s = LoadScenario(scenario_text=SMALL + f"\nperception: {{segmenter: {segmenter}}}" + extra)
+    # ``extra`` is a later override (a repeated key in one text is an error)
+    s = LoadScenario(scenario_text=[SMALL + f"\nperception: {{segmenter: {segmenter}}}",
+                                    extra or "{}"])
     builder = DiagramBuilder()
     station = builder.AddSystem(MakeStation(s))
     perception = builder.AddSystem(Perception(s.cameras["camera0"], s.perception))

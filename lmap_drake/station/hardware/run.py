@@ -30,6 +30,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from lmap_drake.scenario import DumpScenario, Scenario
 from lmap_drake.station.hardware.safety import SafetyChecker
+from lmap_drake.station.hardware_config import CalibrationError, CheckCalibrationSerial
 from lmap_drake.station.hardware.station import (CheckHardwareSetup, ConnectHardwareClients,
                                                  HardwareClients,
                                                  MakeHardwareStation, StopHardwareStation)
@@ -105,6 +106,12 @@ def RunHardwareSnapshot(scenario: Scenario, out: Path, dry_run: bool = False,
         clients = ConnectHardwareClients(config, read_only=dry_run)
     station = None
     try:
+        try:   # a calibration made for another camera is refused before anything moves
+            CheckCalibrationSerial(calib, getattr(clients.camera, "serial", ""),
+                                   config.camera.calibration_file)
+        except CalibrationError as err:
+            from lmap_drake.station.station import HardwareStationUnavailable
+            raise HardwareStationUnavailable(f"hardware station: {err}") from err
         q, v = clients.ur.ReadState()
         opening = clients.gripper.Opening()
         progress(f"UR5 q = {np.round(q, 4).tolist()} rad; gripper opening {opening:.4f} m")

@@ -31,6 +31,7 @@ from lmap_drake.station.hardware.robotiq_client import RobotiqClient
 from lmap_drake.station.hardware.systems import RealSenseCamera, RobotiqDriver, Ur5Driver
 from lmap_drake.station.hardware.ur_client import ConnectUr, ImportUrRtde
 from lmap_drake.station.hardware_config import (CalibrationError, CalibrationX_WC,
+                                                CheckCalibrationSerial,
                                                 HardwareConfig, LoadCameraCalibration,
                                                 ValidateHardwareConfig)
 
@@ -110,11 +111,11 @@ def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = No
     if own_clients:
         clients = ConnectHardwareClients(config)
     try:
-        serial = getattr(clients.camera, "serial", "")
-        if calib.camera_serial and serial and calib.camera_serial != serial:
-            raise HardwareStationUnavailable(
-                f"hardware station: the calibration file {config.camera.calibration_file} is "
-                f"for camera {calib.camera_serial}, the connected camera is {serial}")
+        try:
+            CheckCalibrationSerial(calib, getattr(clients.camera, "serial", ""),
+                                   config.camera.calibration_file)
+        except CalibrationError as err:
+            raise HardwareStationUnavailable(f"hardware station: {err}") from err
         builder = DiagramBuilder()
         ur5 = builder.AddNamedSystem("ur5_driver",
                                      Ur5Driver(clients.ur, config.ur.command_period))
