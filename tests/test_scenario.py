@@ -19,6 +19,15 @@ def test_one_of_everything_differs_from_defaults():
     assert o.robot.kp != d.robot.kp
     assert o.perception.segmenter == "color_depth"
     assert o.planner.distances == [0.02, 0.04]
+    assert d.perception.segmenter == "segnet" and d.camera_noise.enabled and not d.lights
+    assert o.camera_noise.depth_unit == 0.001 and o.lights[0].intensity == 0.8
+
+
+def test_camera_noise_is_validated():
+    with pytest.raises(ScenarioError, match=r"camera_noise\.thin_dropout"):
+        LoadScenario(scenario_text="{camera_noise: {thin_dropout: 1.5}}")
+    with pytest.raises(ScenarioError, match=r"camera_noise\.grazing_start_deg"):
+        LoadScenario(scenario_text="{camera_noise: {grazing_start_deg: 88.0}}")
 
 
 def test_unknown_key_names_key_and_file(tmp_path):

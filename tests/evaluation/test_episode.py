@@ -26,6 +26,8 @@ def test_episode_reveals_the_fruit_without_damage_and_improves_the_shape(episode
     modelled by a straight virtual petiole, predicts a low energy. This is a
     known limitation of the planner, reported, not hidden.)"""
     r = episode.record
+    # the default is the realistic path: no simulator labels, the noisy camera
+    assert r["perception"] == {"segmenter": "segnet", "camera": "l515"}
     assert r["status"] == "done", r["message"]
     out = r["outcome"]
     assert out["visibility_final"] > out["visibility_initial"] + 0.3

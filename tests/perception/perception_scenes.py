@@ -34,11 +34,16 @@ BELOW_CAMERA = SMALL_CAMERA.replace("[0.25, -0.55, 0.45]", "[0.5, -0.5, 0.12]").
     "[-105.0, 0.0, -25.0]", "[-70.0, 0.0, 0.0]")
 
 
-def Render(scenario_text: str = "", camera: str = SMALL_CAMERA) -> View:
+IDEAL_CAMERA = "{camera_noise: {enabled: false}}"
+
+
+def Render(scenario_text: str = "", camera: str = SMALL_CAMERA, ideal: bool = True) -> View:
     """Renders camera0 of the default scenario with ``camera`` (a YAML
-    ``cameras:`` override) and the extra overrides ``scenario_text``."""
+    ``cameras:`` override) and the extra overrides ``scenario_text``. With
+    ``ideal`` (the default here: these views test algorithms on exact
+    geometry) the camera model is off and the renderer's images are used."""
     text = camera + ("\n" + scenario_text if scenario_text else "")
-    s = LoadScenario(scenario_text=text)
+    s = LoadScenario(scenario_text=[text] + ([IDEAL_CAMERA] if ideal else []))
     station = MakeStation(s)
     ctx = station.CreateDefaultContext()
     cam = s.cameras["camera0"]
