@@ -325,6 +325,10 @@ class PerceptionConfig:
     # a narrower no-return patch is a dropout (glancing rim, thin part,
     # speckle) next to a surface, not open space.
     no_return_margin_px: float = 6.0
+    # Flying pixels (depth between a nearer and a farther neighbour, each
+    # more than this apart, m; 0 = keep all) are dropped before
+    # de-projection: they float in the gap between a leaf and the fruit.
+    flying_pixel_jump: float = 0.005
 
 
 @dc.dataclass
@@ -747,6 +751,7 @@ _RULES = {
     "deformation.interpolation_radius": ">0",
     "deformation.interpolation_sigma": ">0",
     "perception.no_return_margin_px": ">=0",
+    "perception.flying_pixel_jump": ">=0",
     "camera_noise.depth_sigma_0": ">=0",
     "camera_noise.depth_sigma_z2": ">=0",
     "camera_noise.correlated_fraction": "[0,1]",

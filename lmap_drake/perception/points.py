@@ -70,6 +70,26 @@ def ValidDepthMask(depth: np.ndarray, depth_cut: float | None = None) -> np.ndar
     return valid
 
 
+def FlyingPixelMask(depth: np.ndarray, jump: float) -> np.ndarray:
+    """Pixels whose depth lies between two surfaces: among their 8
+    neighbours one is nearer and one farther by more than ``jump`` m. A
+    time-of-flight or stereo camera mixes the two surfaces at a depth edge
+    into such "flying pixels" floating in the gap (between a leaf and the
+    fruit behind it); a smooth surface seen at an ordinary angle never has
+    both. ``jump <= 0`` flags nothing."""
+    d = np.asarray(depth, dtype=np.float64)
+    if d.ndim == 3:
+        d = d[..., 0]
+    if jump <= 0:
+        return np.zeros(d.shape, bool)
+    from scipy import ndimage
+    valid = ValidDepthMask(d)
+    near = ndimage.minimum_filter(np.where(valid, d, np.inf), size=3, mode="nearest")
+    far = ndimage.maximum_filter(np.where(valid, d, -np.inf), size=3, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return valid & (near < d - jump) & (far > d + jump)
+
+
 def DeprojectPixels(depth: np.ndarray, mask: np.ndarray, K: Intrinsics,
                     X_WC=None) -> np.ndarray:
     """(N, 3) points of the pixels where ``mask`` is true, in W if ``X_WC``
@@ -170,6 +190,7 @@ class PointParams:
     background_stride: int = _PERCEPTION_DEFAULTS.background_stride
     no_return_free_range: float = _PERCEPTION_DEFAULTS.no_return_free_range
     no_return_margin_px: float = _PERCEPTION_DEFAULTS.no_return_margin_px
+    flying_pixel_jump: float = _PERCEPTION_DEFAULTS.flying_pixel_jump
 
     @staticmethod
     def FromConfig(cfg) -> "PointParams":
@@ -243,6 +264,7 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
     valid = ValidDepthMask(d, params.depth_cut)
     if not valid.any():
         flags.append("no_valid_depth")
+    valid &= ~FlyingPixelMask(d, params.flying_pixel_jump)
     scene = SemanticScene(X_WC=X.copy())
     for cls, name in CLASS_FIELDS.items():
         pts = DeprojectPixels(d, (class_map == cls) & valid, K, X)

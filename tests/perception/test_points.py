@@ -192,3 +192,19 @@ def test_semantic_scene_carries_background_rays_in_world():
     assert len(scene.background_points_W) == 48 - 12
     np.testing.assert_allclose(np.linalg.norm(scene.background_points_W - X[:3, 3], axis=1),
                                p.no_return_free_range)
+
+
+def test_flying_pixels_between_two_surfaces_are_flagged_smooth_ones_are_not():
+    from lmap_drake.perception.points import FlyingPixelMask
+    depth = np.full((20, 30), 0.58)          # the fruit behind
+    depth[:, :15] = 0.55                     # the leaf in front
+    depth[:, 15] = 0.565                     # mixed pixels in the 3 cm gap
+    rng = np.random.default_rng(0)
+    depth += rng.normal(0, 0.0015, depth.shape)   # 1.5 mm sensor noise
+    depth[5, 5] = np.inf
+    flying = FlyingPixelMask(depth, 0.005)
+    assert flying[:, 15].all()
+    assert flying[:, :14].sum() + flying[:, 17:].sum() == 0
+    tilted = 0.5 + 0.004 * np.arange(30)[None, :] * np.ones((20, 1))   # 4 mm per pixel
+    assert not FlyingPixelMask(tilted, 0.005).any()
+    assert not FlyingPixelMask(depth, 0.0).any()
