@@ -38,9 +38,32 @@ def _rgba(h_deg: float, s: float, v: float):
     return Rgba(*colorsys.hsv_to_rgb((h_deg % 360.0) / 360.0, s, v), 1.0)
 
 
-def RandomRenderScenario(seed: int):
+def _ArmNearLeaf(s, rng) -> list[float]:
+    """UR5 joints (IK) with the TCP at a random leaf point, approaching from
+    the camera's side within 50 deg; the scenario's joints if IK fails."""
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    from lmap_drake.planning.robot_model import RobotModel
+    from lmap_drake.station.station import GetPlantModel
+    leaf = GetPlantModel(s).leaf_rest_W
+    p = leaf[rng.integers(len(leaf))]
+    p_WC = s.cameras["camera0"].X_PB.GetDeterministicValue().translation()
+    z = p - p_WC
+    z = z / np.linalg.norm(z) + rng.normal(0, 0.45, 3)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, rng.normal(size=3))
+    x /= np.linalg.norm(x)
+    R = RotationMatrix(np.c_[x, np.cross(z, x), z])
+    robot = RobotModel(s.robot.X_WB.GetDeterministicValue())
+    r = robot.Ik(RigidTransform(R, p - z * rng.uniform(0.0, 0.03)), np.asarray(s.robot.initial_q),
+                 0.01, multistart=True)
+    return [float(v) for v in r.q] if r.success else list(s.robot.initial_q)
+
+
+def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0):
     """(Scenario, fruit_kind) for sample ``seed``: a random procedural plant
-    with randomised colours, lights, camera pose, arm pose and camera model."""
+    with randomised colours, lights, camera pose, arm pose and camera model;
+    with probability ``arm_near_leaf`` the gripper is at the leaf."""
     from pydrake.common.schema import Rotation
     from pydrake.geometry import LightParameter, Rgba
     from pydrake.math import RollPitchYaw
@@ -86,6 +109,11 @@ def RandomRenderScenario(seed: int):
 
     q = np.asarray(s.robot.initial_q) + np.concatenate([rng.uniform(-0.25, 0.25, 3), np.zeros(3)])
     s.robot.initial_q = [float(x) for x in q]
+    if rng.random() < arm_near_leaf:
+        # the arm where it is after a grasp: the gripper at the leaf, the
+        # wrist and forearm in front of the plant (the "after" view)
+        s.robot.initial_q = _ArmNearLeaf(s, rng)
+        s.robot.initial_gripper_width = float(rng.uniform(0.0, 0.04))
 
     n = s.camera_noise
     scale = rng.uniform(0.5, 2.0)
@@ -98,7 +126,7 @@ def RandomRenderScenario(seed: int):
     return s, kind
 
 
-def RenderSample(seed: int, margin: int = 24) -> dict:
+def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0) -> dict:
     """Renders sample ``seed``; returns the arrays stored in its ``.npz``."""
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
@@ -108,7 +136,7 @@ def RenderSample(seed: int, margin: int = 24) -> dict:
     from lmap_drake.perception.segnet import CropBox, SegNetInputs
     from lmap_drake.station import MakeStation
 
-    s, kind = RandomRenderScenario(seed)
+    s, kind = RandomRenderScenario(seed, arm_near_leaf)
     builder = DiagramBuilder()
     station = builder.AddSystem(MakeStation(s))
     q = builder.AddSystem(ConstantVectorSource(s.robot.initial_q))
@@ -131,12 +159,12 @@ def RenderSample(seed: int, margin: int = 24) -> dict:
 
 
 def _work(args) -> str:
-    seed, out = args
+    seed, out, arm_near_leaf = args
     path = Path(out) / f"{seed:06d}.npz"
     if path.exists():
         return "kept"
     try:
-        sample = RenderSample(seed)
+        sample = RenderSample(seed, arm_near_leaf=arm_near_leaf)
     except Exception as err:  # a generator refusal or an empty view: skip the seed
         return f"skipped {seed}: {type(err).__name__}: {err}"
     tmp = path.with_suffix(".tmp.npz")
@@ -151,6 +179,9 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=400)
     ap.add_argument("--seed", type=int, default=10000, help="first sample seed")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--arm_near_leaf", type=float, default=0.5,
+                    help="fraction of scenes with the gripper at the leaf (the view after a "
+                         "grasp); the rest keep the arm near its initial pose")
     args = ap.parse_args(argv)
     if args.count < 1 or args.workers < 1:
         print("error: --count and --workers must be >= 1", file=sys.stderr)
@@ -158,7 +189,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from tqdm import tqdm
-    jobs = [(args.seed + i, str(out)) for i in range(args.count)]
+    jobs = [(args.seed + i, str(out), args.arm_near_leaf) for i in range(args.count)]
     t0 = time.time()
     counts: dict[str, int] = {}
     if args.workers == 1:

@@ -63,6 +63,8 @@ class Candidate:
                 "distance": round(a.distance, 4), "p_WG": a.p_WG.round(4).tolist(),
                 "dp_W": a.dp_W.round(4).tolist(), "feasible": self.feasible,
                 "reason": self.reason, "energy": None if np.isnan(self.energy) else self.energy,
+                "pregrasp_opening": (None if self.approach is None
+                                     else round(self.approach.opening, 4)),
                 "energy_per_node": self.EnergyPerNode(),
                 "n_vis": self.n_vis, "seen": self.seen,
                 "score": None if np.isnan(self.score) else self.score}
@@ -164,6 +166,20 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
     return ""
 
 
+def NarrowOpening(leaf_W: np.ndarray, grasp, cfg: PlannerConfig) -> float:
+    """The smallest pre-grasp opening (m) for ``grasp`` that keeps the
+    collision margin plus 3 mm from the observed leaf on both pads: twice
+    the leaf's local half-thickness along the closing direction (95th
+    percentile of the leaf points within 1.5 cm of the grasp point, which
+    includes the sensor noise) plus margins; never wider than
+    ``pregrasp_opening``, never below 1.5 cm."""
+    y = grasp.R_WG[:, 1]
+    near = leaf_W[np.linalg.norm(leaf_W - grasp.p_WG, axis=1) < 0.015]
+    half = float(np.percentile(np.abs((near - grasp.p_WG) @ y), 95)) if len(near) >= 5 else 0.005
+    opening = 2.0 * (half + cfg.collision_margin + 0.003)
+    return float(np.clip(opening, 0.015, cfg.pregrasp_opening))
+
+
 def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
                       actions: list[Action]) -> list[Candidate]:
     """The approach (IK chain via, ready, pre-grasp, grasp; see
@@ -173,21 +189,27 @@ def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     from lmap_drake.planning.motion import MotionError, PlanApproach
     robot = ctx.robot
     R = RotationMatrix(grasp.R_WG)
-    half_open = 0.5 * cfg.pregrasp_opening
     cands = [Candidate(a, int(round(a.distance / 0.02)) - 1) for a in actions]
-    try:
-        approach = PlanApproach(robot, RigidTransform(R, grasp.p_WG), ctx.q_current,
-                                grasp.R_WG[:, 1], cfg.pregrasp_distance, cfg.pregrasp_opening)
-    except MotionError as err:
+    # The configured opening first; if the open pads hit the fruit close
+    # behind the leaf (or the leaf), the narrowest opening that still lets
+    # the observed leaf pass between them.
+    why = ""
+    for opening in dict.fromkeys([cfg.pregrasp_opening,
+                                  NarrowOpening(ctx.leaf_W, grasp, cfg)]):
+        try:
+            approach = PlanApproach(robot, RigidTransform(R, grasp.p_WG), ctx.q_current,
+                                    grasp.R_WG[:, 1], cfg.pregrasp_distance, opening)
+        except MotionError as err:
+            why = f"IK failed (approach): {err}"
+            break
+        why = (_ApproachCollision(ctx, cfg, approach, 0.5 * opening)
+               if np.isfinite(cfg.collision_margin) else "")
+        if not why or not why.startswith(("robot-fruit", "robot-leaf")):
+            break
+    if why:
         for c in cands:
-            c.reason = f"IK failed (approach): {err}"
+            c.reason = why
         return cands
-    if np.isfinite(cfg.collision_margin):
-        why = _ApproachCollision(ctx, cfg, approach, half_open)
-        if why:
-            for c in cands:
-                c.reason = why
-            return cands
     q_grasp = approach.to_grasp[-1]
     seeds: dict[int, np.ndarray] = {}
     for c in sorted(cands, key=lambda c: (c.action.direction_id, c.action.distance)):

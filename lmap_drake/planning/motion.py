@@ -59,6 +59,7 @@ class ApproachPlan:
     to_ready: list[np.ndarray]
     to_pregrasp: list[np.ndarray]
     to_grasp: list[np.ndarray]
+    opening: float = 0.0   # gripper opening (m) along the approach
 
 
 def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
@@ -85,7 +86,7 @@ def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
     n_r, n_p = len(ready_poses), len(pre_poses)
     return ApproachPlan(via=chain[0], to_ready=chain[1:1 + n_r],
                         to_pregrasp=chain[1 + n_r:1 + n_r + n_p],
-                        to_grasp=chain[1 + n_r + n_p:])
+                        to_grasp=chain[1 + n_r + n_p:], opening=float(pregrasp_opening))
 
 
 def PlanPull(robot, X_WT_start: RigidTransform, dp_W: np.ndarray, q_start: np.ndarray,

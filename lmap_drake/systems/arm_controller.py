@@ -311,7 +311,7 @@ class ArmController(LeafSystem):
                                               self._scenario.planner.pregrasp_distance,
                                               self._pregrasp_opening)
         st.pull_path = PlanPull(self._robot, X_WT, c.action.dp_W, approach.to_grasp[-1])
-        st.gripper_cmd = self._pregrasp_opening
+        st.gripper_cmd = approach.opening or self._pregrasp_opening
         st.segments = [approach.to_grasp]
         self._start_path(st, t, [approach.via] + approach.to_ready + approach.to_pregrasp, 0.5)
         self._enter(st, "pregrasp", t, f"grasp {c.action.grasp_id}, direction "

@@ -60,3 +60,24 @@ def test_branch_angle_rule():
 def test_too_few_leaf_points():
     with pytest.raises(PlanningError):
         GraspCandidates(np.zeros((3, 3)), np.zeros((0, 3)), P_WC)
+
+
+def test_narrow_opening_follows_the_leafs_local_thickness():
+    """The retry opening clears the observed leaf (its local spread along the
+    closing direction, noise included) by the collision margin + 3 mm on
+    each pad; it is never wider than the configured opening nor below 1.5 cm."""
+    from types import SimpleNamespace
+
+    from lmap_drake.planning.lmap import NarrowOpening
+    from lmap_drake.scenario import PlannerConfig
+    rng = np.random.default_rng(0)
+    leaf = np.c_[rng.uniform(-0.05, 0.05, (4000, 2)), np.zeros(4000)]   # the plane z = 0
+    grasp = SimpleNamespace(p_WG=np.zeros(3), R_WG=np.eye(3)[:, [0, 2, 1]])  # closes along z
+    cfg = PlannerConfig()
+    thin = NarrowOpening(leaf, grasp, cfg)
+    assert thin == pytest.approx(max(0.015, 2 * (cfg.collision_margin + 0.003)))
+    noisy = leaf + np.c_[np.zeros((4000, 2)), rng.normal(0, 0.004, 4000)]
+    wide = NarrowOpening(noisy, grasp, cfg)
+    assert wide == pytest.approx(2 * (1.96 * 0.004 + cfg.collision_margin + 0.003), rel=0.1)
+    very_noisy = leaf + np.c_[np.zeros((4000, 2)), rng.normal(0, 0.02, 4000)]
+    assert NarrowOpening(very_noisy, grasp, cfg) == cfg.pregrasp_opening
