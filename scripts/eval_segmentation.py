@@ -63,29 +63,6 @@ def _fruit_color(rgb: np.ndarray, truth: np.ndarray) -> str | None:
     return "green"
 
 
-def _render(scenario, settle: float):
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import ConstantVectorSource
-
-    from lmap_drake.station import MakeStation
-    builder = DiagramBuilder()
-    station = builder.AddSystem(MakeStation(scenario))
-    q = builder.AddSystem(ConstantVectorSource(scenario.robot.initial_q))
-    builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
-    g = builder.AddSystem(ConstantVectorSource([scenario.robot.initial_gripper_width]))
-    builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
-    diagram = builder.Build()
-    sim = Simulator(diagram)
-    if settle > 0:
-        sim.AdvanceTo(settle)
-    ctx = station.GetMyContextFromRoot(sim.get_context())
-    rgb = np.array(station.GetOutputPort("camera0.rgb_image").Eval(ctx).data)
-    depth = np.array(station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0])
-    label = np.array(station.GetOutputPort("camera0.label_image").Eval(ctx).data[..., 0])
-    return rgb, depth, label
-
-
 def _mean(rows: list[dict]) -> dict:
     out = {}
     for key, _ in CLASSES:
@@ -102,12 +79,13 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import ClassIou, MakeSegmenter, TruthClassMap
     from lmap_drake.scenario import LoadScenario
+    from lmap_drake.station.station import RenderStill
     names = names or _scenario_names(scenario_file)
     results = {b: {"scenarios": {}} for b in backends}
     for name in names:
         s = LoadScenario(filename=scenario_file, scenario_name=name, scenario_text=scenario_text)
         t0 = time.time()
-        rgb, depth, label = _render(s, settle)
+        rgb, depth, label = RenderStill(s, settle)
         truth = TruthClassMap(label)
         color = _fruit_color(rgb, truth)
         K = Intrinsics.FromCameraConfig(s.cameras["camera0"])

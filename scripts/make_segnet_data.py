@@ -128,26 +128,13 @@ def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0):
 
 def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0) -> dict:
     """Renders sample ``seed``; returns the arrays stored in its ``.npz``."""
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import ConstantVectorSource
-
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import TruthClassMap
     from lmap_drake.perception.segnet import CropBox, SegNetInputs
-    from lmap_drake.station import MakeStation
+    from lmap_drake.station.station import RenderStill
 
     s, kind = RandomRenderScenario(seed, arm_near_leaf)
-    builder = DiagramBuilder()
-    station = builder.AddSystem(MakeStation(s))
-    q = builder.AddSystem(ConstantVectorSource(s.robot.initial_q))
-    builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
-    g = builder.AddSystem(ConstantVectorSource([s.robot.initial_gripper_width]))
-    builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
-    diagram = builder.Build()
-    ctx = station.GetMyContextFromRoot(diagram.CreateDefaultContext())
-    rgb = np.array(station.GetOutputPort("camera0.rgb_image").Eval(ctx).data)
-    depth = np.array(station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0])
-    label = np.array(station.GetOutputPort("camera0.label_image").Eval(ctx).data[..., 0])
+    rgb, depth, label = RenderStill(s)
     truth = TruthClassMap(label).astype(np.uint8)
     K = Intrinsics.FromCameraConfig(s.cameras["camera0"])
     x = SegNetInputs(rgb, depth, K, s.perception.depth_cut)

@@ -238,3 +238,31 @@ def MakeStation(scenario: Scenario, meshcat: Meshcat | None = None,
         from lmap_drake.station.hardware.station import MakeHardwareStation
         return MakeHardwareStation(scenario)
     return _MakeSimStation(scenario, meshcat, leaf_grasp)
+
+
+def RenderStill(scenario: Scenario, settle: float = 0.0) -> tuple[np.ndarray, np.ndarray,
+                                                                   np.ndarray]:
+    """camera0's (rgb HxWx4 uint8, depth HxW float32 m, label HxW int16)
+    from the simulated station with the arm held at ``robot.initial_q`` and
+    the gripper at ``robot.initial_gripper_width``, after ``settle``
+    simulated seconds (0: the default context, no simulation)."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.primitives import ConstantVectorSource
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakeStation(scenario))
+    q = builder.AddSystem(ConstantVectorSource(scenario.robot.initial_q))
+    builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
+    g = builder.AddSystem(ConstantVectorSource([scenario.robot.initial_gripper_width]))
+    builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
+    diagram = builder.Build()
+    if settle > 0:
+        sim = Simulator(diagram)
+        sim.AdvanceTo(settle)
+        root = sim.get_context()
+    else:
+        root = diagram.CreateDefaultContext()
+    ctx = station.GetMyContextFromRoot(root)
+
+    def image(name):
+        return np.array(station.GetOutputPort(f"camera0.{name}_image").Eval(ctx).data)
+    return image("rgb"), image("depth")[..., 0], image("label")[..., 0]

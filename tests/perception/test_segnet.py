@@ -59,19 +59,9 @@ def test_shipped_weights_are_small_and_say_how_they_were_made():
 
 
 def _render(text):
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import ConstantVectorSource
-    from lmap_drake.station import MakeStation
+    from lmap_drake.station.station import RenderStill
     s = LoadScenario(scenario_text=text)
-    b = DiagramBuilder()
-    st = b.AddSystem(MakeStation(s))
-    b.Connect(b.AddSystem(ConstantVectorSource(s.robot.initial_q)).get_output_port(),
-              st.GetInputPort("ur5.position"))
-    b.Connect(b.AddSystem(ConstantVectorSource([0.085])).get_output_port(),
-              st.GetInputPort("gripper.position"))
-    ctx = st.GetMyContextFromRoot(b.Build().CreateDefaultContext())
-    return s, [np.array(st.GetOutputPort(f"camera0.{k}_image").Eval(ctx).data)
-               for k in ("rgb", "depth", "label")]
+    return s, RenderStill(s)
 
 
 @pytest.mark.parametrize("color", [[0.2, 0.5, 0.1], [0.75, 0.05, 0.05]], ids=["green", "red"])

@@ -105,23 +105,15 @@ def test_colour_noise_is_mild_and_lighting_is_fixed_per_scene():
 
 
 def test_station_applies_the_model_and_enabled_false_gives_the_renderer_images():
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import ConstantVectorSource
     from lmap_drake.station import MakeStation
+    from lmap_drake.station.station import RenderStill
 
     def render(text):
         s = LoadScenario(scenario_text=text)
-        b = DiagramBuilder()
-        st = b.AddSystem(MakeStation(s))
-        b.Connect(b.AddSystem(ConstantVectorSource(s.robot.initial_q)).get_output_port(),
-                  st.GetInputPort("ur5.position"))
-        b.Connect(b.AddSystem(ConstantVectorSource([0.085])).get_output_port(),
-                  st.GetInputPort("gripper.position"))
-        d = b.Build()
-        ctx = st.GetMyContextFromRoot(d.CreateDefaultContext())
-        has_noise = any(sys.get_name() == "camera_noise_camera0" for sys in st.GetSystems())
-        return (np.array(st.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0]),
-                np.array(st.GetOutputPort("camera0.rgb_image").Eval(ctx).data), has_noise)
+        has_noise = any(sys.get_name() == "camera_noise_camera0"
+                        for sys in MakeStation(s).GetSystems())
+        rgb, depth, _ = RenderStill(s)
+        return depth, rgb, has_noise
 
     clean_d, clean_rgb, noisy_flag0 = render("{camera_noise: {enabled: false}}")
     noisy_d, noisy_rgb, noisy_flag1 = render("{}")
