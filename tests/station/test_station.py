@@ -120,9 +120,17 @@ def test_camera_images(scenario):
     assert (cls == FRUIT).sum() > 0, "the fruit's label must be visible"
     plant_px = np.isin(cls, [BRANCH, LEAF, FRUIT])
     assert plant_px.sum() > 1000
-    assert np.all(np.isfinite(depth[plant_px]))
+    # the default (noisy) camera loses some returns at rims and thin parts
+    returns = np.isfinite(depth[plant_px])
+    assert 0.9 < returns.mean() < 1.0
     # The plant is 0.45-0.75 m from the camera along its optical axis.
-    assert 0.4 < depth[plant_px].min() and depth[plant_px].max() < 0.8
+    assert 0.4 < depth[plant_px][returns].min() and depth[plant_px][returns].max() < 0.8
+    # the renderer's own image (camera model off) has a return on every plant pixel
+    import dataclasses as dc
+    ideal = dc.replace(scenario, camera_noise=dc.replace(scenario.camera_noise, enabled=False))
+    st2 = MakeStation(ideal)
+    d2 = st2.GetOutputPort("camera0.depth_image").Eval(st2.CreateDefaultContext()).data[..., 0]
+    assert np.all(np.isfinite(d2[plant_px]))
     # Fruit pixels are red, leaf pixels green.
     assert rgb.data[cls == FRUIT][:, 0].mean() > rgb.data[cls == FRUIT][:, 1].mean() + 50
     assert rgb.data[cls == LEAF][:, 1].mean() > rgb.data[cls == LEAF][:, 0].mean() + 30
