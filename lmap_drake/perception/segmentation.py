@@ -446,11 +446,52 @@ class GroundedSamSegmenter(Segmenter):
         return ComposeMasks(masks[:, 0].cpu().numpy(), phrases, (H, W))
 
 
+def SnapFruitToDepthEdges(cls: np.ndarray, depth: np.ndarray, front: float = 0.01,
+                          continuity: float = 0.006, iterations: int = 4) -> np.ndarray:
+    """Fruit pixels that continue a neighbouring leaf surface (4-neighbour
+    depth within ``continuity`` m) and lie more than ``front`` m in front of
+    their fruit region's median depth become leaf, a few pixels deep: the
+    fruit-leaf border moves to the depth edge where the leaf's rim crosses
+    the fruit. A network's border is a pixel or two off, and on a fruit of
+    which only a few dozen pixels show, leaf pixels called fruit put fruit
+    points centimetres in front of the fruit."""
+    cls = cls.copy()
+    d = np.where(ValidDepthMask(depth), np.asarray(depth, np.float64), np.nan)
+    fruit = cls == FRUIT
+    if not fruit.any() or not (cls == LEAF).any():
+        return cls
+    lab, n = ndimage.label(fruit, structure=np.ones((3, 3)))
+    med = ndimage.median(np.nan_to_num(d, nan=0.0), lab, index=np.arange(1, n + 1))
+    cnt = ndimage.sum(np.isfinite(d) & fruit, lab, index=np.arange(1, n + 1))
+    med = np.where(np.asarray(cnt) > 0, med, np.nan)
+    ahead = np.zeros(cls.shape, bool)
+    with np.errstate(invalid="ignore"):
+        ahead[fruit] = d[fruit] < np.asarray(med)[lab[fruit] - 1] - front
+    H, W = cls.shape
+    for _ in range(iterations):
+        leaf = cls == LEAF
+        flip = np.zeros(cls.shape, bool)
+        for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            ys = slice(max(dy, 0), H + min(dy, 0)); yd = slice(max(-dy, 0), H + min(-dy, 0))
+            xs = slice(max(dx, 0), W + min(dx, 0)); xd = slice(max(-dx, 0), W + min(-dx, 0))
+            nb_leaf = np.zeros(cls.shape, bool)
+            nb_d = np.full(cls.shape, np.nan)
+            nb_leaf[yd, xd] = leaf[ys, xs]
+            nb_d[yd, xd] = d[ys, xs]
+            with np.errstate(invalid="ignore"):
+                flip |= ahead & (cls == FRUIT) & nb_leaf & (np.abs(nb_d - d) < continuity)
+        if not flip.any():
+            break
+        cls[flip] = LEAF
+    return cls
+
+
 class SegNetSegmenter(Segmenter):
     """The trained RGB-D network (``lmap_drake.perception.segnet``) on the
     bounding box of the returns within the depth cut; everything outside it,
-    and every return beyond the cut, is background. Instances: per-class
-    connected components cut at depth jumps."""
+    and every return beyond the cut, is background; the fruit-leaf border
+    snapped to the depth edge (``SnapFruitToDepthEdges``). Instances:
+    per-class connected components cut at depth jumps."""
     name = "segnet"
 
     def __init__(self, K: Intrinsics, weights_file: str | Path, depth_cut: float = 1.5,
@@ -472,6 +513,7 @@ class SegNetSegmenter(Segmenter):
         cls[box] = PredictLogits(self.net, x[:, box[0], box[1]], self.device).argmax(0)
         with np.errstate(invalid="ignore"):
             cls[np.isfinite(d) & (d > self.depth_cut)] = BACKGROUND
+        cls = SnapFruitToDepthEdges(cls, d)
         return Segmentation(cls, InstancesFromComponents(cls, d, 0.02))
 
 

@@ -112,3 +112,29 @@ def test_grounded_sam_postprocessing():
     assert (seg.class_map == FRUIT).sum() == 4
     assert (seg.class_map == LEAF).sum() == 21
     assert seg.instance_map[1, 1] == 0
+
+
+def test_fruit_border_snaps_to_the_leafs_depth_edge():
+    """Leaf pixels a network called fruit (in front of the fruit, continuous
+    with the leaf) become leaf again; the fruit's own curved surface stays."""
+    from lmap_drake.perception.segmentation import SnapFruitToDepthEdges
+    rng = np.random.default_rng(0)
+    H, W = 40, 60
+    v, u = np.mgrid[0:H, 0:W]
+    # a round fruit behind (its front bulges 2 cm toward the camera) ...
+    r2 = ((u - 40) ** 2 + (v - 20) ** 2) / 15.0 ** 2
+    depth = np.where(r2 < 1, 0.60 - 0.02 * np.sqrt(np.clip(1 - r2, 0, 1)), np.inf)
+    truth = np.where(r2 < 1, FRUIT, 0)
+    # ... and a leaf 3 cm in front of it covering the left part
+    leaf = u < 35
+    depth = np.where(leaf, 0.55, depth) + rng.normal(0, 0.0015, (H, W))
+    truth = np.where(leaf, LEAF, truth)
+    pred = truth.copy()
+    pred[(u >= 32) & (u < 35) & (r2 < 1.2)] = FRUIT      # 3 px of leaf called fruit
+    out = SnapFruitToDepthEdges(pred, depth)
+    assert ClassIou(out, truth, FRUIT) == 1.0 and ClassIou(out, truth, LEAF) == 1.0
+    # a fruit with no leaf next to it is left alone, bulge included
+    alone = np.where(r2 < 1, FRUIT, np.where(u < 5, LEAF, 0))
+    d_alone = np.where(r2 < 1, 0.60 - 0.02 * np.sqrt(np.clip(1 - r2, 0, 1)),
+                       np.where(u < 5, 0.58, np.inf))
+    assert np.array_equal(SnapFruitToDepthEdges(alone, d_alone), alone)
