@@ -197,4 +197,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="make_segnet_data.py", strip_debug=True))  # one-line errors; --debug

@@ -150,4 +150,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="train_segnet.py", strip_debug=True))  # one-line errors; --debug
