@@ -49,15 +49,10 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, meshcat=
     station = b.AddNamedSystem(
         "station", MakeStation(scenario, meshcat, hardware=hardware, leaf_grasp=leaf_grasp))
     cam = scenario.cameras["camera0"]
-    perception = b.AddNamedSystem("perception", Perception(cam, scenario.perception,
-                                                           robot=resources.robot))
+    perception = b.AddNamedSystem("perception", Perception(cam, scenario.perception))
     for name in ("rgb_image", "depth_image", "label_image"):
         b.Connect(station.GetOutputPort(f"camera0.{name}"),
                   perception.GetInputPort(f"camera0.{name}"))
-    b.Connect(station.GetOutputPort("ur5.position_measured"),
-              perception.GetInputPort("ur5.position"))
-    b.Connect(station.GetOutputPort("gripper.state_measured"),
-              perception.GetInputPort("gripper.state"))
     shape = b.AddNamedSystem("shape_completion", ShapeCompletion(
         scenario.shape, resources.decoder, resources.mean_latent))
     reest = b.AddNamedSystem("shape_reestimation", ShapeCompletion(

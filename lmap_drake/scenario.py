@@ -329,11 +329,6 @@ class PerceptionConfig:
     # more than this apart, m; 0 = keep all) are dropped before
     # de-projection: they float in the gap between a leaf and the fruit.
     flying_pixel_jump: float = 0.005
-    # Robot self-filter: pixels within this distance (m) of the robot's own
-    # surface at the measured joints are background, whatever the segmenter
-    # said (0 = off). Needs the robot state ports connected (the episode
-    # Diagram does).
-    robot_filter_radius: float = 0.01
 
 
 @dc.dataclass
@@ -757,7 +752,6 @@ _RULES = {
     "deformation.interpolation_sigma": ">0",
     "perception.no_return_margin_px": ">=0",
     "perception.flying_pixel_jump": ">=0",
-    "perception.robot_filter_radius": ">=0",
     "camera_noise.depth_sigma_0": ">=0",
     "camera_noise.depth_sigma_z2": ">=0",
     "camera_noise.correlated_fraction": "[0,1]",

@@ -44,6 +44,18 @@ def Overlay(rgb, class_map: np.ndarray, alpha: float = 0.5, title: str = "") -> 
     return np.asarray(img)
 
 
+def _EpisodeSegmenter(result):
+    """The episode's own segmenter (the Perception system's), so the
+    overlays show what the pipeline saw."""
+    try:
+        return result.world.diagram.GetSubsystemByName("perception").segmenter
+    except Exception:  # a diagram without the perception stage
+        from lmap_drake.perception.points import Intrinsics
+        from lmap_drake.perception.segmentation import MakeSegmenter
+        s = result.world.scenario
+        return MakeSegmenter(s.perception, Intrinsics.FromCameraConfig(s.cameras["camera0"]))
+
+
 def _EqualAxes(ax) -> None:
     """Same scale on x, y and z (metres)."""
     lims = np.array([ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()])
@@ -60,14 +72,12 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     files = []
-    perception = result.world.diagram.GetSubsystemByName("perception")
+    segmenter = _EpisodeSegmenter(result)
     for tag, images in (("before", result.images_before), ("after", result.images_after)):
-        robot = ((images["ur5_position"], images["gripper_opening"])
-                 if "ur5_position" in images else None)
-        cls, _ = perception.ClassMap(images["rgb_image"].data, images["depth_image"].data,
-                                     images["label_image"].data, robot=robot)
-        Image.fromarray(Overlay(images["rgb_image"], cls,
-                                title=f"segmenter: {perception.segmenter.name} ({tag})")).save(
+        seg = segmenter.Segment(images["rgb_image"].data, images["depth_image"].data,
+                                images["label_image"].data)
+        Image.fromarray(Overlay(images["rgb_image"], seg.class_map,
+                                title=f"segmenter: {segmenter.name} ({tag})")).save(
             out / f"rgb_{tag}_segmented.png")
         files.append(f"rgb_{tag}_segmented.png")
     st = result.status

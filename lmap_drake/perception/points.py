@@ -90,29 +90,6 @@ def FlyingPixelMask(depth: np.ndarray, jump: float) -> np.ndarray:
         return valid & (near < d - jump) & (far > d + jump)
 
 
-def RobotPixelMask(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
-                   robot_points_W: np.ndarray, radius: float) -> np.ndarray:
-    """Non-background pixels whose de-projected point lies within ``radius``
-    m of the robot's surface samples (its own geometry at the measured
-    joints): the robot self-filter. A segmenter may call a gripper finger
-    leaf; the robot model knows better."""
-    mask = np.zeros(np.shape(class_map), bool)
-    if radius <= 0 or len(robot_points_W) == 0:
-        return mask
-    from scipy.spatial import cKDTree
-    d = np.asarray(depth, dtype=np.float64)
-    if d.ndim == 3:
-        d = d[..., 0]
-    plant = (np.asarray(class_map) != BACKGROUND) & ValidDepthMask(d)
-    if not plant.any():
-        return mask
-    p_W = DeprojectPixels(d, plant, K, X_WC)  # row-major over ``plant``
-    near = cKDTree(robot_points_W).query(p_W, distance_upper_bound=radius)[0] <= radius
-    v, u = np.nonzero(plant)
-    mask[v[near], u[near]] = True
-    return mask
-
-
 def DeprojectPixels(depth: np.ndarray, mask: np.ndarray, K: Intrinsics,
                     X_WC=None) -> np.ndarray:
     """(N, 3) points of the pixels where ``mask`` is true, in W if ``X_WC``

@@ -191,11 +191,6 @@ class PlantWorldSim:
             copy_ = type(image)(image.width(), image.height())
             copy_.mutable_data[:] = image.data
             out[name] = copy_
-        # the robot state of the frame (for the perception's robot self-filter)
-        out["ur5_position"] = np.array(
-            self.station.GetOutputPort("ur5.position_measured").Eval(self.station_context))
-        out["gripper_opening"] = float(
-            self.station.GetOutputPort("gripper.state_measured").Eval(self.station_context)[0])
         return out
 
     def Visibility(self) -> float:

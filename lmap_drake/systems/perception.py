@@ -12,10 +12,6 @@ Input ports:
   camera frame C (Drake convention: +z forward, +x right, +y down) in the
   world W. Unconnected, the fixed eye-to-hand pose ``camera_config.X_PB``
   (base frame world) is used.
-- ``ur5.position`` (vector, 6, rad, optional) and ``gripper.state`` (vector,
-  2: opening m, rate m/s, optional): the measured robot state. With both
-  connected and a robot model given, pixels on the robot's own surface
-  (within ``perception.robot_filter_radius``) are background.
 - ``capture`` (vector, 1, optional): a view counter. Whenever its value
   exceeds the number of views already fused, the current view is fused into
   the state at the start of the next simulation step (per-step
@@ -47,8 +43,7 @@ from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
 from lmap_drake.perception.fusion import FuseViews
-from lmap_drake.perception.points import (BuildSemanticScene, Intrinsics, PointParams,
-                                          RobotPixelMask)
+from lmap_drake.perception.points import BuildSemanticScene, Intrinsics, PointParams
 from lmap_drake.perception.segmentation import MakeSegmenter, Segmenter, SegmenterError
 from lmap_drake.types import SemanticScene
 
@@ -65,10 +60,8 @@ class Perception(LeafSystem):
     """RGB-D (+ optional labels) -> SemanticScene; see the module docstring
     for ports, frames and units."""
 
-    def __init__(self, camera_config, config, segmenter: Segmenter | None = None,
-                 robot=None):
+    def __init__(self, camera_config, config, segmenter: Segmenter | None = None):
         super().__init__()
-        self._robot = robot  # planning.robot_model.RobotModel for the self-filter
         self.set_name("perception")
         self._config = config
         self._K = Intrinsics.FromCameraConfig(camera_config)
@@ -84,8 +77,6 @@ class Perception(LeafSystem):
             f"{name}.label_image", AbstractValue.Make(ImageLabel16I()))
         self._pose = self.DeclareAbstractInputPort(
             f"{name}.X_WC", AbstractValue.Make(RigidTransform()))
-        self._q = self.DeclareVectorInputPort("ur5.position", 6)
-        self._gripper = self.DeclareVectorInputPort("gripper.state", 2)
         self._capture = self.DeclareVectorInputPort("capture", 1)
         self._fused_index = self.DeclareAbstractState(
             AbstractValue.Make(SemanticScene(flags=["no_views_fused"], num_views=0)))
@@ -122,28 +113,9 @@ class Perception(LeafSystem):
                     f"segmenter '{self._segmenter.name}' needs camera0.label_image "
                     "connected (simulation only); use segmenter: color_depth otherwise")
             label = self._label.Eval(context).data
-        X_WC = self.CameraPose(context).GetAsMatrix4()
-        robot = None
-        if self._q.HasValue(context) and self._gripper.HasValue(context):
-            robot = (self._q.Eval(context), float(self._gripper.Eval(context)[0]))
-        cls, flags = self.ClassMap(rgb, depth, label, X_WC, robot)
-        return BuildSemanticScene(cls, depth, self._K, X_WC, self._params, flags)
-
-    def ClassMap(self, rgb, depth, label=None, X_WC=None, robot=None):
-        """(class map HxW, flags) of one frame: the segmenter, then the robot
-        self-filter when ``robot`` = (UR5 joints rad, gripper opening m) is
-        given and the system has a robot model. ``X_WC`` (4x4) defaults to
-        the configured camera pose."""
         seg = self._segmenter.Segment(rgb, depth, label)
-        cls = seg.class_map
-        radius = getattr(self._config, "robot_filter_radius", 0.0)
-        if self._robot is not None and robot is not None and radius > 0:
-            X = self._X_WC_default.GetAsMatrix4() if X_WC is None else X_WC
-            robot_W = self._robot.SurfacePoints(np.asarray(robot[0]), 0.5 * float(robot[1]))
-            on_robot = RobotPixelMask(cls, depth, self._K, X, robot_W, radius)
-            if on_robot.any():
-                cls = np.where(on_robot, 0, cls)
-        return cls, seg.flags
+        X_WC = self.CameraPose(context).GetAsMatrix4()
+        return BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._params, seg.flags)
 
     def _calc_scene(self, context: Context, output) -> None:
         output.set_value(self.ComputeScene(context))

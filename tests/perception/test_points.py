@@ -208,20 +208,3 @@ def test_flying_pixels_between_two_surfaces_are_flagged_smooth_ones_are_not():
     tilted = 0.5 + 0.004 * np.arange(30)[None, :] * np.ones((20, 1))   # 4 mm per pixel
     assert not FlyingPixelMask(tilted, 0.005).any()
     assert not FlyingPixelMask(depth, 0.0).any()
-
-
-def test_robot_self_filter_flags_pixels_on_the_robot_surface_only():
-    from lmap_drake.perception.points import RobotPixelMask
-    Kr = Intrinsics(40, 30, 40.0, 40.0, 19.5, 14.5)
-    depth = np.full((30, 40), 0.5)
-    cls = np.full((30, 40), LEAF)
-    cls[:, :5] = 0                                   # background stays background
-    # the robot: surface samples covering the right half of the plane z = 0.5
-    xs, ys = np.meshgrid(np.arange(0.0, 0.26, 0.004), np.arange(-0.2, 0.2, 0.004))
-    robot = np.c_[xs.ravel(), ys.ravel(), np.full(xs.size, 0.5)]
-    mask = RobotPixelMask(cls, depth, Kr, np.eye(4), robot, 0.01)
-    u = np.arange(40)
-    x = (u - Kr.cx) * 0.5 / Kr.fx
-    assert mask[:, x > 0.01].all() and not mask[:, x < -0.01].any()
-    assert not mask[:, :5].any()
-    assert not RobotPixelMask(cls, depth, Kr, np.eye(4), robot, 0.0).any()

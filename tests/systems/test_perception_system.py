@@ -39,7 +39,7 @@ def test_ports_and_docstring():
     ins = {p.get_input_port(i).get_name() for i in range(p.num_input_ports())}
     outs = {p.get_output_port(i).get_name() for i in range(p.num_output_ports())}
     assert ins == {"camera0.rgb_image", "camera0.depth_image", "camera0.label_image",
-                   "camera0.X_WC", "ur5.position", "gripper.state", "capture"}
+                   "camera0.X_WC", "capture"}
     assert outs == {"semantic_scene", "fused_semantic_scene"}
     import lmap_drake.systems.perception as mod
     for name in ins | outs:
@@ -110,49 +110,3 @@ def test_capture_port_fuses_views_during_simulation():
     fused2 = p.CaptureView(pc)  # direct capture of a second view
     assert fused2.num_views == 2 and "fused_views" in fused2.flags
     assert len(fused2.fruit_points_W) == len(fused1.fruit_points_W)  # same view, same voxels
-
-
-def test_robot_self_filter_makes_robot_pixels_background():
-    """With the robot state connected and a robot model, no plant point lies
-    on the robot, even where the segmenter said plant (here: every pixel
-    with a return is called leaf)."""
-    from lmap_drake.labels import LEAF
-    from lmap_drake.perception.segmentation import Segmentation, Segmenter
-    from lmap_drake.planning.robot_model import RobotModel
-
-    class AllLeaf(Segmenter):  # a test fake: calls every return leaf
-        name = "all_leaf"
-
-        def Segment(self, rgb, depth, label=None):
-            d = np.asarray(depth, float)
-            d = d[..., 0] if d.ndim == 3 else d
-            cls = np.where(np.isfinite(d) & (d > 0), LEAF, 0)
-            return Segmentation(cls, np.where(cls > 0, 0, -1))
-
-    s = LoadScenario(scenario_text="{camera_noise: {enabled: false}}")  # sees the arm
-    robot = RobotModel(s.robot.X_WB.GetDeterministicValue())
-    scenes = []
-    for with_robot in (False, True):
-        builder = DiagramBuilder()
-        station = builder.AddSystem(MakeStation(s))
-        p = builder.AddSystem(Perception(s.cameras["camera0"], s.perception, AllLeaf(),
-                                         robot=robot if with_robot else None))
-        for port in ("rgb_image", "depth_image"):
-            builder.Connect(station.GetOutputPort(f"camera0.{port}"),
-                            p.GetInputPort(f"camera0.{port}"))
-        builder.Connect(station.GetOutputPort("ur5.position_measured"),
-                        p.GetInputPort("ur5.position"))
-        builder.Connect(station.GetOutputPort("gripper.state_measured"),
-                        p.GetInputPort("gripper.state"))
-        q = builder.AddSystem(ConstantVectorSource(s.robot.initial_q))
-        builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
-        g = builder.AddSystem(ConstantVectorSource([s.robot.initial_gripper_width]))
-        builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
-        d = builder.Build()
-        scenes.append(p.GetOutputPort("semantic_scene").Eval(
-            p.GetMyContextFromRoot(d.CreateDefaultContext())))
-    pts = robot.SurfacePoints(np.asarray(s.robot.initial_q), 0.5 * s.robot.initial_gripper_width)
-    from scipy.spatial import cKDTree
-    tree = cKDTree(pts)
-    near = [(tree.query(sc.leaf_points_W)[0] < 0.01).sum() for sc in scenes]
-    assert near[0] > 50 and near[1] == 0, near
