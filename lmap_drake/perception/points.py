@@ -119,6 +119,23 @@ def PointsImage(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
     return np.stack([(u - K.cx) * z / K.fx, (v - K.cy) * z / K.fy, z], axis=-1)
 
 
+def DepthNormals(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """HxWx3 unit normals (camera frame, facing the camera) from a depth
+    image by central differences of the de-projected points; NaN where a
+    neighbour has no valid depth and on the image border."""
+    P = PointsImage(depth, Intrinsics(0, 0, fx, fy, cx, cy))
+    du = np.full_like(P, np.nan)
+    dv = np.full_like(P, np.nan)
+    du[:, 1:-1] = P[:, 2:] - P[:, :-2]
+    dv[1:-1] = P[2:] - P[:-2]
+    n = np.cross(du, dv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        flip = np.sum(n * P, axis=-1) > 0  # make normals face the camera
+    n[flip] *= -1
+    return n
+
+
 def _o3d_cloud(points: np.ndarray):
     import open3d as o3d
     pc = o3d.geometry.PointCloud()

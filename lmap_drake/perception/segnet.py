@@ -23,6 +23,8 @@ import torch
 from scipy import ndimage
 from torch import nn
 
+from lmap_drake.perception.points import DepthNormals
+
 NUM_CLASSES = 4  # background, branch, leaf, fruit (lmap_drake.labels ids 0..3)
 NUM_INPUTS = 8
 ALIGN = 8        # spatial size multiple the U-Net needs
@@ -39,17 +41,7 @@ def SmoothedNormals(depth: np.ndarray, valid: np.ndarray, fx: float, fy: float, 
     ws = ndimage.gaussian_filter(w, sigma_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         zs = np.where(valid, zs / np.maximum(ws, 1e-9), np.nan)
-    v, u = np.mgrid[0:z.shape[0], 0:z.shape[1]]
-    P = np.stack([(u - cx) * zs / fx, (v - cy) * zs / fy, zs], axis=-1)
-    du = np.zeros_like(P)
-    dv = np.zeros_like(P)
-    du[:, 1:-1] = P[:, 2:] - P[:, :-2]
-    dv[1:-1] = P[2:] - P[:-2]
-    n = np.cross(du, dv)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    n = np.nan_to_num(n, nan=0.0, posinf=0.0, neginf=0.0)
-    n[np.sum(n * np.nan_to_num(P), axis=-1) > 0] *= -1
+    n = np.nan_to_num(DepthNormals(zs, fx, fy, cx, cy), nan=0.0, posinf=0.0, neginf=0.0)
     n[~valid] = 0.0
     return n
 

@@ -42,28 +42,11 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 from scipy import ndimage
 
+from lmap_drake.perception.points import DepthNormals
+
 
 def _Rng(seed: int, *extra: int) -> np.random.Generator:
     return np.random.default_rng([int(seed) & 0xFFFFFFFF, *[int(e) & 0xFFFFFFFF for e in extra]])
-
-
-def DepthNormals(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
-    """HxWx3 unit normals (camera frame, facing the camera) from a depth
-    image by central differences of the de-projected points; NaN where a
-    neighbour has no finite depth."""
-    d = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
-    v, u = np.mgrid[0:d.shape[0], 0:d.shape[1]]
-    P = np.stack([(u - cx) * d / fx, (v - cy) * d / fy, d], axis=-1)
-    du = np.full_like(P, np.nan)
-    dv = np.full_like(P, np.nan)
-    du[:, 1:-1] = P[:, 2:] - P[:, :-2]
-    dv[1:-1] = P[2:] - P[:-2]
-    n = np.cross(du, dv)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        flip = np.sum(n * P, axis=-1) > 0  # make normals face the camera
-    n[flip] *= -1
-    return n
 
 
 def IncidenceDeg(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float,
