@@ -1,14 +1,16 @@
 """``lmap-drake``: command-line entry point.
 
     lmap-drake run [--scenario_file F] [--scenario_name N] [--scenario_text YAML]
-                   [--output DIR] [--overwrite] [--hardware [--dry-run]] [--debug]
+                   [--output DIR] [--overwrite] [--hardware] [--plan-only | --dry-run]
+                   [--confirm | --no-confirm] [--speed_scale S] [--scripted] [--debug]
+    lmap-drake replay RUN_DIR [--scenario_text YAML] [--output DIR] [--overwrite]
     lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
                     [--distances D,..] [--random_seeds K] [--scenario_names A,B]
                     [--workers W] [--output DIR] [--resume] [--debug]
 
-Exit codes: 0 done, 1 error, 2 bad input (scenario, weights, calibration,
-output folder, arguments), 3 episode aborted / no feasible action,
-130 interrupted. Errors are one line on stderr; --debug adds the traceback.
+Exit codes: 0 done (or planned, with --plan-only), 1 error, 2 bad input
+(scenario, weights, calibration, recording, output folder, arguments), 3
+episode aborted / no feasible action / not confirmed, 130 interrupted. Errors are one line on stderr; --debug adds the traceback.
 """
 from __future__ import annotations
 
@@ -48,34 +50,68 @@ def cmd_run(args) -> int:
     scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
                             scenario_text=args.scenario_text)
     if args.dry_run and not args.hardware:
-        raise UsageError("--dry-run needs --hardware")
+        raise UsageError("--dry-run needs --hardware (in simulation use --plan-only)")
+    plan_only = args.plan_only or args.dry_run
+    if args.speed_scale is not None:
+        if not 0.0 < args.speed_scale <= 1.0:
+            raise UsageError(f"--speed_scale must be in (0, 1], got {args.speed_scale}")
+        scenario.planner.speed_scale = args.speed_scale
+    if args.scripted and (args.hardware or plan_only):
+        raise UsageError("--scripted runs the simulated scripted pull; it does not combine "
+                         "with --hardware, --plan-only or --dry-run")
+    # On the real cell the operator confirms the action unless told otherwise.
+    confirm = args.hardware if args.confirm is None else args.confirm
     final = Path(args.output) if args.output else DefaultOutputFolder()
     folder = OutputFolder(final, overwrite=args.overwrite)
-    _stage(f"scenario '{args.scenario_name}' from {args.scenario_file}; output {final}")
+    _stage(f"scenario '{args.scenario_name}' from {args.scenario_file}; output {final}"
+           + ("; hardware" if args.hardware else "") + ("; plan only" if plan_only else ""))
     t0 = time.time()
     status = "done"
     with folder as out:
-        if args.hardware:
-            from lmap_drake.station.hardware.run import RunHardwareSnapshot
-            files = RunHardwareSnapshot(scenario, out, dry_run=args.dry_run, progress=_stage)
-        elif scenario.plant_scene.kind == "procedural" and args.scripted:
+        if args.hardware or scenario.plant_scene.kind == "procedural" and not args.scripted:
+            from lmap_drake.episode import RunLmapEpisode
+            files, status = RunLmapEpisode(scenario, out, progress=_stage,
+                                           hardware=args.hardware, plan_only=plan_only,
+                                           confirm=confirm and not plan_only)
+        elif args.scripted:
+            if scenario.plant_scene.kind != "procedural":
+                raise UsageError("--scripted needs plant_scene.kind: procedural")
             from lmap_drake.episode import RunScriptedPullEpisode
             files = RunScriptedPullEpisode(scenario, out, progress=_stage)
-        elif scenario.plant_scene.kind == "procedural":
-            from lmap_drake.episode import RunLmapEpisode
-            files, status = RunLmapEpisode(scenario, out, progress=_stage)
         else:
             from lmap_drake.episode import RunStationSnapshot
-            files = RunStationSnapshot(scenario, out, hardware=False, progress=_stage)
+            files = RunStationSnapshot(scenario, out, progress=_stage)
     if folder.final != final:
         _stage(f"warning: {final} was filled by another run meanwhile; this run's outputs "
                f"are in {folder.final}")
     _stage(f"done in {time.time() - t0:.1f} s; wrote {folder.final}/: "
-           + ", ".join(sorted(files)))
-    if status != "done":
+           + ", ".join(sorted(f for f in files if not f.startswith("recording/")))
+           + (", recording/" if any(f.startswith("recording/") for f in files) else ""))
+    if status not in ("done", "planned"):
         _stage(f"episode {status} (exit code {EXIT_ABORTED})")
         return EXIT_ABORTED
     return 0
+
+
+def cmd_replay(args) -> int:
+    from lmap_drake.outputs import DefaultOutputFolder, OutputFolder
+    from lmap_drake.perception.recording import LoadRecording
+    from lmap_drake.scenario import LoadScenario
+
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        raise UsageError(f"run folder {run_dir} not found")
+    LoadRecording(run_dir)                       # bad recording: fail before building
+    LoadScenario(scenario_text=args.scenario_text)
+    final = Path(args.output) if args.output else DefaultOutputFolder(prefix="replay-")
+    folder = OutputFolder(final, overwrite=args.overwrite)
+    t0 = time.time()
+    with folder as out:
+        from lmap_drake.episode import ReplayRun
+        files, record = ReplayRun(run_dir, out, args.scenario_text, progress=_stage)
+    _stage(f"done in {time.time() - t0:.1f} s; wrote {folder.final}/: "
+           + ", ".join(sorted(files)))
+    return 0 if record["status"] in ("ok", "no_action_needed") else EXIT_ABORTED
 
 
 def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
@@ -167,20 +203,44 @@ def _main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="run one simulated episode on a scenario")
+    run = sub.add_parser("run", help="run one LMAP episode on the simulated station "
+                         "(default) or the real cell (--hardware)")
     _add_scenario_args(run)
     run.add_argument("--overwrite", action="store_true",
                      help="replace an existing non-empty output folder")
     run.add_argument("--debug", action="store_true", help="show tracebacks")
     run.add_argument("--hardware", action="store_true",
                      help="use the hardware station instead of the simulation")
+    run.add_argument("--plan-only", action="store_true",
+                     help="capture, plan, write the candidates, the chosen action and a "
+                          "picture of the predicted deformation over the camera image; "
+                          "move nothing (on hardware the robot is connected read-only)")
     run.add_argument("--dry-run", action="store_true",
-                     help="with --hardware: connect read-only, read state and one RGB-D "
-                          "frame, plan and print the trajectory; command nothing")
+                     help="with --hardware: the same as --plan-only")
+    run.add_argument("--confirm", dest="confirm", action="store_true", default=None,
+                     help="show the chosen action with its predicted energy and visibility "
+                          "and move only after the operator types yes (default on hardware)")
+    run.add_argument("--no-confirm", dest="confirm", action="store_false",
+                     help="execute the chosen action without asking")
+    run.add_argument("--speed_scale", type=float, default=None,
+                     help="scale every arm motion, in (0, 1] (planner.speed_scale; on "
+                          "hardware also bounded by hardware.ur.joint_speed_limit)")
     run.add_argument("--scripted", action="store_true",
                      help="execute the scenario's scripted pull (plant_scene.pull) instead "
                           "of planning with LMAP")
     run.set_defaults(func=cmd_run)
+    rp = sub.add_parser("replay", help="re-run perception, shape completion and planning "
+                        "offline on a run's recording (its recording/ folder)")
+    rp.add_argument("run_dir", help="output folder of a simulated or hardware run")
+    rp.add_argument("--scenario_text", default="{}",
+                    help="YAML overrides applied to the run's scenario.yaml, e.g. "
+                         "\"{planner: {energy_weight: 0.5}}\"")
+    rp.add_argument("--output", default=None,
+                    help="output folder (default: out/replay-<timestamp>-<random>/)")
+    rp.add_argument("--overwrite", action="store_true",
+                    help="replace an existing non-empty output folder")
+    rp.add_argument("--debug", action="store_true", help="show tracebacks")
+    rp.set_defaults(func=cmd_replay)
     ev = sub.add_parser("eval", help="run a scenario suite with LMAP and the baselines; "
                         "write the Table II-V analogues")
     ev.add_argument("--scenario_file", default=str(DEFAULT_SCENARIO_FILE.parent / "suite.yaml"),

@@ -1,8 +1,10 @@
-"""The complete LMAP Diagram, built from one scenario:
+"""The complete LMAP Diagram around a station (simulated or hardware):
 
-    station -> Perception -> ShapeCompletion -> ActionCandidates
+    station -> ViewRecorder -> Perception -> ShapeCompletion -> ActionCandidates
             -> DeformationPrediction -> ActionSelection -> ArmController -> station
     Perception (fused views) -> ShapeCompletion (re-estimation) -> ArmController
+
+and the same planning stages on recorded views (``MakeReplayDiagram``).
 
 Heavy, reusable objects (the DeepSDF decoder, the planner's robot model) live
 in ``EpisodeResources`` and are shared across rebuilds (the simulated grasp
@@ -16,7 +18,6 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
-from lmap_drake.station.station import MakeStation
 
 
 @dc.dataclass
@@ -35,24 +36,22 @@ class EpisodeResources:
                                 decoder, mean_latent, progress)
 
 
-def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, meshcat=None,
-                       leaf_grasp=None, hardware: bool = False) -> tuple[Diagram, Diagram]:
-    """Returns (root Diagram, station). Systems are named after the paper's
-    stages; the station is ``station``."""
-    from lmap_drake.systems.arm_controller import ArmController
+def AddPlanningStages(b: DiagramBuilder, scenario: Scenario, resources: EpisodeResources,
+                      views) -> dict:
+    """Adds Perception -> ShapeCompletion -> ActionCandidates ->
+    DeformationPrediction -> ActionSelection (and the re-estimation on the
+    fused views) fed by ``views`` (a ``ViewRecorder`` or ``RecordedViews``:
+    images and joints of the captured views). Returns the systems by name."""
     from lmap_drake.systems.deformation import DeformationPrediction
     from lmap_drake.systems.perception import Perception
     from lmap_drake.systems.planning import ActionCandidates, ActionSelection
     from lmap_drake.systems.shape_completion import ShapeCompletion
 
-    b = DiagramBuilder()
-    station = b.AddNamedSystem(
-        "station", MakeStation(scenario, meshcat, hardware=hardware, leaf_grasp=leaf_grasp))
     cam = scenario.cameras["camera0"]
     perception = b.AddNamedSystem("perception", Perception(cam, scenario.perception))
     for name in ("rgb_image", "depth_image", "label_image"):
-        b.Connect(station.GetOutputPort(f"camera0.{name}"),
-                  perception.GetInputPort(f"camera0.{name}"))
+        b.Connect(views.GetOutputPort(name), perception.GetInputPort(f"camera0.{name}"))
+    b.Connect(views.GetOutputPort("num_views"), perception.GetInputPort("capture"))
     shape = b.AddNamedSystem("shape_completion", ShapeCompletion(
         scenario.shape, resources.decoder, resources.mean_latent))
     reest = b.AddNamedSystem("shape_reestimation", ShapeCompletion(
@@ -66,22 +65,50 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, meshcat=
                                    DeformationPrediction(scenario.deformation))
     selection = b.AddNamedSystem("action_selection", ActionSelection(scenario, candidates))
     b.Connect(shape.GetOutputPort("scene_estimate"), candidates.GetInputPort("scene_estimate"))
-    b.Connect(station.GetOutputPort("ur5.position_measured"),
-              candidates.GetInputPort("ur5.position"))
-    b.Connect(station.GetOutputPort("ur5.position_measured"),
-              selection.GetInputPort("ur5.position"))
+    b.Connect(views.GetOutputPort("ur5.position"), candidates.GetInputPort("ur5.position"))
+    b.Connect(views.GetOutputPort("ur5.position"), selection.GetInputPort("ur5.position"))
     b.Connect(candidates.GetOutputPort("scene_estimate"),
               deformation.GetInputPort("scene_estimate"))
     b.Connect(candidates.GetOutputPort("actions"), deformation.GetInputPort("actions"))
     b.Connect(candidates.GetOutputPort("candidate_set"), selection.GetInputPort("candidate_set"))
     b.Connect(deformation.GetOutputPort("predictions"), selection.GetInputPort("predictions"))
+    return {"perception": perception, "shape_completion": shape, "shape_reestimation": reest,
+            "action_candidates": candidates, "deformation_prediction": deformation,
+            "action_selection": selection}
+
+
+def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station: Diagram,
+                       options=None) -> Diagram:
+    """The whole episode around ``station`` (simulated or hardware: the same
+    ports, ``lmap_drake.station.STATION_PORTS``): the station's camera and
+    joints -> ViewRecorder -> the planning stages -> ArmController -> the
+    station. ``options``: ``systems.arm_controller.ControllerOptions``.
+    Systems are named after the paper's stages; the station is ``station``."""
+    from lmap_drake.systems.arm_controller import ArmController
+    from lmap_drake.systems.view_recorder import ViewRecorder
+
+    b = DiagramBuilder()
+    b.AddNamedSystem("station", station)
+    views = b.AddNamedSystem("view_recorder", ViewRecorder())
+    for name in ("rgb_image", "depth_image", "label_image"):
+        b.Connect(station.GetOutputPort(f"camera0.{name}"),
+                  views.GetInputPort(f"camera0.{name}"))
+    b.Connect(station.GetOutputPort("ur5.state_estimated"),
+              views.GetInputPort("ur5.state_estimated"))
+    b.Connect(station.GetOutputPort("gripper.state_measured"),
+              views.GetInputPort("gripper.state_measured"))
+    stages = AddPlanningStages(b, scenario, resources, views)
     controller = b.AddNamedSystem("arm_controller", ArmController(
-        scenario, resources.robot, grasp_ack_required=not hardware,
-        progress=resources.progress))
-    b.Connect(selection.GetOutputPort("plan"), controller.GetInputPort("plan"))
-    b.Connect(perception.GetOutputPort("semantic_scene"), controller.GetInputPort("semantic_scene"))
-    b.Connect(shape.GetOutputPort("scene_estimate"), controller.GetInputPort("scene_estimate"))
-    b.Connect(reest.GetOutputPort("scene_estimate"), controller.GetInputPort("final_estimate"))
+        scenario, resources.robot, options=options, progress=resources.progress))
+    b.Connect(stages["action_selection"].GetOutputPort("plan"), controller.GetInputPort("plan"))
+    b.Connect(stages["perception"].GetOutputPort("semantic_scene"),
+              controller.GetInputPort("semantic_scene"))
+    b.Connect(stages["shape_completion"].GetOutputPort("scene_estimate"),
+              controller.GetInputPort("scene_estimate"))
+    b.Connect(stages["shape_reestimation"].GetOutputPort("scene_estimate"),
+              controller.GetInputPort("final_estimate"))
+    b.Connect(stages["perception"].GetOutputPort("num_views_fused"),
+              controller.GetInputPort("views_fused"))
     b.Connect(station.GetOutputPort("ur5.state_estimated"),
               controller.GetInputPort("ur5.state_estimated"))
     b.Connect(station.GetOutputPort("gripper.state_measured"),
@@ -89,10 +116,21 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, meshcat=
     b.Connect(controller.GetOutputPort("ur5.position"), station.GetInputPort("ur5.position"))
     b.Connect(controller.GetOutputPort("gripper.position"),
               station.GetInputPort("gripper.position"))
-    b.Connect(controller.GetOutputPort("capture"), perception.GetInputPort("capture"))
+    b.Connect(controller.GetOutputPort("capture"), views.GetInputPort("capture"))
     diagram = b.Build()
     diagram.set_name("lmap")
-    return diagram, station
+    return diagram
+
+
+def MakeReplayDiagram(scenario: Scenario, resources: EpisodeResources, views) -> Diagram:
+    """The planning stages fed by recorded views (``RecordedViews``), no
+    station and no controller: evaluate ``action_selection``'s ``plan``."""
+    b = DiagramBuilder()
+    source = b.AddNamedSystem("recorded_views", views)
+    AddPlanningStages(b, scenario, resources, source)
+    diagram = b.Build()
+    diagram.set_name("lmap_replay")
+    return diagram
 
 
 def WriteDiagramSvg(diagram: Diagram, path) -> bool:

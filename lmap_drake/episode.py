@@ -1,30 +1,58 @@
-"""Runs on a station and writes their results to an output folder."""
+"""Episodes: one runner for the simulated and the hardware station.
+
+``RunEpisode`` builds the whole Diagram (``diagram.MakeEpisodeDiagram``)
+around a station and steps it until the ``ArmController`` is finished:
+observe, plan, [confirm], pre-grasp, approach, grasp, pull, hold, observe
+again, fuse, re-estimate, release, retreat. What differs between the two
+stations lives in a small *world* object:
+
+- ``SimWorld`` (the FEM plant world, ``plants.simworld.PlantWorldSim``):
+  simulated as fast as it goes; makes the grasp when the pads close on the
+  leaf (a rebuilt station with the leaf fixed to the gripper) and undoes it
+  at release; scores the outcome against the ground truth.
+- ``HardwareWorld`` (``station.hardware``): steps the same Diagram against
+  the wall clock (periodic events stand for time); a protective stop, an
+  emergency stop, a lost link or a refused command ends the episode with
+  the arm stopped and the gripper left as it is; no ground truth.
+
+Every run writes what the planner saw (``perception.recording``), and
+``ReplayRun`` re-plans offline on such a recording (``lmap-drake replay``).
+Also here: the station snapshot and the scripted pull of ``lmap-drake run``.
+World frame W, metres, seconds, radians.
+"""
 from __future__ import annotations
 
+import dataclasses as dc
+import json
+import time
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from lmap_drake.diagram import EpisodeResources, MakeEpisodeDiagram
 from lmap_drake.scenario import DumpScenario, Scenario
-from lmap_drake.station import MakeStation
 from lmap_drake.viz import SaveDepth, SaveLabel, SaveRgb
 
 
-def RunStationSnapshot(scenario: Scenario, out: Path, hardware: bool = False,
+# --------------------------------------------------------------- snapshots
+def RunStationSnapshot(scenario: Scenario, out: Path,
                        progress: Callable[[str], None] = print) -> list[str]:
-    """Builds the station, holds the arm at ``robot.initial_q`` for
-    ``simulation_duration`` s, and writes ``scenario.yaml``, ``rgb.png``,
-    ``depth.png`` (colour-mapped metres), ``label.png`` and ``scene.html``."""
+    """Builds the simulated station with the scenario's plant, holds the arm
+    at ``robot.initial_q`` for ``simulation_duration`` s, and writes
+    ``scenario.yaml``, ``rgb.png``, ``depth.png`` (colour-mapped metres),
+    ``label.png`` and ``scene.html``."""
+    from lmap_drake.plants.world import MakePlantStation
     out = Path(out)
     DumpScenario(scenario, out / "scenario.yaml")
     progress("building station")
     meshcat = Meshcat()
     builder = DiagramBuilder()
-    station = builder.AddNamedSystem("station", MakeStation(scenario, meshcat, hardware))
+    station = builder.AddNamedSystem("station", MakePlantStation(scenario, meshcat))
     q_hold = builder.AddNamedSystem("ur5_hold", ConstantVectorSource(scenario.robot.initial_q))
     builder.Connect(q_hold.get_output_port(), station.GetInputPort("ur5.position"))
     grip = builder.AddNamedSystem(
@@ -34,6 +62,7 @@ def RunStationSnapshot(scenario: Scenario, out: Path, hardware: bool = False,
     simulator = Simulator(diagram)
     ApplySimulatorConfig(scenario.simulator_config, simulator)
     progress(f"simulating {scenario.simulation_duration:.2f} s")
+    FrameMeshcat(meshcat, scenario)
     meshcat.StartRecording()
     simulator.AdvanceTo(scenario.simulation_duration)
     meshcat.StopRecording()
@@ -55,9 +84,6 @@ def RunScriptedPullEpisode(scenario: Scenario, out: Path,
     the ground truth (``ground_truth.json``, ``fruit_W.obj``,
     ``leaf_rest_W.obj``) and ``scene.html`` (Meshcat recording; Meshcat's
     recording does not animate the deformable leaf)."""
-    import json
-    import time
-
     from lmap_drake.plants.generator import SaveGroundTruth
     from lmap_drake.plants.simworld import PlantWorldSim, RunScriptedPull
 
@@ -68,6 +94,7 @@ def RunScriptedPullEpisode(scenario: Scenario, out: Path,
     progress("generating the plant and building the station")
     world = PlantWorldSim(scenario, meshcat, progress)
     files = ["scenario.yaml"] + SaveGroundTruth(world.model, out)
+    FrameMeshcat(meshcat, scenario)
     meshcat.StartRecording()
     result = RunScriptedPull(world)
     meshcat.StopRecording()
@@ -90,46 +117,620 @@ def RunScriptedPullEpisode(scenario: Scenario, out: Path,
                     "outcome.json", "scene.html"]
 
 
-def RunLmapEpisode(scenario: Scenario, out: Path,
-                   progress: Callable[[str], None] = print) -> tuple[list[str], str]:
-    """The full LMAP loop in simulation (see ``lmap_drake.evaluation.episode``):
-    writes ``scenario.yaml``, ``episode.json``, ``candidates.json``, before/
-    after RGB with the segmentation overlaid, ``action_and_shapes.png``,
-    the ground truth, ``diagram.svg`` and ``scene.html`` (Meshcat recording
-    with leaf snapshots). Returns (files, the episode's status: ``done``,
-    ``aborted``, ...)."""
-    import json
+def FrameMeshcat(meshcat, scenario: Scenario) -> None:
+    """Points the Meshcat camera at the plant and the arm (not the whole
+    floor): the target is midway between the robot base and the camera's
+    view of the plant, seen from behind the scenario camera."""
+    if meshcat is None:
+        return
+    p_WB = scenario.robot.X_WB.GetDeterministicValue().translation()
+    X_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue()
+    p_WPlant = X_WC.translation() + 0.55 * X_WC.rotation().col(2)   # ~ the plant
+    target = 0.5 * (p_WB + p_WPlant) + np.array([0.0, 0.0, 0.1])
+    eye = X_WC.translation() - 0.6 * X_WC.rotation().col(2) + np.array([-0.4, 0.0, 0.35])
+    try:
+        meshcat.SetCameraPose(eye, target)
+    except Exception:  # noqa: BLE001 - older Meshcat without SetCameraPose
+        pass
 
+
+# ------------------------------------------------------------------ worlds
+class SimWorld:
+    """The simulated plant world behind ``RunEpisode`` (see the module
+    docstring)."""
+    hardware = False
+
+    def __init__(self, scenario: Scenario, resources: EpisodeResources, options,
+                 meshcat=None, progress=None):
+        from lmap_drake.plants.simworld import PlantWorldSim
+        from lmap_drake.plants.world import MakePlantStation
+
+        def make(s, m, grasp):
+            diagram = MakeEpisodeDiagram(s, resources, MakePlantStation(s, m, grasp), options)
+            return diagram, diagram.GetSubsystemByName("station")
+        self.scenario = scenario
+        self.sim = PlantWorldSim(scenario, meshcat, progress, make_diagram=make)
+        self.model = self.sim.model
+        self.progress = progress or (lambda m: None)
+        self.animate = LeafAnimator(meshcat, self.sim)
+        self.release_sample = None       # index into sim.samples where the release began
+        self.vis_initial = None
+
+    @property
+    def diagram(self):
+        return self.sim.diagram
+
+    @property
+    def context(self):
+        return self.sim.context
+
+    @property
+    def time(self) -> float:
+        return self.sim.time
+
+    def Start(self) -> None:
+        self.vis_initial = self.sim.Visibility()
+
+    def Step(self, dt: float) -> None:
+        self.sim.AdvanceTo(self.sim.time + dt)
+        self.animate()
+
+    def AfterStep(self, controller, cctx, st) -> str:
+        """Makes the grasp as the pads close on the leaf (opening at most
+        ``grasp_attach_opening``, before a fast squeeze can push the thin
+        FEM leaf out) and undoes it at release. Returns an abort message or
+        ''."""
+        closing = st.mode == "close_gripper" and self.sim.GripperWidth() <= \
+            self.scenario.planner.grasp_attach_opening
+        if (closing or st.mode == "grasp_wait") and not st.grasp_acknowledged:
+            try:
+                self.sim.Grasp()
+            except RuntimeError as err:
+                return str(err)
+            controller = self.diagram.GetSubsystemByName("arm_controller")
+            controller.AcknowledgeGrasp(controller.GetMyContextFromRoot(self.context))
+        if st.mode in ("release", "retreat", "done") and self.sim.grasp_state is not None:
+            self.release_sample = len(self.sim.samples)
+            self.sim.Release()
+            self.progress("released the leaf")
+        return ""
+
+    def CurrentImages(self) -> dict:
+        return self.sim.Images()
+
+    def Pause(self) -> None:
+        pass
+
+    def Close(self) -> None:
+        pass
+
+    def Score(self, record: dict, views, st) -> None:
+        """Ground truth: outcome flags (up to the release; the release and
+        retreat separately), visibility at the two views, shape errors."""
+        from lmap_drake.plants.outcome import ShapeErrors, Summarize, VisibilityFraction
+        sim = self.sim
+        if len(views) >= 2 and views[1].label is not None:
+            sim.Visibility()   # computes the unoccluded pixel count once
+            vis_final = VisibilityFraction(views[1].label, sim._unoccluded)
+        else:
+            vis_final = sim.Visibility()
+        cut = self.release_sample if self.release_sample is not None else len(sim.samples)
+        cfg = self.scenario.plant_scene.outcome
+        record["outcome"] = Summarize(sim.samples[:cut], cfg, self.vis_initial,
+                                      vis_final).to_dict()
+        if self.release_sample is not None:
+            after = Summarize(sim.samples[cut:], cfg, vis_final, sim.Visibility()).to_dict()
+            record["release_outcome"] = {k: after[k] for k in (
+                "plant_hazard", "fruit_collision", "max_petiole_force",
+                "max_fruit_penetration", "max_fruit_contact_force")}
+            record["release_outcome"]["visibility_after_release"] = after["visibility_final"]
+        record["shape_initial"] = ShapeErrors(st.initial_estimate, self.model)
+        record["shape_final"] = ShapeErrors(st.final_estimate, self.model)
+        record["plant"] = {"occlusion_requested": self.model.occlusion_requested,
+                           "occlusion_predicted": self.model.occlusion_predicted,
+                           "occlusion_clamped": self.model.occlusion_clamped}
+        record["simulated_seconds"] = sim.time
+
+
+class HardwareWorld:
+    """The real cell (or the project's fakes) behind ``RunEpisode``: the
+    episode Diagram on ``MakeHardwareStation``, stepped against the wall
+    clock at ``realtime_rate`` (0: as fast as it goes, for fakes)."""
+    hardware = True
+
+    def __init__(self, scenario: Scenario, resources: EpisodeResources, options, clients,
+                 read_only: bool = False, realtime_rate: float = 1.0, progress=None):
+        from lmap_drake.station.hardware.station import MakeHardwareStation
+        self.scenario = scenario
+        self.clients = clients
+        self.station = MakeHardwareStation(scenario, clients, read_only=read_only)
+        self.diagram = MakeEpisodeDiagram(scenario, resources, self.station, options)
+        self.simulator = Simulator(self.diagram)
+        self.simulator.set_target_realtime_rate(0.0)   # paced here, see Step
+        self.context = self.simulator.get_mutable_context()
+        self.rate = float(realtime_rate)
+        self.progress = progress or (lambda m: None)
+        self._closed = False
+        self.simulator.Initialize()
+        self.Pause()
+
+    @property
+    def time(self) -> float:
+        return self.context.get_time()
+
+    def Start(self) -> None:
+        self.Pause()
+
+    def Pause(self) -> None:
+        """Restarts the wall-clock pacing (after planning or a prompt: the
+        run does not race to catch up)."""
+        self._t0, self._wall0 = self.time, time.monotonic()
+
+    def Step(self, dt: float) -> None:
+        target = self.time + dt
+        self.simulator.AdvanceTo(target)
+        if self.rate > 0:
+            delay = self._wall0 + (target - self._t0) / self.rate - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -0.25:      # a long computation (planning): do not catch up
+                self.Pause()
+
+    def AfterStep(self, controller, cctx, st) -> str:
+        return ""
+
+    def CurrentImages(self) -> dict:
+        ctx = self.station.GetMyContextFromRoot(self.context)
+        out = {}
+        for name in ("rgb_image", "depth_image", "label_image"):
+            image = self.station.GetOutputPort(f"camera0.{name}").Eval(ctx)
+            copy_ = type(image)(image.width(), image.height())
+            copy_.mutable_data[:] = image.data
+            out[name] = copy_
+        return out
+
+    def Score(self, record: dict, views, st) -> None:
+        record["outcome"] = None      # no ground truth on the real cell
+
+    def Close(self) -> None:
+        """Stops the arm and closes every client (the gripper is not moved)."""
+        if not self._closed:
+            self._closed = True
+            from lmap_drake.station.hardware.station import StopHardwareStation
+            StopHardwareStation(self.station)
+
+
+class LeafAnimator:
+    """Meshcat's recording does not animate deformable bodies: this adds the
+    leaf's surface as a triangle mesh every ``period`` simulated seconds and
+    toggles the snapshots' visibility in the recording, so the saved HTML
+    shows the leaf moving."""
+
+    def __init__(self, meshcat, world, period: float = 0.2):
+        from lmap_drake.plants.leaf import BoundaryTriangles
+        self.meshcat, self.world, self.period = meshcat, world, period
+        self.faces = np.asarray(BoundaryTriangles(world.model.leaf_tets), np.int32).T.copy()
+        self.k, self.next_time, self.previous = 0, 0.0, None
+
+    def __call__(self) -> None:
+        from pydrake.geometry import Rgba
+        t = self.world.time
+        if self.meshcat is None or t < self.next_time:
+            return
+        path = f"/leaf_snapshots/{self.k:04d}"
+        V = np.asarray(self.world.LeafVertices().T, float, order="F")
+        self.meshcat.SetTriangleMesh(path, V, np.asfortranarray(self.faces),
+                                     Rgba(0.2, 0.6, 0.15, 1.0))
+        self.meshcat.SetProperty(path, "visible", False, 0.0)
+        self.meshcat.SetProperty(path, "visible", True, t)
+        if self.previous is not None:
+            self.meshcat.SetProperty(self.previous, "visible", False, t)
+        self.previous, self.k, self.next_time = path, self.k + 1, t + self.period
+
+
+# ------------------------------------------------------------------ runner
+@dc.dataclass
+class EpisodeResult:
+    """What ``RunEpisode`` returns (``SaveEpisode`` writes it)."""
+    record: dict
+    world: object
+    images_before: dict | None
+    images_after: dict | None
+    status: object
+    views: tuple = ()
+
+
+def ControllerOptionsFor(scenario: Scenario, hardware: bool, plan_only: bool = False,
+                         confirm: bool = False, initial_q=None, initial_gripper=None):
+    """The ArmController's options on the simulated or the hardware station."""
+    from lmap_drake.systems.arm_controller import ControllerOptions
+    opts = ControllerOptions(initial_q=initial_q, initial_gripper=initial_gripper,
+                             grasp_ack_required=not hardware, plan_only=plan_only,
+                             confirm=confirm, release=scenario.planner.release_and_retreat)
+    if hardware:
+        from lmap_drake.station.hardware.safety import SafetyChecker
+        checker = SafetyChecker(scenario.hardware.ur)
+        opts.max_joint_speed = scenario.hardware.ur.joint_speed_limit
+        opts.trajectory_check = checker.CheckTrajectory
+    return opts
+
+
+def DescribePlan(plan) -> str:
+    """The chosen action, its predicted energy and visibility, in one line."""
+    c = plan.chosen
+    a = c.action
+    vis = (f"{c.seen / plan.seen_max:.2f} (from {plan.seen_init / plan.seen_max:.2f})"
+           if plan.seen_max and c.seen >= 0 else "n/a")
+    e = c.EnergyPerNode()
+    return (f"grasp {a.grasp_id} at {np.round(a.p_WG, 3).tolist()} m, pull "
+            f"{a.distance * 100:.0f} cm along {np.round(a.dp_W / max(a.distance, 1e-9), 2).tolist()}"
+            f"; predicted visibility {vis}; predicted energy per node "
+            + (f"{e:.2e} m^2" if e is not None else "n/a"))
+
+
+def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None = None,
+               max_time: float = 60.0, confirm: Callable | None = None) -> EpisodeResult:
+    """Steps ``world`` (``SimWorld`` or ``HardwareWorld``) until its
+    controller is finished (or ``max_time`` station seconds). ``confirm(plan)
+    -> (accepted, note)`` answers the controller's ``confirm_wait``. A
+    ``HardwareAbort`` or any exception inside the Diagram ends the episode
+    with status ``aborted`` and a message (the world stops its arm)."""
+    from lmap_drake.station.camera_noise import CameraProfile
+
+    progress = progress or (lambda m: None)
+    wall0 = time.perf_counter()
+
+    def controller():
+        c = world.diagram.GetSubsystemByName("arm_controller")
+        return c, c.GetMyContextFromRoot(world.context)
+    step_wall = 0.0
+    error = ""
+    try:
+        world.Start()
+        while world.time < max_time:
+            t0 = time.perf_counter()
+            world.Step(0.05)
+            step_wall += time.perf_counter() - t0
+            c, cctx = controller()
+            st = c.Status(cctx)
+            if st.finished:
+                break
+            if st.mode == "confirm_wait" and st.confirmed is None:
+                accepted, note = confirm(st.plan) if confirm is not None else (
+                    False, "no operator to confirm")
+                c.Confirm(cctx, accepted, note)
+                world.Pause()
+                continue
+            if st.mode == "plan_requested" or st.mode == "observe":
+                world.Pause()
+            message = world.AfterStep(c, cctx, st)
+            if message:
+                error = message
+                progress(f"aborted: {message}")
+                break
+    except KeyboardInterrupt:
+        raise
+    except Exception as err:  # noqa: BLE001 - a HardwareAbort, or a failure in the Diagram
+        from lmap_drake.station.hardware.safety import HardwareAbort
+        kind = "hardware" if isinstance(err, HardwareAbort) else "stage_error: diagram"
+        error = (f"{kind} at t = {world.time:.2f} s: "
+                 + (str(err) if isinstance(err, HardwareAbort) else
+                    f"{type(err).__name__}: {' '.join(str(err).split())}"))
+        progress(f"aborted: {error}")
+    c, cctx = controller()
+    st = c.Status(cctx)
+    views = tuple(world.diagram.GetSubsystemByName("view_recorder").GetOutputPort(
+        "views").Eval(world.diagram.GetSubsystemByName("view_recorder").GetMyContextFromRoot(
+            world.context)))
+    from lmap_drake.systems.view_recorder import _Images
+
+    def images(view):
+        rgb, depth, label = _Images(view)
+        return {"rgb_image": rgb, "depth_image": depth, "label_image": label}
+    current = world.CurrentImages()
+    before = images(views[0]) if views else current
+    after = images(views[1]) if len(views) >= 2 else current
+    plan = st.plan
+    chosen = plan.chosen.Row() if plan is not None and plan.chosen is not None else None
+    record = {
+        "scenario": scenario.plant_scene.name or "default",
+        "station": "hardware" if world.hardware else "simulation",
+        "method": scenario.planner.method,
+        "energy_weight": scenario.planner.energy_weight,
+        "perception": {"segmenter": scenario.perception.segmenter,
+                       "camera": "device" if world.hardware else CameraProfile(
+                           scenario.camera_noise)},
+        "status": "aborted" if error else st.mode,
+        "message": error or st.message,
+        # ok | no_action_needed | no_fruit | no_feasible_action | stage_error
+        "plan_status": "stage_error" if error.startswith("stage_error") else (
+            plan.status if plan is not None else ("stage_error" if st.failed_stage else None)),
+        "failed_stage": "diagram" if error.startswith("stage_error") else (
+            st.failed_stage or None),
+        "chosen_action": chosen,
+        # The planner's own visibility model (voxels of the estimated fruit):
+        # seen initially, at most (fruit alone) and after the chosen action.
+        "predicted_visibility": None if plan is None or not plan.seen_max else {
+            "initial": plan.seen_init / plan.seen_max,
+            "chosen": (plan.chosen.seen / plan.seen_max
+                       if plan.chosen is not None and plan.chosen.seen >= 0 else None)},
+        "outcome": None,
+        "shape_initial": None,
+        "shape_final": None,
+        "stage_seconds": st.stage_seconds,
+        "simulated_seconds": world.time,
+        "simulation_wall_seconds": step_wall,
+        "wall_seconds": None,
+        "mode_log": st.mode_log,
+    }
+    world.Score(record, views, st)
+    record["wall_seconds"] = time.perf_counter() - wall0
+    return EpisodeResult(record, world, before, after, st, views)
+
+
+def RunSimEpisode(scenario: Scenario, meshcat=None,
+                  progress: Callable[[str], None] | None = None, max_time: float = 60.0,
+                  resources: EpisodeResources | None = None, plan_only: bool = False
+                  ) -> EpisodeResult:
+    """One full episode on the simulated plant world (no confirmation)."""
+    progress = progress or (lambda m: None)
+    resources = resources or EpisodeResources.Make(scenario, progress)
+    resources.progress = progress
+    world = SimWorld(scenario, resources, ControllerOptionsFor(scenario, False, plan_only),
+                     meshcat, progress)
+    return RunEpisode(scenario, world, progress, max_time)
+
+
+# ------------------------------------------------------------------ outputs
+def PlanRecord(plan, stage_seconds: dict | None = None) -> dict:
+    """``plan.json``: the planner's answer (status, chosen action, predicted
+    visibility, stage timings), the same for a run and its replay."""
+    if plan is None:
+        return {"status": None}
+    out = {"status": plan.status, "method": plan.method, "message": plan.message,
+           "chosen_action": plan.chosen.Row() if plan.chosen is not None else None,
+           "predicted_visibility": None if not plan.seen_max else {
+               "initial": plan.seen_init / plan.seen_max,
+               "chosen": (plan.chosen.seen / plan.seen_max
+                          if plan.chosen is not None and plan.chosen.seen >= 0 else None)},
+           "num_candidates": len(plan.candidates),
+           "num_feasible": sum(c.feasible for c in plan.candidates)}
+    if stage_seconds is not None:
+        out["stage_seconds"] = stage_seconds
+    return out
+
+
+def RecordingCamera(scenario: Scenario, clients=None) -> tuple[dict, np.ndarray]:
+    """(camera dict, X_WC 4x4) of camera0 as the episode used it."""
+    from lmap_drake.perception.points import Intrinsics
+    cam = scenario.cameras["camera0"]
+    K = Intrinsics.FromCameraConfig(cam)
+    info = {"width": K.width, "height": K.height, "fx": K.fx, "fy": K.fy, "cx": K.cx,
+            "cy": K.cy}
+    if clients is not None:
+        info["serial"] = str(getattr(clients.camera, "serial", ""))
+        info["depth_scale"] = float(getattr(clients.camera, "depth_scale", float("nan")))
+    return info, cam.X_PB.GetDeterministicValue().GetAsMatrix4()
+
+
+def SaveEpisode(result: EpisodeResult, out: Path, clients=None) -> list[str]:
+    """Writes ``episode.json``, ``plan.json``, ``candidates.json``, the
+    recording, RGB/depth of view 0 (and label in simulation), view 1, the
+    images with the segmentation overlaid, the plan over the camera image
+    and the shape pictures."""
+    from lmap_drake.evaluation.figures import SaveEpisodeFigures
+    from lmap_drake.perception.recording import SaveRecording
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    world = result.world
+    (out / "episode.json").write_text(json.dumps(result.record, indent=2, default=float))
+    files = ["episode.json"]
+    plan = result.status.plan
+    (out / "plan.json").write_text(json.dumps(PlanRecord(plan, result.status.stage_seconds),
+                                              indent=1, default=float))
+    files.append("plan.json")
+    if plan is not None:
+        plan.SaveJson(out / "candidates.json")
+        files.append("candidates.json")
+    camera, X_WC = RecordingCamera(world.scenario, clients)
+    files += SaveRecording(out, result.views, camera, X_WC,
+                           "hardware" if world.hardware else "simulation")
+    if result.images_before is not None:
+        SaveRgb(result.images_before["rgb_image"], out / "rgb.png")
+        SaveDepth(result.images_before["depth_image"], out / "depth.png")
+        files += ["rgb.png", "depth.png"]
+        if not world.hardware:
+            SaveLabel(result.images_before["label_image"], out / "label.png")
+            files.append("label.png")
+    if len(result.views) >= 2 and result.images_after is not None:
+        SaveRgb(result.images_after["rgb_image"], out / "rgb_after.png")
+        files.append("rgb_after.png")
+        if not world.hardware:
+            SaveLabel(result.images_after["label_image"], out / "label_after.png")
+            files.append("label_after.png")
+    files += SaveEpisodeFigures(result, out)
+    if result.record.get("outcome") is not None:
+        (out / "outcome.json").write_text(json.dumps(result.record["outcome"], indent=2))
+        files.append("outcome.json")
+    return files
+
+
+def ConsoleConfirm(plan) -> tuple[bool, str]:
+    """Shows the chosen action and asks the operator to type ``yes``."""
+    print(f"[lmap-drake] chosen action: {DescribePlan(plan)}", flush=True)
+    try:
+        answer = input("[lmap-drake] move the robot to execute it? type 'yes' to move: ")
+    except EOFError:
+        return False, "no answer (end of input)"
+    answer = answer.strip().lower()
+    return (answer == "yes"), (f"answered {answer!r}" if answer != "yes" else "")
+
+
+def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None] = print,
+                   hardware: bool = False, plan_only: bool = False, confirm: bool = False,
+                   confirm_fn: Callable | None = None, clients=None,
+                   realtime_rate: float = 1.0, resources: EpisodeResources | None = None
+                   ) -> tuple[list[str], str]:
+    """The full LMAP loop on the simulated station (the FEM plant world) or
+    the hardware station (``clients`` injected, e.g. the project's fakes, or
+    connected here). Writes ``scenario.yaml`` (as run: on hardware with the
+    device's intrinsics and the calibrated pose), ``episode.json``,
+    ``plan.json``, ``candidates.json``, ``recording/``, images, figures,
+    ``diagram.svg``, and in simulation the ground truth, ``outcome.json`` and
+    ``scene.html``. Returns (files, status: done | planned | aborted ...)."""
     from lmap_drake.diagram import WriteDiagramSvg
-    from lmap_drake.evaluation.episode import RunEpisode, SaveEpisode
-    from lmap_drake.plants.generator import SaveGroundTruth
 
     out = Path(out)
-    DumpScenario(scenario, out / "scenario.yaml")
-    meshcat = Meshcat()
-    progress("loading the shape template, generating the plant, building the diagram")
-    meshcat.StartRecording()
-    result = RunEpisode(scenario, meshcat, progress)
-    meshcat.StopRecording()
-    meshcat.PublishRecording()
-    files = ["scenario.yaml"] + SaveEpisode(result, out)
-    files += SaveGroundTruth(result.world.model, out)
-    SaveRgb(result.images_before["rgb_image"], out / "rgb.png")
-    SaveDepth(result.images_before["depth_image"], out / "depth.png")
-    SaveLabel(result.images_before["label_image"], out / "label.png")
-    SaveRgb(result.images_after["rgb_image"], out / "rgb_after.png")
-    SaveLabel(result.images_after["label_image"], out / "label_after.png")
-    (out / "outcome.json").write_text(json.dumps(result.record["outcome"], indent=2))
-    files += ["rgb.png", "depth.png", "label.png", "rgb_after.png", "label_after.png",
-              "outcome.json"]
-    files.append("diagram.svg" if WriteDiagramSvg(result.world.diagram, out / "diagram.svg")
+    out.mkdir(parents=True, exist_ok=True)
+    confirm_fn = confirm_fn or ConsoleConfirm
+    meshcat = None
+    own = False
+    if hardware:
+        from lmap_drake.station.hardware.run import PrepareHardware
+        scenario, clients, own = PrepareHardware(scenario, clients, read_only=plan_only,
+                                                 progress=progress)
+    files = ["scenario.yaml"]
+    world = None
+    try:
+        DumpScenario(scenario, out / "scenario.yaml")
+        progress("loading the shape template, building the diagram")
+        resources = resources or EpisodeResources.Make(scenario, progress)
+        resources.progress = progress
+        if hardware:
+            q0, _ = clients.ur.ReadState()
+            opts = ControllerOptionsFor(scenario, True, plan_only, confirm, initial_q=q0,
+                                        initial_gripper=clients.gripper.Opening())
+            world = HardwareWorld(scenario, resources, opts, clients, read_only=plan_only,
+                                  realtime_rate=realtime_rate, progress=progress)
+        else:
+            meshcat = Meshcat()
+            opts = ControllerOptionsFor(scenario, False, plan_only, confirm)
+            world = SimWorld(scenario, resources, opts, meshcat, progress)
+            if world.model.occlusion_clamped:
+                m = world.model
+                progress(f"warning: the leaf hides at most {m.occlusion_predicted:.2f} of the "
+                         f"fruit, not the requested plant_scene.occlusion "
+                         f"{m.occlusion_requested:.2f} (clamped; recorded in episode.json)")
+            FrameMeshcat(meshcat, scenario)
+            meshcat.StartRecording()
+        result = RunEpisode(scenario, world, progress, confirm=confirm_fn)
+    finally:
+        if world is not None:
+            world.Close()
+        elif hardware and own:
+            clients.Close()
+    if meshcat is not None:
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+    files += SaveEpisode(result, out, clients if hardware else None)
+    if not hardware:
+        from lmap_drake.plants.generator import SaveGroundTruth
+        files += SaveGroundTruth(world.model, out)
+    files.append("diagram.svg" if WriteDiagramSvg(world.diagram, out / "diagram.svg")
                  else "diagram.dot")
-    (out / "scene.html").write_text(meshcat.StaticHtml())
-    files.append("scene.html")
+    if meshcat is not None:
+        (out / "scene.html").write_text(meshcat.StaticHtml())
+        files.append("scene.html")
     r = result.record
     progress(f"episode {r['status']}: {r['message'] or '(no message)'}")
-    progress("outcome: " + json.dumps(r["outcome"]))
+    if r["outcome"] is not None:
+        progress("outcome: " + json.dumps(r["outcome"]))
     if r["shape_initial"] and r["shape_final"]:
         progress(f"Chamfer {r['shape_initial']['chamfer_cm']:.2f} cm -> "
                  f"{r['shape_final']['chamfer_cm']:.2f} cm; wall {r['wall_seconds']:.0f} s")
     return files, str(r["status"])
+
+
+# ------------------------------------------------------------------ replay
+def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
+              progress: Callable[[str], None] = print) -> tuple[list[str], dict]:
+    """Re-runs perception, shape completion and planning on the view a run
+    recorded (``run_dir/recording``), with the run's ``scenario.yaml`` and
+    ``scenario_text`` overrides. Writes ``scenario.yaml``, ``plan.json``,
+    ``candidates.json``, ``replay.json`` (the run's and the replay's chosen
+    action, same or not, timings), ``rgb_before_segmented.png`` and
+    ``plan_on_image.png``. Returns (files, replay record)."""
+    from lmap_drake.diagram import MakeReplayDiagram
+    from lmap_drake.perception.recording import LoadRecording, RecordingError
+    from lmap_drake.scenario import LoadScenario, ScenarioWithCamera
+    from lmap_drake.systems.view_recorder import RecordedViews
+
+    run_dir, out = Path(run_dir), Path(out)
+    recording = LoadRecording(run_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scenario_file = run_dir / "scenario.yaml"
+    if not scenario_file.exists():
+        raise RecordingError(f"{scenario_file} not found: a replay needs the run's scenario")
+    scenario = LoadScenario(filename=str(scenario_file), scenario_text=scenario_text, bare=True)
+    scenario = ScenarioWithCamera(scenario, recording.camera, recording.X_WC)
+    if recording.station == "hardware":
+        scenario.perception.no_return_free_range = 0.0
+    if scenario.perception.segmenter == "label" and recording.views[0].label is None:
+        raise RecordingError(f"{run_dir}: the recording has no label images (a hardware "
+                             f"run); the label segmenter cannot replay it")
+    DumpScenario(scenario, out / "scenario.yaml")
+    progress(f"replaying view 0 of {recording.folder} ({recording.station} run)")
+    t0 = time.perf_counter()
+    resources = EpisodeResources.Make(scenario, progress)
+    t_load = time.perf_counter() - t0
+    diagram = MakeReplayDiagram(scenario, resources, RecordedViews(recording.views, 1))
+    ctx = diagram.CreateDefaultContext()
+
+    def timed(name):
+        system = diagram.GetSubsystemByName(name)
+        port = {"perception": "semantic_scene", "shape_completion": "scene_estimate",
+                "action_selection": "plan"}[name]
+        t = time.perf_counter()
+        value = system.GetOutputPort(port).Eval(system.GetMyContextFromRoot(ctx))
+        return value, time.perf_counter() - t
+    semantic, seg_s = timed("perception")
+    estimate, ssc_s = timed("shape_completion")
+    plan, plan_s = timed("action_selection")
+    stage_seconds = {"segmentation_s": seg_s, "shape_completion_s": ssc_s,
+                     "planning_s": plan_s, **plan.timings}
+    files = ["scenario.yaml", "plan.json", "replay.json"]
+    (out / "plan.json").write_text(json.dumps(PlanRecord(plan, stage_seconds), indent=1,
+                                              default=float))
+    plan.SaveJson(out / "candidates.json")
+    files.append("candidates.json")
+    original = None
+    if (run_dir / "plan.json").exists():
+        original = json.loads((run_dir / "plan.json").read_text()).get("chosen_action")
+    mine = plan.chosen.Row() if plan.chosen is not None else None
+    same = None if original is None and mine is None else (
+        original is not None and mine is not None and all(
+            original[k] == mine[k] for k in ("grasp_id", "direction_id", "distance")))
+    record = {"run": str(run_dir), "scenario_text": scenario_text, "status": plan.status,
+              "message": plan.message, "chosen_action": mine, "run_chosen_action": original,
+              "same_action_as_run": same,
+              "planning_wall_seconds": seg_s + ssc_s + plan_s,
+              "template_load_seconds": t_load, "stage_seconds": stage_seconds}
+    (out / "replay.json").write_text(json.dumps(record, indent=1, default=float))
+    files += SavePlanFigures(scenario, recording.views[0], plan, estimate, out)
+    progress(f"replay plan {plan.status}: " + (DescribePlan(plan) if plan.chosen is not None
+                                               else plan.message))
+    progress(f"planning on the replayed capture: {record['planning_wall_seconds']:.1f} s; "
+             + ("same action as the run" if same else "a different action from the run"
+                if same is False else "the run had no plan to compare"))
+    return files, record
+
+
+def SavePlanFigures(scenario: Scenario, view, plan, estimate, out: Path) -> list[str]:
+    """``rgb_before_segmented.png`` and ``plan_on_image.png`` for one view."""
+    from PIL import Image
+
+    from lmap_drake.evaluation.figures import Overlay, PlanOnImage
+    from lmap_drake.perception.points import Intrinsics
+    from lmap_drake.perception.segmentation import MakeSegmenter
+    cam = scenario.cameras["camera0"]
+    K = Intrinsics.FromCameraConfig(cam)
+    segmenter = MakeSegmenter(scenario.perception, K)
+    seg = segmenter.Segment(view.rgb, view.depth[..., None], None if view.label is None
+                            else view.label[..., None])
+    Image.fromarray(Overlay(view.rgb, seg.class_map,
+                            title=f"segmenter: {segmenter.name} (before)")).save(
+        out / "rgb_before_segmented.png")
+    Image.fromarray(PlanOnImage(view.rgb, plan, estimate, K,
+                                cam.X_PB.GetDeterministicValue().GetAsMatrix4())).save(
+        out / "plan_on_image.png")
+    return ["rgb_before_segmented.png", "plan_on_image.png"]

@@ -428,7 +428,13 @@ class PlannerConfig:
     execute this candidate of the LMAP table instead of the best-scoring one
     (what-if runs and ``scripts/action_oracle.py``). It must pass the IK and
     robot collision checks; the energy cap, leaf-fruit and early-stop
-    verdicts are kept in its ``reason`` but do not stop it."""
+    verdicts are kept in its ``reason`` but do not stop it.
+
+    ``speed_scale`` (0, 1] scales every arm motion of the episode (joint
+    moves, approach, pull, release, retreat); on hardware the joint speed is
+    also bounded by ``hardware.ur.joint_speed_limit``. ``release_and_retreat``
+    ends the episode by opening the gripper and backing out to the start
+    pose (false: the episode ends holding the leaf after the re-estimation)."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -447,6 +453,8 @@ class PlannerConfig:
     max_energy_per_node: float = 5.9e-7
     force_action: list[float] = dc.field(default_factory=list)
     method: str = "lmap"  # lmap | random | upward | min_overlap
+    speed_scale: float = 1.0
+    release_and_retreat: bool = True
 
 
 @dc.dataclass
@@ -582,10 +590,11 @@ def _ReadScenarioFile(path: Path) -> str:
 
 def LoadScenario(*, filename: str | Path | None = None,
                  scenario_name: str | None = None,
-                 scenario_text: str | list[str] = "{}") -> Scenario:
+                 scenario_text: str | list[str] = "{}", bare: bool = False) -> Scenario:
     """Loads a scenario: defaults, then ``scenario_name`` from ``filename``,
     then the YAML overrides in ``scenario_text`` (a list: applied in order),
-    then ``Validate``.
+    then ``Validate``. With ``bare`` the file holds one scenario at its top
+    level (a run's ``scenario.yaml``, written by ``DumpScenario``).
 
     Raises ScenarioError naming the key path and the file (or
     ``--scenario_text``) on any bad input: a missing, unreadable or malformed
@@ -602,7 +611,9 @@ def LoadScenario(*, filename: str | Path | None = None,
         if not isinstance(raw_all, dict):
             raise ScenarioError(f"{path}: the top level must map scenario names to "
                                 f"scenarios, got a {type(raw_all).__name__}")
-        name = scenario_name or DEFAULT_SCENARIO_NAME
+        if bare:
+            raw_all = {"": raw_all}
+        name = "" if bare else (scenario_name or DEFAULT_SCENARIO_NAME)
         if name not in raw_all:
             have = ", ".join(map(str, raw_all)) or "none"
             raise ScenarioError(f"scenario '{name}' not in {path}; it has: {have}")
@@ -610,9 +621,12 @@ def LoadScenario(*, filename: str | Path | None = None,
         if raw_all[name] is not None and not isinstance(raw_all[name], dict):
             raise ScenarioError(f"{where}: a scenario must be a map of sections, got "
                                 f"{raw_all[name]!r}")
+        if bare:
+            where = str(path)
         try:
-            result = yaml_load_typed(schema=Scenario, data=text, child_name=name,
-                                     defaults=result)
+            result = (yaml_load_typed(schema=Scenario, data=text, defaults=result) if bare else
+                      yaml_load_typed(schema=Scenario, data=text, child_name=name,
+                                      defaults=result))
         except Exception as err:  # Drake raises RuntimeError
             raise _explain(err, raw_all[name], name, where) from None
         sources.append((raw_all[name] or {}, where))
@@ -785,6 +799,7 @@ _RULES = {
     "planner.collision_margin": ">=0",
     "planner.energy_weight": ">=0",
     "planner.max_energy_per_node": ">=0",
+    "planner.speed_scale": "(0,1]",
 }
 _ENUMS = {
     "plant_scene.kind": ("placeholder", "procedural"),
@@ -966,3 +981,21 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
 def DumpScenario(s: Scenario, filename: str | Path) -> None:
     """Writes the resolved scenario (all fields) as YAML."""
     Path(filename).write_text(yaml_dump_typed(s, schema=Scenario))
+
+
+def ScenarioWithCamera(scenario: Scenario, camera: dict, X_WC) -> Scenario:
+    """``scenario`` with camera0's intrinsics and pose replaced (a recording,
+    or the hardware camera)."""
+    import copy
+    from pydrake.common.schema import Transform
+    from pydrake.math import RigidTransform
+    from pydrake.systems.sensors import CameraConfig
+    s = copy.deepcopy(scenario)
+    cam = s.cameras["camera0"]
+    cam.width, cam.height = int(camera["width"]), int(camera["height"])
+    cam.focal = CameraConfig.FocalLength(x=float(camera["fx"]), y=float(camera["fy"]))
+    cam.center_x, cam.center_y = float(camera["cx"]), float(camera["cy"])
+    X = X_WC if isinstance(X_WC, RigidTransform) else RigidTransform(np.asarray(X_WC, float))
+    cam.X_PB = Transform(X)
+    cam.X_PB.base_frame = "world"
+    return s

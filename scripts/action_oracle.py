@@ -51,10 +51,10 @@ def _RunOne(suite: str, name: str, text: str, with_candidates: bool) -> dict:
     """One episode in this (worker) process; never raises."""
     t0 = time.perf_counter()
     try:
-        from lmap_drake.evaluation.episode import RunEpisode
+        from lmap_drake.episode import RunSimEpisode
         from lmap_drake.scenario import LoadScenario
         s = LoadScenario(filename=suite, scenario_name=name, scenario_text=text)
-        res = RunEpisode(s)
+        res = RunSimEpisode(s)
         rec = dict(res.record)
         plan = res.status.plan
         if with_candidates and plan is not None:

@@ -166,7 +166,7 @@ def LeafMeshWorkaround(scenario, max_tries: int = 6) -> tuple[object, str]:
     import copy
 
     from lmap_drake.plants.leaf import TetVolumes
-    from lmap_drake.station.station import GetPlantModel
+    from lmap_drake.plants.world import GetPlantModel
 
     def worst(s):
         m = GetPlantModel(s)

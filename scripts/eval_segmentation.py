@@ -79,7 +79,7 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import ClassIou, MakeSegmenter, TruthClassMap
     from lmap_drake.scenario import LoadScenario
-    from lmap_drake.station.station import RenderStill
+    from lmap_drake.plants.world import RenderStill
     names = names or _scenario_names(scenario_file)
     results = {b: {"scenarios": {}} for b in backends}
     for name in names:

@@ -44,7 +44,7 @@ def _ArmNearLeaf(s, rng) -> list[float]:
     from pydrake.math import RigidTransform, RotationMatrix
 
     from lmap_drake.planning.robot_model import RobotModel
-    from lmap_drake.station.station import GetPlantModel
+    from lmap_drake.plants.world import GetPlantModel
     leaf = GetPlantModel(s).leaf_rest_W
     p = leaf[rng.integers(len(leaf))]
     p_WC = s.cameras["camera0"].X_PB.GetDeterministicValue().translation()
@@ -131,7 +131,7 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0) -> dic
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import TruthClassMap
     from lmap_drake.perception.segnet import CropBox, SegNetInputs
-    from lmap_drake.station.station import RenderStill
+    from lmap_drake.plants.world import RenderStill
 
     s, kind = RandomRenderScenario(seed, arm_near_leaf)
     rgb, depth, label = RenderStill(s)

@@ -22,6 +22,7 @@ from lmap_drake.cli import main
 from lmap_drake.errors import EXIT_ABORTED, EXIT_BAD_INPUT, EXIT_ERROR, EXIT_INTERRUPTED
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, REPO_ROOT
 from lmap_drake.scenario import LoadScenario, ScenarioError
+from lmap_drake.station.hardware_config import CalibrationError
 
 PLACEHOLDER = "{plant_scene: {kind: placeholder}, simulation_duration: 0.05}"
 
@@ -167,21 +168,29 @@ def test_calibration_nan_translation_and_other_serial(tmp_path):
         LoadCameraCalibration(str(d))
 
 
-def test_dry_run_refuses_a_calibration_for_another_camera(tmp_path, scenario):
+@pytest.mark.parametrize("calibration, match", [
+    ("X_WC:\n  translation: [0.5, -0.6, 0.47]\ncamera_serial: f7777777\n",
+     "is for camera f7777777, the connected camera is f0000001"),
+    ("X_WC:\n  translation: [.nan, -0.6, 0.47]\n", "fixed, finite pose"),
+])
+def test_dry_run_refuses_a_bad_calibration_before_anything_moves(tmp_path, scenario,
+                                                                 calibration, match):
+    """``--dry-run`` / ``--plan-only`` on the (fake) cell: a calibration for
+    another camera or a non-finite X_WC is bad input, refused before the
+    episode is built; the fake arm got no command."""
+    from lmap_drake.episode import RunLmapEpisode
     from lmap_drake.station.hardware.fakes import FakeRobotiqServer, MakeFakeHardwareClients
-    from lmap_drake.station.hardware.run import RunHardwareSnapshot
-    from lmap_drake.station.station import HardwareStationUnavailable
     f = tmp_path / "calib.yaml"
-    f.write_text("X_WC:\n  translation: [0.5, -0.6, 0.47]\ncamera_serial: f7777777\n")
+    f.write_text(calibration)
     scenario.hardware.camera.calibration_file = str(f)
-    (tmp_path / "o").mkdir()
     with FakeRobotiqServer() as server:
         clients = MakeFakeHardwareClients(scenario.hardware, q0=scenario.robot.initial_q,
-                                          gripper_server=server)
-        with pytest.raises(HardwareStationUnavailable, match="f7777777"):
-            RunHardwareSnapshot(scenario, tmp_path / "o", dry_run=True, progress=print,
-                                clients=clients)
-    assert not (tmp_path / "o" / "rgb.png").exists()
+                                          gripper_server=server, read_only=True)
+        with pytest.raises(CalibrationError, match=match):
+            RunLmapEpisode(scenario, tmp_path / "o", progress=print, hardware=True,
+                           plan_only=True, clients=clients)
+    assert clients.ur.servo_count == 0
+    assert not (tmp_path / "o" / "episode.json").exists()
 
 
 # ------------------------------------------------------------------ 2/3. outputs
@@ -264,7 +273,7 @@ def test_default_output_folder_is_unique():
 def test_run_exits_3_when_the_episode_aborted(capsys, tmp_path, monkeypatch):
     import lmap_drake.episode as E
 
-    def aborted(scenario, out, progress=print):
+    def aborted(scenario, out, progress=print, **kw):
         (Path(out) / "episode.json").write_text(json.dumps({"status": "aborted"}))
         return ["episode.json"], "aborted"
     monkeypatch.setattr(E, "RunLmapEpisode", aborted)

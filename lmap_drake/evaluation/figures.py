@@ -74,6 +74,9 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     files = []
     segmenter = _EpisodeSegmenter(result)
     for tag, images in (("before", result.images_before), ("after", result.images_after)):
+        if images is None or images["rgb_image"].width() == 0 or (
+                tag == "after" and len(getattr(result, "views", ())) < 2):
+            continue
         seg = segmenter.Segment(images["rgb_image"].data, images["depth_image"].data,
                                 images["label_image"].data)
         Image.fromarray(Overlay(images["rgb_image"], seg.class_map,
@@ -81,8 +84,16 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
             out / f"rgb_{tag}_segmented.png")
         files.append(f"rgb_{tag}_segmented.png")
     st = result.status
-    model = result.world.model
+    model = getattr(result.world, "model", None)     # ground truth: simulation only
     plan = st.plan
+    if getattr(result, "views", ()) and plan is not None:
+        from lmap_drake.perception.points import Intrinsics
+        cam = result.world.scenario.cameras["camera0"]
+        Image.fromarray(PlanOnImage(result.views[0].rgb, plan, st.initial_estimate,
+                                    Intrinsics.FromCameraConfig(cam),
+                                    cam.X_PB.GetDeterministicValue().GetAsMatrix4())).save(
+            out / "plan_on_image.png")
+        files.append("plan_on_image.png")
     fig = plt.figure(figsize=(12, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     est = st.initial_estimate
@@ -104,18 +115,21 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     ax.legend(loc="upper left", fontsize=7)
     _EqualAxes(ax)
     ax2 = fig.add_subplot(1, 2, 2, projection="3d")
-    gt = model.fruit_mesh_W
-    ax2.plot_trisurf(*np.asarray(gt.vertices).T, triangles=np.asarray(gt.faces), color="gray",
-                     alpha=0.25)
+    if model is not None:
+        gt = model.fruit_mesh_W
+        ax2.plot_trisurf(*np.asarray(gt.vertices).T, triangles=np.asarray(gt.faces),
+                         color="gray", alpha=0.25)
     for e, color, name in ((st.initial_estimate, "orange", "initial"),
                            (st.final_estimate, "blue", "final")):
         if e is not None and e.fruit is not None:
             v = e.fruit.vertices_W
             ax2.scatter(*v[::3].T, s=1, c=color, label=f"{name} estimate")
             ax2.quiver(*e.fruit.center_W, *(0.05 * e.fruit.peduncle_axis_W), color=color)
-    ax2.quiver(*model.fruit_center_W, *(0.05 * model.peduncle_axis_W), color="black",
-               label="ground-truth axis")
-    ax2.set_title("fruit estimates vs ground truth (gray)")
+    if model is not None:
+        ax2.quiver(*model.fruit_center_W, *(0.05 * model.peduncle_axis_W), color="black",
+                   label="ground-truth axis")
+    ax2.set_title("fruit estimates vs ground truth (gray)" if model is not None
+                  else "fruit estimates (no ground truth on hardware)")
     ax2.legend(loc="upper left", fontsize=7)
     _EqualAxes(ax2)
     fig.tight_layout()
@@ -123,3 +137,75 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     plt.close(fig)
     files.append("action_and_shapes.png")
     return files
+
+
+def _Project(p_W: np.ndarray, K, X_WC: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (u, v) of world points; NaN behind the camera."""
+    X_CW = np.linalg.inv(X_WC)
+    p_C = (X_CW[:3, :3] @ np.asarray(p_W, float).reshape(-1, 3).T).T + X_CW[:3, 3]
+    z = p_C[:, 2]
+    uv = np.full((len(p_C), 2), np.nan)
+    ok = z > 1e-3
+    uv[ok, 0] = K.fx * p_C[ok, 0] / z[ok] + K.cx
+    uv[ok, 1] = K.fy * p_C[ok, 1] / z[ok] + K.cy
+    return uv
+
+
+def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
+    """The camera image (greyed) with the planner's view of the chosen
+    action drawn over it: the observed leaf (yellow), the predicted
+    deformed leaf (green), the fruit estimate's outline (magenta), the grasp
+    point and the pull (blue arrow), and a caption with the predicted
+    energy and visibility. ``K``: ``perception.points.Intrinsics``; ``X_WC``
+    4x4, the camera's pose in W."""
+    from PIL import ImageDraw
+    base = RgbArray(rgb).astype(float)
+    base = 0.45 * base + 0.55 * base.mean(axis=2, keepdims=True)
+    img = Image.fromarray(np.clip(base, 0, 255).astype(np.uint8))
+    draw = ImageDraw.Draw(img)
+    w, h = img.size
+
+    def dots(points, color, every=1, r=1):
+        if points is None or len(points) == 0:
+            return
+        for u, v in _Project(np.asarray(points)[::every], K, X_WC):
+            if np.isfinite(u) and 0 <= u < w and 0 <= v < h:
+                draw.ellipse([u - r, v - r, u + r, v + r], fill=color)
+    if estimate is not None:
+        dots(estimate.semantic.leaf_points_W, (255, 225, 0), max(1, len(
+            estimate.semantic.leaf_points_W) // 3000))
+        if estimate.fruit is not None:
+            dots(estimate.fruit.vertices_W, (255, 0, 200), 4)
+    lines = [f"plan: {plan.status} ({plan.method})"]
+    c = plan.chosen
+    if c is not None:
+        if c.deformed_leaf_W is not None:
+            dots(c.deformed_leaf_W, (60, 255, 60), max(1, len(c.deformed_leaf_W) // 3000))
+        a = c.action
+        (u0, v0), (u1, v1) = _Project(np.vstack([a.p_WG, a.p_WG + a.dp_W]), K, X_WC)
+        if np.all(np.isfinite([u0, v0, u1, v1])):
+            draw.line([u0, v0, u1, v1], fill=(0, 120, 255), width=3)
+            draw.ellipse([u0 - 5, v0 - 5, u0 + 5, v0 + 5], outline=(0, 120, 255), width=2)
+            d = np.array([u1 - u0, v1 - v0])
+            if np.linalg.norm(d) > 1:
+                d /= np.linalg.norm(d)
+                n = np.array([-d[1], d[0]])
+                tip = np.array([u1, v1])
+                draw.polygon([tuple(tip), tuple(tip - 9 * d + 5 * n), tuple(tip - 9 * d - 5 * n)],
+                             fill=(0, 120, 255))
+        e = c.EnergyPerNode()
+        vis = (f"{plan.seen_init / plan.seen_max:.2f} -> {c.seen / plan.seen_max:.2f}"
+               if plan.seen_max and c.seen >= 0 else "n/a")
+        lines += [f"grasp {a.grasp_id}, pull {a.distance * 100:.0f} cm",
+                  f"predicted visibility {vis}",
+                  "predicted energy/node " + (f"{e:.2e} m^2" if e is not None else "n/a")]
+    else:
+        lines.append(plan.message[:90])
+    legend = [("observed leaf", (255, 225, 0)), ("predicted leaf", (60, 255, 60)),
+              ("fruit estimate", (255, 0, 200)), ("grasp + pull", (0, 120, 255))]
+    y = 4
+    for text, color in [(t, (255, 255, 255)) for t in lines] + legend:
+        draw.rectangle([4, y, 4 + 7 * len(text) + 6, y + 13], fill=(0, 0, 0))
+        draw.text((7, y + 1), text, fill=color)
+        y += 16
+    return np.asarray(img)

@@ -110,12 +110,12 @@ def RunOneEpisode(spec: dict, suite_file: str) -> dict:
     """Runs one spec in this process; never raises (errors become records)."""
     t0 = time.perf_counter()
     try:
-        from lmap_drake.evaluation.episode import RunEpisode
+        from lmap_drake.episode import RunSimEpisode
         scenario = _LoadSpec(spec, suite_file)
         if spec.get("scenario_hash") and ScenarioHash(scenario) != spec["scenario_hash"]:
             raise EvalConflict(f"{suite_file} changed while the evaluation ran: "
                                f"{spec['scenario']} no longer matches {spec['episode_id']}")
-        record = dict(RunEpisode(scenario).record)
+        record = dict(RunSimEpisode(scenario).record)
     except BaseException as err:  # noqa: BLE001 - recorded, not raised
         if isinstance(err, KeyboardInterrupt):
             raise

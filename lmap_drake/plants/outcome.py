@@ -88,3 +88,17 @@ def Summarize(samples: list[OutcomeSample], cfg, visibility_initial: float,
         visibility_initial=visibility_initial, visibility_final=visibility_final,
         max_strain_percentile=s, max_petiole_force=f, max_fruit_penetration=pen,
         max_fruit_contact_force=fc)
+
+
+def ShapeErrors(estimate, model) -> dict | None:
+    """Table I metrics of a fruit estimate (``SceneEstimate``) against the
+    plant's ground truth: Chamfer (cm), volume error (cm^3), centre error
+    (cm), peduncle-axis angle (deg); None without a fruit estimate."""
+    from lmap_drake.shape.metrics import ShapeMetrics
+    if estimate is None or estimate.fruit is None:
+        return None
+    f = estimate.fruit
+    gt = model.fruit_mesh_W
+    return {k: float(v) for k, v in ShapeMetrics(
+        f.vertices_W, f.faces, f.peduncle_axis_W, np.asarray(gt.vertices),
+        np.asarray(gt.faces), model.peduncle_axis_W, n=10000).items()}

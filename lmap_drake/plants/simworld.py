@@ -27,7 +27,7 @@ from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, Petiol
                                        StrainPercentile, VisibilityFraction)
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
-from lmap_drake.station.station import LeafGrasp, GetPlantModel, MakeStation
+from lmap_drake.plants.world import GetPlantModel, LeafGrasp, MakePlantStation
 
 
 def _Kabsch(P: np.ndarray, Q: np.ndarray) -> RigidTransform:
@@ -111,7 +111,7 @@ class PlantWorldSim:
     # --- building and state carry-over ----------------------------------
     def _build(self, grasp: LeafGrasp | None, old_context) -> None:
         if self._make_diagram is None:
-            self.station = MakeStation(self.scenario, self.meshcat, leaf_grasp=grasp)
+            self.station = MakePlantStation(self.scenario, self.meshcat, leaf_grasp=grasp)
             self.diagram = self.station
         else:
             self.diagram, self.station = self._make_diagram(self.scenario, self.meshcat, grasp)

@@ -27,7 +27,14 @@ GRIPPER_JOINTS = ["left_finger_joint", "right_finger_joint"]
 
 def Ur5DhForwardKinematics(q: np.ndarray) -> np.ndarray:
     """4x4 pose of the flange (DH frame 6) in the base frame, standard DH."""
+    return Ur5DhFrames(q)[-1]
+
+
+def Ur5DhFrames(q: np.ndarray) -> list[np.ndarray]:
+    """4x4 poses of DH frames 0 (base) .. 6 (flange) in the base frame:
+    frame 1 sits on the shoulder, 2 at the elbow, 3-5 at the wrists."""
     T = np.eye(4)
+    frames = [T]
     for i in range(6):
         ct, st = np.cos(q[i]), np.sin(q[i])
         ca, sa = np.cos(UR5_DH_ALPHA[i]), np.sin(UR5_DH_ALPHA[i])
@@ -36,7 +43,8 @@ def Ur5DhForwardKinematics(q: np.ndarray) -> np.ndarray:
                       [0.0, sa, ca, UR5_DH_D[i]],
                       [0.0, 0.0, 0.0, 1.0]])
         T = T @ A
-    return T
+        frames.append(T)
+    return frames
 
 
 def MakeParser(plant: MultibodyPlant) -> Parser:

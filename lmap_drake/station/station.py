@@ -17,9 +17,6 @@ fixed), with the Drake camera convention (+z forward, +x right, +y down).
 """
 from __future__ import annotations
 
-import dataclasses as dc
-import functools
-
 import numpy as np
 from pydrake.geometry import (MakeRenderEngineVtk, Meshcat, MeshcatVisualizer,
                               MeshcatVisualizerParams, PerceptionProperties,
@@ -33,7 +30,6 @@ from pydrake.systems.primitives import (Demultiplexer, MatrixGain,
 from pydrake.systems.sensors import RgbdSensor
 
 from lmap_drake.labels import ROBOT, EncodeLabel
-from lmap_drake.plants.scene import AddPlaceholderPlant, AddProceduralPlant
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.camera_noise import CameraNoise
 from lmap_drake.station.robot import (GRIPPER_JOINTS, UR5_JOINTS, AddUr5AndGripper,
@@ -71,39 +67,6 @@ class GravityCompensation(LeafSystem):
         output.SetFromVector(-tau_g[:6])
 
 
-@dc.dataclass
-class LeafGrasp:
-    """A closed grasp to build into the station: the leaf vertices whose
-    reference positions, placed by ``X_GA`` (pose of the leaf's reference
-    mesh, i.e. of W at the reference, in the gripper-base frame G), fall in
-    the box ``size`` (m) centred at ``p_GR`` (between the pads) are fixed to
-    the gripper base."""
-    X_GA: RigidTransform
-    p_GR: np.ndarray
-    size: np.ndarray
-
-
-@functools.lru_cache(maxsize=8)
-def _CachedPlantModel(plant_scene_yaml: str, p_WC: tuple):
-    from pydrake.common.yaml import yaml_load_typed
-    from lmap_drake.plants.generator import GeneratePlant
-    from lmap_drake.scenario import PlantSceneConfig
-    cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
-    return GeneratePlant(cfg, np.array(p_WC))
-
-
-def GetPlantModel(scenario: Scenario):
-    """The generated plant (``PlantModel``) of a procedural scenario; cached,
-    deterministic in the scenario."""
-    from pydrake.common.yaml import yaml_dump_typed
-    from lmap_drake.scenario import PlantSceneConfig
-    if scenario.plant_scene.kind != "procedural":
-        raise ValueError("GetPlantModel needs plant_scene.kind: procedural")
-    p_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().translation()
-    return _CachedPlantModel(yaml_dump_typed(scenario.plant_scene, schema=PlantSceneConfig),
-                             tuple(float(x) for x in p_WC))
-
-
 def _LabelRobotGeometry(plant: MultibodyPlant, scene_graph, instances) -> None:
     """Gives every perception geometry of the robot the ROBOT render label."""
     inspector = scene_graph.model_inspector()
@@ -121,25 +84,14 @@ def _LabelRobotGeometry(plant: MultibodyPlant, scene_graph, instances) -> None:
                 scene_graph.AssignRole(plant.get_source_id(), gid, new)
 
 
-def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None,
-                    leaf_grasp: LeafGrasp | None) -> Diagram:
+def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None, add_world) -> Diagram:
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(scenario.plant_config, builder)
     robot = scenario.robot
     X_WB = robot.X_WB.GetDeterministicValue()
     ur5, gripper = AddUr5AndGripper(plant, X_WB)
-    if scenario.plant_scene.kind == "procedural":
-        handles = AddProceduralPlant(plant, scene_graph, GetPlantModel(scenario),
-                                     scenario.plant_scene)
-        if leaf_grasp is not None:
-            from pydrake.geometry import Box
-            plant.mutable_deformable_model().AddFixedConstraint(
-                handles["leaf_body_id"], plant.GetBodyByName("robotiq_base", gripper),
-                leaf_grasp.X_GA, Box(*leaf_grasp.size), RigidTransform(leaf_grasp.p_GR))
-    else:
-        if leaf_grasp is not None:
-            raise ValueError("a leaf grasp needs plant_scene.kind: procedural")
-        AddPlaceholderPlant(plant, scenario.plant_scene)
+    if add_world is not None:
+        add_world(plant, scene_graph)
     for i, name in enumerate(UR5_JOINTS):
         actuator = plant.GetJointActuatorByName(name.replace("_joint", "_motor"), ur5)
         actuator.set_controller_gains(PdControllerGains(p=robot.kp[i], d=robot.kd[i]))
@@ -227,42 +179,18 @@ def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None,
 
 
 def MakeStation(scenario: Scenario, meshcat: Meshcat | None = None,
-                hardware: bool = False, leaf_grasp: LeafGrasp | None = None) -> Diagram:
+                hardware: bool = False, add_world=None) -> Diagram:
     """Builds the station Diagram for ``scenario`` with the ports listed in
     this module's docstring. The simulated station contains systems named
-    ``plant`` and ``scene_graph``."""
+    ``plant`` and ``scene_graph``; it holds the UR5 and the 2F-85, and
+    ``add_world(plant, scene_graph)``, when given, adds the rest of the world
+    before the plant is finalized (the plant world: ``lmap_drake.plants.world``).
+    The station itself never imports the plant world."""
     if hardware:
         # Real UR5 + 2F-85 + L515 (lmap_drake/station/hardware/station.py); raises
         # HardwareStationUnavailable when a library or a device is missing.
         # ``meshcat`` is not used on hardware.
         from lmap_drake.station.hardware.station import MakeHardwareStation
         return MakeHardwareStation(scenario)
-    return _MakeSimStation(scenario, meshcat, leaf_grasp)
+    return _MakeSimStation(scenario, meshcat, add_world)
 
-
-def RenderStill(scenario: Scenario, settle: float = 0.0) -> tuple[np.ndarray, np.ndarray,
-                                                                   np.ndarray]:
-    """camera0's (rgb HxWx4 uint8, depth HxW float32 m, label HxW int16)
-    from the simulated station with the arm held at ``robot.initial_q`` and
-    the gripper at ``robot.initial_gripper_width``, after ``settle``
-    simulated seconds (0: the default context, no simulation)."""
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.primitives import ConstantVectorSource
-    builder = DiagramBuilder()
-    station = builder.AddSystem(MakeStation(scenario))
-    q = builder.AddSystem(ConstantVectorSource(scenario.robot.initial_q))
-    builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
-    g = builder.AddSystem(ConstantVectorSource([scenario.robot.initial_gripper_width]))
-    builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
-    diagram = builder.Build()
-    if settle > 0:
-        sim = Simulator(diagram)
-        sim.AdvanceTo(settle)
-        root = sim.get_context()
-    else:
-        root = diagram.CreateDefaultContext()
-    ctx = station.GetMyContextFromRoot(root)
-
-    def image(name):
-        return np.array(station.GetOutputPort(f"camera0.{name}_image").Eval(ctx).data)
-    return image("rgb"), image("depth")[..., 0], image("label")[..., 0]

@@ -1,47 +1,59 @@
 """``ArmController``: the episode's state machine (paper Sec. III-D) as a
-Drake LeafSystem.
+Drake LeafSystem, the same on the simulated and the hardware station.
 
-    idle -> plan_requested -> pregrasp -> approach -> close_gripper ->
-    grasp_wait -> pull -> hold -> observe -> done          (or aborted)
+    idle -> capture -> plan_requested [-> confirm_wait] -> pregrasp ->
+    approach -> close_gripper -> grasp_wait -> pull -> hold -> observe ->
+    release -> retreat -> done            (or planned, or aborted)
 
 Input ports:
 
 - ``plan`` (abstract ``PlanResult``): evaluated once, in ``plan_requested``
   (this pulls Perception -> ShapeCompletion -> ActionCandidates ->
-  DeformationPrediction -> ActionSelection).
+  DeformationPrediction -> ActionSelection on the captured view 0).
 - ``semantic_scene``, ``scene_estimate`` (abstract): evaluated just before
   the plan, only to time those stages (Table IV).
 - ``final_estimate`` (abstract ``SceneEstimate``): evaluated in ``observe``
   (re-estimation on the fused views).
 - ``ur5.state_estimated`` (12: q rad, v rad/s), ``gripper.state_measured``
-  (2: opening m, rate m/s).
+  (2: opening m, rate m/s), ``views_fused`` (1: views Perception has fused).
 
 Output ports:
 
 - ``ur5.position`` (6, rad): the commanded joints (the active trajectory,
   or the held position).
 - ``gripper.position`` (1, m): commanded opening.
-- ``capture`` (1): how many views Perception should have fused (1 before
-  planning, 2 after the action).
+- ``capture`` (1): how many views the episode wants captured (1 before
+  planning, 2 after the action); see ``systems.view_recorder``.
 - ``status`` (abstract ``ControllerStatus``): mode, message, plan, final
   estimate, per-stage seconds.
 
-Trajectories are cubic in joint space, timed so no joint exceeds a fraction
-of the UR5 velocity limit (pi rad/s). The episode aborts cleanly (holds
-position, ``aborted`` with a message) when the planner finds no feasible
-action, the fruit is not seen, IK fails for the approach or the pull, or a
-stage it evaluates raises (``stage_error: <stage>: ...``, ``failed_stage``); it
-skips the manipulation (``done``, ``no_action_needed``) when the fruit is
-already visible enough. In simulation the grasp is made by the episode
-runner (it rebuilds the station with the leaf fixed between the pads, see
-``lmap_drake.plants.simworld``), which then calls ``AcknowledgeGrasp``; on
-hardware ``grasp_ack_required=False`` lets the controller continue alone.
+Options (``ControllerOptions``): the start joints and opening (on hardware:
+the measured ones, so nothing moves at start), whether a grasp needs the
+simulation's acknowledgement, ``plan_only`` (stop in ``planned`` after the
+plan), ``confirm`` (wait in ``confirm_wait`` until ``Confirm`` is called),
+the joint speed bound (rad/s; trajectories are retimed to stay under 95 %
+of it), ``planner.speed_scale`` (all motions), and ``trajectory_check``
+(e.g. the hardware ``SafetyChecker``): every trajectory is sampled and
+checked before it starts, and at planning time the whole pregrasp ->
+approach -> pull motion is checked before anything moves.
+
+The episode aborts cleanly (holds the measured position and leaves the
+gripper as it is: a held leaf is never dropped by surprise; ``aborted``
+with a message) when the planner finds no feasible action, the fruit is not
+seen, IK fails, a trajectory is refused, or a stage raises (``stage_error:
+<stage>: ...``, ``failed_stage``); it skips the manipulation (``done``,
+``no_action_needed``) when the fruit is already visible enough. In
+simulation the grasp is made by the episode runner (it rebuilds the station
+with the leaf fixed between the pads, see ``lmap_drake.plants.simworld``),
+which then calls ``AcknowledgeGrasp``; on hardware the gripper closes until
+it stalls on the leaf and the controller continues alone.
 """
 from __future__ import annotations
 
 import copy
 import dataclasses as dc
 import time
+from typing import Callable
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -51,11 +63,27 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from lmap_drake.planning.lmap import PlanResult
 from lmap_drake.planning.motion import MotionError, PlanApproach, PlanPull, TimeJointPath
 from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
 from lmap_drake.scenario import Scenario
 from lmap_drake.types import SceneEstimate, SemanticScene
 
-MODES = ("idle", "plan_requested", "pregrasp", "approach", "close_gripper", "grasp_wait",
-         "pull", "hold", "observe", "done", "aborted")
+MODES = ("idle", "capture", "plan_requested", "confirm_wait", "pregrasp", "approach",
+         "close_gripper", "grasp_wait", "pull", "hold", "observe", "release", "retreat",
+         "done", "planned", "aborted")
+FINISHED = ("done", "planned", "aborted")
+
+
+@dc.dataclass
+class ControllerOptions:
+    """How the controller drives its station (see the module docstring)."""
+    initial_q: np.ndarray | None = None        # None: robot.initial_q
+    initial_gripper: float | None = None       # None: robot.initial_gripper_width
+    grasp_ack_required: bool = True            # simulation: the runner makes the grasp
+    plan_only: bool = False
+    confirm: bool = False
+    max_joint_speed: float = UR5_VELOCITY_LIMIT
+    trajectory_check: Callable | None = None   # (times, qs) -> None or raises
+    release: bool = True                       # release the leaf and retreat at the end
 
 
 @dc.dataclass
@@ -68,16 +96,21 @@ class ControllerStatus:
     gripper_cmd: float = 0.085
     gripper_ramp: tuple | None = None   # (t0, w0, w1, speed m/s) while closing
     trajectory: object = None           # PiecewisePolynomial or None
-    segments: list = dc.field(default_factory=list)   # pending joint-waypoint lists
+    segments: list = dc.field(default_factory=list)   # pending (waypoints, fraction, duration)
     pull_path: list = dc.field(default_factory=list)
     captures: int = 0
     grasp_acknowledged: bool = False
+    confirmed: bool | None = None       # the operator's answer in confirm_wait
+    confirm_note: str = ""
     plan: PlanResult | None = None
     initial_estimate: SceneEstimate | None = None
     final_estimate: SceneEstimate | None = None
     stage_seconds: dict = dc.field(default_factory=dict)
     mode_log: list = dc.field(default_factory=list)
     failed_stage: str = ""              # set when a stage raised (status stage_error)
+    pregrasp_path: list = dc.field(default_factory=list)   # joint waypoints to the pre-grasp
+    pregrasp_opening: float = 0.0
+    stall_since: float | None = None    # while closing: since when the pads stand still
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -91,13 +124,17 @@ class ControllerStatus:
 
     @property
     def finished(self) -> bool:
-        return self.mode in ("done", "aborted")
+        return self.mode in FINISHED
 
 
 class _StageFailure(Exception):
     def __init__(self, stage: str, error: Exception):
         super().__init__(stage)
         self.stage, self.error = stage, error
+
+
+class _Refused(Exception):
+    """A trajectory refused by ``trajectory_check``."""
 
 
 def _Stage(stage: str, evaluate, context):
@@ -116,13 +153,16 @@ class ArmController(LeafSystem):
 
     def __init__(self, scenario: Scenario, robot: RobotModel | None = None,
                  period: float = 0.02, settle_time: float = 0.3, hold_time: float = 0.5,
-                 pull_speed: float = 0.03, grasp_ack_required: bool = True,
+                 pull_speed: float = 0.03, options: ControllerOptions | None = None,
                  progress=None):
         super().__init__()
         self._scenario = scenario
         self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
-        self._settle, self._hold, self._pull_speed = settle_time, hold_time, pull_speed
-        self._ack_required = grasp_ack_required
+        self._options = options = options or ControllerOptions()
+        self._speed_scale = float(scenario.planner.speed_scale)
+        self._settle, self._hold = settle_time, hold_time
+        self._pull_speed = pull_speed * self._speed_scale
+        self._release_time = 0.5
         self.progress = progress or (lambda msg: None)
         cfg = scenario.planner
         self._pregrasp_opening = cfg.pregrasp_opening
@@ -136,8 +176,12 @@ class ArmController(LeafSystem):
             "final_estimate", AbstractValue.Make(SceneEstimate(SemanticScene())))
         self._x = self.DeclareVectorInputPort("ur5.state_estimated", 12)
         self._g = self.DeclareVectorInputPort("gripper.state_measured", 2)
-        initial = ControllerStatus(q_hold=np.asarray(scenario.robot.initial_q, float),
-                                   gripper_cmd=scenario.robot.initial_gripper_width)
+        self._views = self.DeclareVectorInputPort("views_fused", 1)
+        q0 = options.initial_q if options.initial_q is not None else scenario.robot.initial_q
+        w0 = (options.initial_gripper if options.initial_gripper is not None
+              else scenario.robot.initial_gripper_width)
+        self._q_start = np.asarray(q0, float).copy()
+        initial = ControllerStatus(q_hold=self._q_start.copy(), gripper_cmd=float(w0))
         self._state = self.DeclareAbstractState(AbstractValue.Make(initial))
         self.DeclareVectorOutputPort("ur5.position", 6, self._calc_q,
                                      prerequisites_of_calc={
@@ -164,13 +208,16 @@ class ArmController(LeafSystem):
         else:
             output.SetFromVector(st.q_hold)
 
+    @staticmethod
+    def _GripperCommand(st: ControllerStatus, t: float) -> float:
+        if st.gripper_ramp is None:
+            return st.gripper_cmd
+        t0, w0, w1, speed = st.gripper_ramp
+        return max(w1, w0 - speed * (t - t0))
+
     def _calc_gripper(self, context, output) -> None:
         st = context.get_abstract_state(self._state).get_value()
-        if st.gripper_ramp is None:
-            output.SetFromVector([st.gripper_cmd])
-            return
-        t0, w0, w1, speed = st.gripper_ramp
-        output.SetFromVector([max(w1, w0 - speed * (context.get_time() - t0))])
+        output.SetFromVector([self._GripperCommand(st, context.get_time())])
 
     def _calc_capture(self, context, output) -> None:
         output.SetFromVector([context.get_abstract_state(self._state).get_value().captures])
@@ -182,11 +229,20 @@ class ArmController(LeafSystem):
     def Status(self, context) -> ControllerStatus:
         return context.get_abstract_state(self._state).get_value()
 
+    def _Modify(self, context, **fields) -> None:
+        st = copy.deepcopy(self.Status(context))
+        for k, v in fields.items():
+            setattr(st, k, v)
+        context.get_mutable_abstract_state(self._state).set_value(st)
+
     def AcknowledgeGrasp(self, context) -> None:
         """Called by the simulation runner once the grasp exists."""
-        st = copy.deepcopy(self.Status(context))
-        st.grasp_acknowledged = True
-        context.get_mutable_abstract_state(self._state).set_value(st)
+        self._Modify(context, grasp_acknowledged=True)
+
+    def Confirm(self, context, accepted: bool, note: str = "") -> None:
+        """The operator's answer while the controller waits in
+        ``confirm_wait``; it acts on it at its next update."""
+        self._Modify(context, confirmed=bool(accepted), confirm_note=note)
 
     def _enter(self, st: ControllerStatus, mode: str, t: float, message: str = "") -> None:
         st.mode, st.t_mode = mode, t
@@ -195,14 +251,44 @@ class ArmController(LeafSystem):
         st.mode_log.append((round(t, 3), mode))
         self.progress(f"{mode}" + (f": {message}" if message else ""))
 
-    def _start_path(self, st: ControllerStatus, t: float, waypoints: list, speed: float,
+    def _TimePath(self, t: float, q0, waypoints: list, fraction: float,
+                  duration: float | None = None):
+        """A joint trajectory from ``q0`` through ``waypoints`` at
+        ``fraction`` x speed_scale of the UR5 velocity limit, retimed so that
+        no joint exceeds 95 % of ``max_joint_speed``; then checked."""
+        limit = 0.95 * self._options.max_joint_speed
+        f = min(fraction * self._speed_scale, limit / UR5_VELOCITY_LIMIT)
+        traj = TimeJointPath(t, q0, waypoints, f, 0.05, duration)
+        for _ in range(4):
+            times = np.arange(traj.start_time(), traj.end_time() + 0.005, 0.005)
+            qs = np.array([traj.value(min(x, traj.end_time())).ravel() for x in times])
+            speed = np.abs(np.diff(qs, axis=0)).max() / 0.005 if len(qs) > 1 else 0.0
+            if speed <= limit:
+                break
+            stretched = (traj.end_time() - t) * speed / limit * 1.02
+            traj = TimeJointPath(t, q0, waypoints, f, 0.05, stretched)
+        if self._options.trajectory_check is not None:
+            period = 0.01
+            times = np.arange(traj.start_time(), traj.end_time() + 0.5 * period, period)
+            times = np.minimum(times, traj.end_time())
+            qs = np.array([traj.value(x).ravel() for x in times])
+            try:
+                self._options.trajectory_check(times, qs)
+            except Exception as err:  # noqa: BLE001 - SafetyRefusal and kin
+                raise _Refused(" ".join(str(err).split())) from err
+        return traj
+
+    def _start_path(self, st: ControllerStatus, t: float, waypoints: list, fraction: float,
                     duration: float | None = None) -> None:
         q0 = st.trajectory.value(t).ravel() if st.trajectory is not None else st.q_hold
-        st.trajectory = TimeJointPath(t, q0, waypoints, speed, 0.05, duration)
+        st.trajectory = self._TimePath(t, q0, waypoints, fraction, duration)
         st.q_hold = np.asarray(waypoints[-1], float)
 
     def _traj_done(self, st: ControllerStatus, t: float) -> bool:
         return st.trajectory is None or t >= st.trajectory.end_time()
+
+    def _pull_duration(self, st: ControllerStatus) -> float:
+        return max(1.0, st.plan.chosen.action.distance / self._pull_speed)
 
     # --- the state machine -------------------------------------------------
     def _update(self, context, state) -> EventStatus:
@@ -212,9 +298,11 @@ class ArmController(LeafSystem):
         try:
             self._step(context, st, t)
         except MotionError as err:
-            st.trajectory = None
-            st.q_hold = self._x.Eval(context)[:6].copy()
+            self._Stop(context, st, t)
             self._enter(st, "aborted", t, f"IK failure: {err}")
+        except _Refused as err:
+            self._Stop(context, st, t)
+            self._enter(st, "aborted", t, f"refused by the safety checks in {before}: {err}")
         except _StageFailure as err:
             self._Fail(context, st, t, err.stage, err.error)
         except Exception as err:  # noqa: BLE001 - never an exception out of the Diagram
@@ -222,14 +310,27 @@ class ArmController(LeafSystem):
         state.get_mutable_abstract_state(self._state).set_value(st)
         return EventStatus.Succeeded() if st.mode != before else EventStatus.DidNothing()
 
+    def _views_fused(self, context) -> int:
+        return int(self._views.Eval(context)[0]) if self._views.HasValue(context) else 1 << 30
+
     def _step(self, context, st: ControllerStatus, t: float) -> None:
         mode = st.mode
         if mode == "idle":
-            st.captures = 1
             if t - st.t_mode >= self._settle:
+                st.captures = 1
+                self._enter(st, "capture", t)
+        elif mode == "capture":
+            if self._views_fused(context) >= 1:
                 self._enter(st, "plan_requested", t)
         elif mode == "plan_requested":
             self._Plan(context, st, t)
+        elif mode == "confirm_wait":
+            if st.confirmed is True:
+                self._StartMotion(st, t, "confirmed by the operator")
+            elif st.confirmed is False:
+                self._enter(st, "aborted", t, "not confirmed by the operator"
+                            + (f" ({st.confirm_note})" if st.confirm_note else "")
+                            + "; nothing moved")
         elif mode == "pregrasp":
             if self._traj_done(st, t):
                 self._start_path(st, t, st.segments.pop(0), 0.15)
@@ -245,19 +346,22 @@ class ArmController(LeafSystem):
         elif mode == "close_gripper":
             # Closed on the leaf when the pads stall (or reach the commanded
             # opening); then hold that opening.
+            # A stall must last 0.1 s (a slow reading is not a stall).
             width, rate = self._g.Eval(context)
             t0, w0, w1, speed = st.gripper_ramp
             commanded = max(w1, w0 - speed * (t - t0))
-            stalled = width > commanded + 0.001 and abs(rate) < 0.25 * speed
+            if width > commanded + 0.001 and abs(rate) < 0.25 * speed:
+                st.stall_since = t if st.stall_since is None else st.stall_since
+            else:
+                st.stall_since = None
+            stalled = st.stall_since is not None and t - st.stall_since >= 0.1 - 1e-9
             if commanded <= w1 + 1e-9 or stalled or t - t0 > 2.0:
                 st.gripper_ramp = None
                 st.gripper_cmd = max(w1, float(width) - 0.0005)
                 self._enter(st, "grasp_wait", t, f"closed at {width * 1000:.1f} mm")
         elif mode == "grasp_wait":
-            if st.grasp_acknowledged or not self._ack_required:
-                chosen = st.plan.chosen
-                duration = max(1.0, chosen.action.distance / self._pull_speed)
-                self._start_path(st, t, st.pull_path, 0.3, duration)
+            if st.grasp_acknowledged or not self._options.grasp_ack_required:
+                self._start_path(st, t, st.pull_path, 0.3, self._pull_duration(st))
                 self._enter(st, "pull", t)
         elif mode == "pull":
             if self._traj_done(st, t):
@@ -267,17 +371,42 @@ class ArmController(LeafSystem):
                 st.captures = 2
                 self._enter(st, "observe", t)
         elif mode == "observe":
-            if t - st.t_mode >= 0.05:  # Perception fuses the new view on a step
+            if self._views_fused(context) >= 2:
                 t0 = time.perf_counter()
                 st.final_estimate = _Stage("shape_reestimation", self._final.Eval, context)
                 st.stage_seconds["reestimation_s"] = time.perf_counter() - t0
-                self._enter(st, "done", t, "action executed; shape re-estimated on the "
-                            "fused views")
+                if not self._options.release:
+                    self._enter(st, "done", t, "action executed; shape re-estimated on the "
+                                "fused views")
+                    return
+                c = st.plan.chosen
+                st.gripper_cmd = (c.approach.opening if c.approach is not None
+                                  and c.approach.opening else self._pregrasp_opening)
+                self._enter(st, "release", t, "shape re-estimated on the fused views; "
+                            "releasing the leaf")
+        elif mode == "release":
+            if t - st.t_mode >= self._release_time / self._speed_scale:
+                self._Retreat(st, t)
+        elif mode == "retreat":
+            if self._traj_done(st, t):
+                if st.segments:
+                    waypoints, fraction = st.segments.pop(0)
+                    self._start_path(st, t, waypoints, fraction)
+                else:
+                    st.trajectory = None
+                    self._enter(st, "done", t, "action executed; shape re-estimated on the "
+                                "fused views; leaf released and arm retreated")
+
+    def _Stop(self, context, st: ControllerStatus, t: float) -> None:
+        """Holds the measured joints; the gripper keeps its current command
+        (a ramp freezes where it is): a held leaf is never dropped."""
+        st.gripper_cmd = self._GripperCommand(st, t)
+        st.trajectory, st.gripper_ramp = None, None
+        st.q_hold = self._x.Eval(context)[:6].copy()
 
     def _Fail(self, context, st: ControllerStatus, t: float, stage: str, err) -> None:
         """Holds the arm and aborts with status stage_error naming the stage."""
-        st.trajectory, st.gripper_ramp = None, None
-        st.q_hold = self._x.Eval(context)[:6].copy()
+        self._Stop(context, st, t)
         st.failed_stage = stage
         self._enter(st, "aborted", t, f"stage_error: {stage}: {type(err).__name__}: "
                     f"{' '.join(str(err).split())}")
@@ -306,13 +435,40 @@ class ArmController(LeafSystem):
         c = plan.chosen
         X_WT = RigidTransform(RotationMatrix(c.action.R_WG), c.action.p_WG)
         normal = c.action.R_WG[:, 1]
-        q_now = self._x.Eval(context)[:6]
-        approach = c.approach or PlanApproach(self._robot, X_WT, q_now, normal,
+        approach = c.approach or PlanApproach(self._robot, X_WT, st.q_hold, normal,
                                               self._scenario.planner.pregrasp_distance,
                                               self._pregrasp_opening)
         st.pull_path = PlanPull(self._robot, X_WT, c.action.dp_W, approach.to_grasp[-1])
-        st.gripper_cmd = approach.opening or self._pregrasp_opening
         st.segments = [approach.to_grasp]
-        self._start_path(st, t, [approach.via] + approach.to_ready + approach.to_pregrasp, 0.5)
-        self._enter(st, "pregrasp", t, f"grasp {c.action.grasp_id}, direction "
-                    f"{c.action.direction_id}, {c.action.distance * 100:.0f} cm")
+        st.pregrasp_path = [approach.via] + approach.to_ready + approach.to_pregrasp
+        st.pregrasp_opening = approach.opening or self._pregrasp_opening
+        # The whole motion is checked before anything moves (timing does not
+        # depend on the start time, so the checks hold at execution).
+        pre = self._TimePath(t, st.q_hold, st.pregrasp_path, 0.5)
+        app = self._TimePath(pre.end_time(), st.pregrasp_path[-1], approach.to_grasp, 0.15)
+        self._TimePath(app.end_time(), approach.to_grasp[-1], st.pull_path, 0.3,
+                       self._pull_duration(st))
+        summary = (f"grasp {c.action.grasp_id}, direction {c.action.direction_id}, "
+                   f"{c.action.distance * 100:.0f} cm")
+        if self._options.plan_only:
+            self._enter(st, "planned", t, f"plan only: {summary}; nothing moved")
+        elif self._options.confirm:
+            st.confirmed = None
+            self._enter(st, "confirm_wait", t, summary)
+        else:
+            self._StartMotion(st, t, summary)
+
+    def _StartMotion(self, st: ControllerStatus, t: float, message: str) -> None:
+        st.gripper_cmd = st.pregrasp_opening
+        self._start_path(st, t, st.pregrasp_path, 0.5)
+        self._enter(st, "pregrasp", t, message)
+
+    def _Retreat(self, st: ControllerStatus, t: float) -> None:
+        """Straight back out along the approach axis (TCP -z) by the
+        pre-grasp distance, then a joint move to the episode's start pose."""
+        X_WT = self._robot.TcpPose(st.q_hold)
+        back = -self._scenario.planner.pregrasp_distance * X_WT.rotation().col(2)
+        path = PlanPull(self._robot, X_WT, back, st.q_hold)
+        st.segments = [([self._q_start.copy()], 0.5)]
+        self._start_path(st, t, path, 0.15)
+        self._enter(st, "retreat", t)

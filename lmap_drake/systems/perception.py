@@ -28,6 +28,7 @@ Output ports:
   accumulated); empty with flag ``no_views_fused`` until the first capture.
   Held in abstract state; ``CaptureView(context)`` fuses the current view
   directly (scripts, or an orchestrator that owns the context).
+- ``num_views_fused`` (vector, 1): how many views the fused scene holds.
 
 Intrinsics come from the scenario's ``CameraConfig`` given to the
 constructor; parameters from ``PerceptionConfig``. The segmenter (a heavy
@@ -86,6 +87,11 @@ class Perception(LeafSystem):
         self.DeclareAbstractOutputPort(
             "fused_semantic_scene", lambda: AbstractValue.Make(SemanticScene()),
             self._calc_fused,
+            prerequisites_of_calc={self.abstract_state_ticket(self._fused_index)})
+        self.DeclareVectorOutputPort(
+            "num_views_fused", 1,
+            lambda c, out: out.SetFromVector(
+                [c.get_abstract_state(self._fused_index).get_value().num_views]),
             prerequisites_of_calc={self.abstract_state_ticket(self._fused_index)})
         self.DeclarePerStepUnrestrictedUpdateEvent(self._on_step)
 

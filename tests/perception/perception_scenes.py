@@ -7,7 +7,7 @@ import numpy as np
 
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.station import MakeStation
+from lmap_drake.plants.world import MakePlantStation
 
 # 320x240 camera, closer and to the side so the fruit shows beside the leaf.
 SMALL_CAMERA = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
@@ -44,7 +44,7 @@ def Render(scenario_text: str = "", camera: str = SMALL_CAMERA, ideal: bool = Tr
     geometry) the camera model is off and the renderer's images are used."""
     text = camera + ("\n" + scenario_text if scenario_text else "")
     s = LoadScenario(scenario_text=[text] + ([IDEAL_CAMERA] if ideal else []))
-    station = MakeStation(s)
+    station = MakePlantStation(s)
     ctx = station.CreateDefaultContext()
     cam = s.cameras["camera0"]
     return View(

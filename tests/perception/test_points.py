@@ -22,9 +22,9 @@ FACING_LEAF = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
 
 def test_deprojection_of_rendered_plane_within_2mm():
     from lmap_drake.scenario import LoadScenario
-    from lmap_drake.station import MakeStation
+    from lmap_drake.plants.world import MakePlantStation
     s = LoadScenario(scenario_text=[FACING_LEAF, IDEAL])
-    station = MakeStation(s)
+    station = MakePlantStation(s)
     ctx = station.CreateDefaultContext()
     depth = station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0]
     cls, _ = DecodeLabels(station.GetOutputPort("camera0.label_image").Eval(ctx).data)

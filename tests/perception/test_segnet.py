@@ -59,7 +59,7 @@ def test_shipped_weights_are_small_and_say_how_they_were_made():
 
 
 def _render(text):
-    from lmap_drake.station.station import RenderStill
+    from lmap_drake.plants.world import RenderStill
     s = LoadScenario(scenario_text=text)
     return s, RenderStill(s)
 

@@ -6,7 +6,7 @@ import yaml
 from lmap_drake.labels import FRUIT, LEAF, DecodeLabels
 from lmap_drake.paths import DIAGRAMS_DIR
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.station.station import MakeStation
+from lmap_drake.plants.world import MakePlantStation
 
 SUITE = DIAGRAMS_DIR / "suite.yaml"
 NAMES = list(yaml.safe_load(SUITE.read_text()))
@@ -19,7 +19,7 @@ def test_twelve_scenarios():
 @pytest.mark.parametrize("name", NAMES)
 def test_scenario_builds_and_renders(name):
     s = LoadScenario(filename=SUITE, scenario_name=name)
-    station = MakeStation(s)
+    station = MakePlantStation(s)
     ctx = station.CreateDefaultContext()
     cls, _ = DecodeLabels(station.GetOutputPort("camera0.label_image").Eval(ctx).data)
     assert (cls == FRUIT).sum() > 50 and (cls == LEAF).sum() > 500

@@ -105,13 +105,13 @@ def test_colour_noise_is_mild_and_lighting_is_fixed_per_scene():
 
 
 def test_station_applies_the_model_and_enabled_false_gives_the_renderer_images():
-    from lmap_drake.station import MakeStation
-    from lmap_drake.station.station import RenderStill
+    from lmap_drake.plants.world import MakePlantStation
+    from lmap_drake.plants.world import RenderStill
 
     def render(text):
         s = LoadScenario(scenario_text=text)
         has_noise = any(sys.get_name() == "camera_noise_camera0"
-                        for sys in MakeStation(s).GetSystems())
+                        for sys in MakePlantStation(s).GetSystems())
         rgb, depth, _ = RenderStill(s)
         return depth, rgb, has_noise
 

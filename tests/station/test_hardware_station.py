@@ -2,7 +2,8 @@
 FakeRobotiqServer on localhost speaking the URCap protocol, a fake
 pyrealsense2 module; see lmap_drake.station.hardware.fakes). Nothing here
 talks to a robot: these tests check the Drake wiring, the port contract,
-the safety paths and the dry run, not the devices."""
+the safety paths, not the devices. The whole hardware episode on these
+fakes (plan-only, confirmation, aborts) is tested in tests/test_episode.py."""
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
@@ -17,13 +18,13 @@ from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.scenario import LoadScenario
 from lmap_drake.station import STATION_PORTS, MakeStation
 from lmap_drake.station.hardware.fakes import FakeRobotiqServer, MakeFakeHardwareClients
-from lmap_drake.station.hardware.run import RunHardwareSnapshot
 from lmap_drake.station.hardware.safety import (HardwareAbort, JointLimitRefusal,
                                                 VelocityLimitRefusal)
 from lmap_drake.station.hardware.station import (HardwareCamera, MakeHardwareStation,
                                                  StopHardwareStation)
 from lmap_drake.station.hardware.robotiq_client import GripperCommandRefusal
-from lmap_drake.station.hardware_config import CalibrationX_WC, LoadCameraCalibration
+from lmap_drake.station.hardware_config import (CalibrationError, CalibrationX_WC,
+                                                LoadCameraCalibration)
 from lmap_drake.station.station import HardwareStationUnavailable
 
 CALIB = "diagrams/calibration_example.yaml"
@@ -33,6 +34,9 @@ CALIB = "diagrams/calibration_example.yaml"
 def hw_scenario(scenario):
     scenario.hardware.camera.calibration_file = CALIB
     scenario.simulator_config.target_realtime_rate = 0.0
+    # A pedestal cell: the default start pose has its wrists 8 cm below the
+    # robot base plane, which the every-link workspace check would refuse.
+    scenario.hardware.ur.workspace_min = [-0.85, -0.85, -0.2]
     return scenario
 
 
@@ -178,14 +182,14 @@ def test_calibration_for_another_camera_is_refused(tmp_path, hw_scenario, grippe
     hw_scenario.hardware.camera.calibration_file = str(f)
     clients = MakeFakeHardwareClients(hw_scenario.hardware, q0=hw_scenario.robot.initial_q,
                                       gripper_server=gripper_server)
-    with pytest.raises(HardwareStationUnavailable, match="for camera f7777777.*f0000001"):
+    with pytest.raises(CalibrationError, match="for camera f7777777.*f0000001"):
         MakeHardwareStation(hw_scenario, clients)
     clients.Close()
 
 
 def test_missing_calibration_is_a_clear_error(hw_scenario, gripper_server):
     hw_scenario.hardware.camera.calibration_file = ""
-    with pytest.raises(HardwareStationUnavailable, match="calibration_file is empty"):
+    with pytest.raises(CalibrationError, match="calibration_file is empty"):
         MakeHardwareStation(hw_scenario, clients=object())
 
 
@@ -196,47 +200,10 @@ def test_make_station_without_libraries_says_how_to_install(scenario):
         MakeStation(scenario, hardware=True)
 
 
-def test_dry_run_reads_plans_prints_and_commands_nothing(tmp_path, capsys, hw_scenario,
-                                                         gripper_server):
-    q0 = np.array(hw_scenario.robot.initial_q) + [0.2, 0, 0, 0, 0, -0.1]
-    clients = MakeFakeHardwareClients(hw_scenario.hardware, q0=q0, gripper_server=gripper_server,
-                                      read_only=True)
-    files = RunHardwareSnapshot(hw_scenario, tmp_path, dry_run=True, progress=print,
-                                clients=clients)
-    for name in ["scenario.yaml", "rgb.png", "depth.png", "hardware_state.yaml",
-                 "trajectory.csv"]:
-        assert name in files and (tmp_path / name).stat().st_size > 0
-    out = capsys.readouterr().out
-    assert "dry run: nothing was commanded" in out and "q5 (rad)" in out
-    traj = np.loadtxt(tmp_path / "trajectory.csv", delimiter=",", skiprows=1)
-    assert np.allclose(traj[0, 1:], q0) and np.allclose(traj[-1, 1:], hw_scenario.robot.initial_q)
-    assert np.abs(np.diff(traj[:, 1:], axis=0)).max() / np.diff(traj[:, 0]).max() <= 0.5 * 0.5 + 1e-6
-    assert clients.ur.control is None  # no control interface was ever opened
-    assert np.allclose(clients.ur.receive.q, q0)
-    assert not any(line.startswith("SET") for line in gripper_server.received)
-
-
-def test_dry_run_reports_a_refused_plan(tmp_path, hw_scenario, gripper_server):
-    hw_scenario.hardware.ur.workspace_min = [-0.85, -0.85, 0.6]  # home pose is below
-    clients = MakeFakeHardwareClients(hw_scenario.hardware, q0=hw_scenario.robot.initial_q,
-                                      gripper_server=gripper_server, read_only=True)
-    with pytest.raises(HardwareAbort, match="workspace box"):
-        RunHardwareSnapshot(hw_scenario, tmp_path, dry_run=True, progress=print, clients=clients)
-
-
-def test_run_moves_fake_arm_home_then_stops(tmp_path, hw_scenario, gripper_server):
-    hw_scenario.simulation_duration = 0.1
-    q0 = np.array(hw_scenario.robot.initial_q) + [0.05, 0, 0, 0, 0, 0]
-    clients = MakeFakeHardwareClients(hw_scenario.hardware, q0=q0, gripper_server=gripper_server)
-    RunHardwareSnapshot(hw_scenario, tmp_path, dry_run=False, progress=print, clients=clients)
-    assert np.allclose(clients.ur.receive.q, hw_scenario.robot.initial_q, atol=1e-4)
-    assert clients.ur.control.script_stops == 1 and not clients.ur.control.connected
-    assert (tmp_path / "rgb.png").stat().st_size > 0
-
-
 def test_cli_dry_run_needs_hardware(tmp_path, capsys):
     assert main(["run", "--dry-run", "--output", str(tmp_path)]) == 2
-    assert "--dry-run needs --hardware" in capsys.readouterr().err
+    assert "--dry-run needs --hardware (in simulation use --plan-only)" in \
+        capsys.readouterr().err
 
 
 def test_cli_hardware_dry_run_without_libraries_fails_clearly(tmp_path, capsys):

@@ -67,6 +67,21 @@ def test_refuses_tcp_outside_the_workspace_box():
         SafetyChecker(config).Check(Q_OK)
 
 
+def test_refuses_an_elbow_below_the_base_plane_with_the_tcp_inside():
+    """Every link is checked, not only the TCP: with the shoulder lifted
+    past horizontal the elbow dips below the base plane (DH frame 2 z < 0)
+    while the TCP stays well inside the box."""
+    from lmap_drake.station.robot import Ur5DhFrames
+    q = np.array([0.0, 0.35, -2.3, -0.5, -1.57, 0.0])
+    frames = Ur5DhFrames(q)
+    assert frames[2][2, 3] < 0.0                       # the elbow is below the base
+    p = TcpPositionInBase(q)
+    config = UrConfig(workspace_min=[-0.85, -0.85, 0.02], workspace_max=[0.85, 0.85, 0.95])
+    assert np.all(p > config.workspace_min) and np.all(p < config.workspace_max), p
+    with pytest.raises(WorkspaceRefusal, match="the elbow at .* on z"):
+        SafetyChecker(config).Check(q)
+
+
 def test_speed_limit_above_ur5_limit_is_rejected():
     with pytest.raises(ValueError, match="UR5 joint limit"):
         SafetyChecker(UrConfig(joint_speed_limit=3.5))

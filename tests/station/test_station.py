@@ -12,6 +12,7 @@ from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.planning.ik import SolveTcpIk
 from lmap_drake.scenario import LoadScenario
 from lmap_drake.station import STATION_PORTS, MakeStation
+from lmap_drake.plants.world import MakePlantStation
 from lmap_drake.station.robot import MakeControllerPlant
 from lmap_drake.station.station import HardwareStationUnavailable
 
@@ -37,7 +38,7 @@ def test_hardware_request_gives_clear_error(scenario):
 
 def _closed_loop(scenario, q_source, gripper_width):
     builder = DiagramBuilder()
-    station = builder.AddSystem(MakeStation(scenario))
+    station = builder.AddSystem(MakePlantStation(scenario))
     src = builder.AddSystem(q_source)
     builder.Connect(src.get_output_port(), station.GetInputPort("ur5.position"))
     grip = builder.AddSystem(ConstantVectorSource([gripper_width]))
@@ -108,7 +109,7 @@ def test_tcp_tracks_slow_cartesian_pull(scenario):
 
 
 def test_camera_images(scenario):
-    station = MakeStation(scenario)
+    station = MakePlantStation(scenario)
     ctx = station.CreateDefaultContext()
     rgb = station.GetOutputPort("camera0.rgb_image").Eval(ctx)
     depth = station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0]
@@ -128,7 +129,7 @@ def test_camera_images(scenario):
     # the renderer's own image (camera model off) has a return on every plant pixel
     import dataclasses as dc
     ideal = dc.replace(scenario, camera_noise=dc.replace(scenario.camera_noise, enabled=False))
-    st2 = MakeStation(ideal)
+    st2 = MakePlantStation(ideal)
     d2 = st2.GetOutputPort("camera0.depth_image").Eval(st2.CreateDefaultContext()).data[..., 0]
     assert np.all(np.isfinite(d2[plant_px]))
     # Fruit pixels are red, leaf pixels green.

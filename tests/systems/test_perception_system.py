@@ -8,7 +8,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from lmap_drake.perception.segmentation import SegmenterError
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.station import MakeStation
+from lmap_drake.plants.world import MakePlantStation
 from lmap_drake.systems.perception import Perception
 
 SMALL = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
@@ -22,7 +22,7 @@ def _diagram(segmenter="label", connect_label=True, extra=""):
     s = LoadScenario(scenario_text=[SMALL + f"\nperception: {{segmenter: {segmenter}}}",
                                     extra or "{}"])
     builder = DiagramBuilder()
-    station = builder.AddSystem(MakeStation(s))
+    station = builder.AddSystem(MakePlantStation(s))
     perception = builder.AddSystem(Perception(s.cameras["camera0"], s.perception))
     for port in ("rgb_image", "depth_image") + (("label_image",) if connect_label else ()):
         builder.Connect(station.GetOutputPort(f"camera0.{port}"),
@@ -40,7 +40,7 @@ def test_ports_and_docstring():
     outs = {p.get_output_port(i).get_name() for i in range(p.num_output_ports())}
     assert ins == {"camera0.rgb_image", "camera0.depth_image", "camera0.label_image",
                    "camera0.X_WC", "capture"}
-    assert outs == {"semantic_scene", "fused_semantic_scene"}
+    assert outs == {"semantic_scene", "fused_semantic_scene", "num_views_fused"}
     import lmap_drake.systems.perception as mod
     for name in ins | outs:
         assert name in mod.__doc__

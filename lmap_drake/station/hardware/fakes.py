@@ -126,11 +126,16 @@ def MakeFakeUrClient(config, q0=None, read_only: bool = False) -> UrClient:
 class FakeGripper:
     """FAKE 2F-85 register model behind FakeRobotiqServer."""
 
-    def __init__(self, activation_time: float = 0.05, speed_units_per_s: float = 2000.0):
+    def __init__(self, activation_time: float = 0.05, speed_units_per_s: float = 2000.0,
+                 object_pos: int | None = None):
+        """``object_pos``: the fingers stall there when closing past it (a
+        held object, e.g. a leaf), reporting OBJ 2 (object detected while
+        closing), as the real 2F-85 does."""
         self.regs = {k: 0 for k in ("ACT", "GTO", "ATR", "ADR", "POS", "PRE", "SPE", "FOR",
                                     "OBJ", "STA", "FLT", "MOD")}
         self.activation_time = activation_time
         self.speed = speed_units_per_s
+        self.object_pos = object_pos
         self._t_act = None
         self._move = None  # (pos_from, pos_to, t0)
         self.lock = threading.Lock()
@@ -142,7 +147,10 @@ class FakeGripper:
         if self._move is not None:
             p0, p1, t0 = self._move
             travel = self.speed * (now - t0)
-            if travel >= abs(p1 - p0):
+            stop = self.object_pos
+            if stop is not None and p0 <= stop < p1 and p0 + travel >= stop:
+                r["POS"], r["OBJ"], self._move = stop, 2, None    # stalled on the object
+            elif travel >= abs(p1 - p0):
                 r["POS"], r["OBJ"], self._move = p1, 3, None
             else:
                 r["POS"] = int(round(p0 + np.sign(p1 - p0) * travel))
@@ -283,11 +291,17 @@ class FakePyrealsense2:
         serial_number = "camera_info.serial_number"
 
     def __init__(self, serial: str = "f0000001", depth_scale: float = 0.00025,
-                 plane_depth: float = 0.8, disc_depth: float = 0.6):
+                 plane_depth: float = 0.8, disc_depth: float = 0.6, frames=None,
+                 intrinsics=None):
+        """``frames`` (rgb HxWx3 or HxWx4 uint8, depth HxW metres, inf = no
+        return; e.g. a render of the plant world) replaces the synthetic
+        scene; ``intrinsics`` (fx, fy, cx, cy in pixels) the fake lens."""
         self.serial = serial
         self.depth_scale = depth_scale
         self.plane_depth = plane_depth
         self.disc_depth = disc_depth
+        self.frames = frames
+        self.intrinsics = intrinsics
         self.started = self.stopped = 0
         self.last_config = None
         self.frames_served = 0
@@ -327,6 +341,15 @@ class FakePyrealsense2:
 
     def Render(self, width: int, height: int, dwidth: int, dheight: int):
         """(colour HxWx3 uint8, raw depth dh x dw uint16)."""
+        if self.frames is not None:
+            rgb, metres = self.frames
+            rgb = np.asarray(rgb)[..., :3]
+            if rgb.shape[:2] != (height, width) or np.shape(metres) != (dheight, dwidth):
+                raise RuntimeError(f"fake: frames are {rgb.shape[:2]} / {np.shape(metres)}, "
+                                   f"streams {height}x{width} / {dheight}x{dwidth}")
+            m = np.asarray(metres, float)
+            raw = np.where(np.isfinite(m) & (m > 0), np.round(m / self.depth_scale), 0)
+            return np.ascontiguousarray(rgb, np.uint8), np.clip(raw, 0, 65535).astype(np.uint16)
         yy, xx = np.mgrid[0:height, 0:width]
         disc = (xx - width / 2) ** 2 + (yy - height / 2) ** 2 < (height / 6) ** 2
         color = np.full((height, width, 3), 128, np.uint8)
@@ -378,8 +401,11 @@ class _FakeProfile:
 
     def get_stream(self, stream):
         w, h, _, _ = self.cfg.streams[stream]
-        intr = types.SimpleNamespace(width=w, height=h, fx=0.713 * w, fy=0.714 * w,
-                                     ppx=w / 2 + 3.5, ppy=h / 2 - 2.5)
+        if self.rs.intrinsics is not None:
+            fx, fy, cx, cy = self.rs.intrinsics
+        else:
+            fx, fy, cx, cy = 0.713 * w, 0.714 * w, w / 2 + 3.5, h / 2 - 2.5
+        intr = types.SimpleNamespace(width=w, height=h, fx=fx, fy=fy, ppx=cx, ppy=cy)
         vsp = types.SimpleNamespace(get_intrinsics=lambda: intr)
         return types.SimpleNamespace(as_video_stream_profile=lambda: vsp)
 

@@ -12,9 +12,11 @@ Checks:
 - joint limits of the UR5 (all joints +-2 pi, the elbow +-pi; read from the
   URDF through ``MakeControllerPlant``);
 - joint speed: ``|q - q_prev| / dt <= joint_speed_limit`` per joint;
-- workspace: the TCP position (UR5 DH forward kinematics, then the flange to
-  ``tcp`` offset of the 2F-85 model, 0.144 m along the flange z axis) inside
-  the configured box in the robot base frame.
+- workspace: every moving link inside the configured box in the robot base
+  frame -- the elbow, the three wrists and the flange (origins of UR5 DH
+  frames 2-6) and the TCP (the flange to ``tcp`` offset of the 2F-85 model,
+  0.144 m along the flange z axis). So an elbow below the box's floor (e.g.
+  below the table the robot stands on) is refused even when the TCP is in.
 """
 from __future__ import annotations
 
@@ -23,7 +25,10 @@ from pydrake.math import RigidTransform
 
 from lmap_drake.station.hardware_config import UrConfig
 from lmap_drake.station.robot import (UR5_JOINTS, UR5_VELOCITY_LIMIT, MakeControllerPlant,
-                                      Ur5DhForwardKinematics)
+                                      Ur5DhForwardKinematics, Ur5DhFrames)
+
+# What CheckWorkspace checks: DH frame index -> name (then the TCP).
+WORKSPACE_LINKS = {2: "elbow", 3: "wrist 1", 4: "wrist 2", 5: "wrist 3", 6: "flange"}
 
 
 class HardwareAbort(RuntimeError):
@@ -48,7 +53,7 @@ class VelocityLimitRefusal(SafetyRefusal):
 
 
 class WorkspaceRefusal(SafetyRefusal):
-    """A joint command puts the TCP outside the workspace box."""
+    """A joint command puts a link or the TCP outside the workspace box."""
 
 
 _LIMITS_CACHE: dict = {}
@@ -122,14 +127,18 @@ class SafetyChecker:
 
     def CheckWorkspace(self, q) -> None:
         q = self.CheckFinite(q)
-        p = (Ur5DhForwardKinematics(q) @ self.X_FT)[:3, 3]
-        bad = np.flatnonzero((p < self.box_min) | (p > self.box_max))
-        if bad.size:
-            axis = "xyz"[int(bad[0])]
-            raise WorkspaceRefusal(
-                f"refused UR5 command: TCP at {np.round(p, 4).tolist()} m (robot base frame) is "
-                f"outside the workspace box on {axis}: [{self.box_min.tolist()}, "
-                f"{self.box_max.tolist()}] m (hardware.ur.workspace_min/max)")
+        frames = Ur5DhFrames(q)
+        points = [(name, frames[i][:3, 3]) for i, name in WORKSPACE_LINKS.items()]
+        points.append(("TCP", (frames[6] @ self.X_FT)[:3, 3]))
+        for name, p in points:
+            bad = np.flatnonzero((p < self.box_min) | (p > self.box_max))
+            if bad.size:
+                axis = "xyz"[int(bad[0])]
+                raise WorkspaceRefusal(
+                    f"refused UR5 command: the {name} at {np.round(p, 4).tolist()} m (robot "
+                    f"base frame) is outside the workspace box on {axis}: "
+                    f"[{self.box_min.tolist()}, {self.box_max.tolist()}] m "
+                    f"(hardware.ur.workspace_min/max)")
 
     def Check(self, q, q_prev=None, dt: float | None = None) -> np.ndarray:
         """All checks; returns q as a float array, raises SafetyRefusal.

@@ -82,7 +82,8 @@ def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> H
 def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
     """Checks before touching any device: the client libraries (when we
     connect ourselves), the hardware config and the calibration file.
-    Returns (calibration, X_WC). Raises HardwareStationUnavailable."""
+    Returns (calibration, X_WC). Raises HardwareStationUnavailable, or
+    CalibrationError (bad input)."""
     from lmap_drake.station.station import HardwareStationUnavailable
 
     config = scenario.hardware
@@ -91,37 +92,37 @@ def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
         ImportPyrealsense2()
     try:
         ValidateHardwareConfig(config)
-        calib = LoadCameraCalibration(config.camera.calibration_file)
-    except (ValueError, CalibrationError) as err:
+    except ValueError as err:
         raise HardwareStationUnavailable(f"hardware station: {err}") from err
+    calib = LoadCameraCalibration(config.camera.calibration_file)   # CalibrationError: bad input
     return calib, CalibrationX_WC(calib, scenario.robot.X_WB.GetDeterministicValue())
 
 
-def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = None) -> Diagram:
+def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = None,
+                        read_only: bool = False) -> Diagram:
     """The hardware station Diagram for ``scenario.hardware``. ``clients``
     (tests, or a caller that connected first) are used as given; otherwise
-    the real devices are connected. Raises HardwareStationUnavailable when a
-    library or a device is missing, CalibrationError for a bad calibration
-    file."""
+    the real devices are connected (read-only with ``read_only``). With
+    ``read_only`` the station only reads: no joint or gripper command is
+    sent whatever its inputs say. Raises HardwareStationUnavailable when a
+    library or a device is missing, CalibrationError (bad input) for a bad
+    calibration file or one made for another camera."""
     from lmap_drake.station.station import HardwareStationUnavailable
 
     config = scenario.hardware
     own_clients = clients is None
     calib, X_WC = CheckHardwareSetup(scenario, own_clients)
     if own_clients:
-        clients = ConnectHardwareClients(config)
+        clients = ConnectHardwareClients(config, read_only=read_only)
     try:
-        try:
-            CheckCalibrationSerial(calib, getattr(clients.camera, "serial", ""),
-                                   config.camera.calibration_file)
-        except CalibrationError as err:
-            raise HardwareStationUnavailable(f"hardware station: {err}") from err
+        CheckCalibrationSerial(calib, getattr(clients.camera, "serial", ""),
+                               config.camera.calibration_file)
         builder = DiagramBuilder()
-        ur5 = builder.AddNamedSystem("ur5_driver",
-                                     Ur5Driver(clients.ur, config.ur.command_period))
+        ur5 = builder.AddNamedSystem("ur5_driver", Ur5Driver(
+            clients.ur, config.ur.command_period, command=not read_only))
         gripper = builder.AddNamedSystem(
             "gripper_driver", RobotiqDriver(clients.gripper, config.gripper.update_period,
-                                            on_abort=clients.ur.Halt))
+                                            on_abort=clients.ur.Halt, command=not read_only))
         camera = builder.AddNamedSystem(
             "camera0", RealSenseCamera(clients.camera, 1.0 / config.camera.fps, X_WC,
                                        on_abort=clients.ur.Halt))

@@ -40,12 +40,14 @@ class Ur5Driver(LeafSystem):
     """Input ``position`` (6, rad; optional: unconnected = send nothing);
     outputs ``position_measured`` (6) and ``state_estimated`` (12: q, v).
     Every ``period`` s: read the joint state, then hand the commanded
-    position to the client (which checks it and streams it with servoJ)."""
+    position to the client (which checks it and streams it with servoJ).
+    With ``command=False`` or a read-only client it only reads."""
 
-    def __init__(self, client, period: float):
+    def __init__(self, client, period: float, command: bool = True):
         super().__init__()
         self.client = client
         self._period = float(period)
+        self._command = command and client.control is not None
         q, v = client.ReadState()
         self._input = self.DeclareVectorInputPort("position", 6)
         self._x = self.DeclareDiscreteState(np.concatenate([q, v]))
@@ -61,7 +63,7 @@ class Ur5Driver(LeafSystem):
 
     def _Update(self, context, discrete_state) -> None:
         self._Read(context, discrete_state)
-        if self._input.HasValue(context):
+        if self._command and self._input.HasValue(context):
             self.client.SetTarget(self._input.Eval(context), self._period)
 
     def _CalcQ(self, context, output) -> None:
@@ -72,13 +74,15 @@ class RobotiqDriver(LeafSystem):
     """Input ``position`` (1, opening m, 0 closed .. 0.085 open; optional);
     output ``state_measured`` (2: opening m, its rate m/s by finite
     difference over ``period``). A new ``SET POS`` is sent only when the
-    commanded POS register value changes. ``on_abort`` is called before a
+    commanded POS register value changes (``command=False``: never; the
+    gripper is only read). ``on_abort`` is called before a
     HardwareAbort (a refused command, a lost link) leaves an event."""
 
-    def __init__(self, client, period: float, on_abort=None):
+    def __init__(self, client, period: float, on_abort=None, command: bool = True):
         super().__init__()
         self.client = client
         self._period = float(period)
+        self._command = command
         self._input = self.DeclareVectorInputPort("position", 1)
         self._x = self.DeclareDiscreteState(np.array([client.Opening(), 0.0]))
         self.DeclareInitializationDiscreteUpdateEvent(_StopOnAbort(self._Init, on_abort))
@@ -90,7 +94,7 @@ class RobotiqDriver(LeafSystem):
         discrete_state.set_value(self._x, np.array([self.client.Opening(), 0.0]))
 
     def _Update(self, context, discrete_state) -> None:
-        if self._input.HasValue(context):
+        if self._command and self._input.HasValue(context):
             opening = CheckOpeningCommand(self._input.Eval(context))
             pos = OpeningToPos(opening, self.client.config)
             if pos != self.client.last_pos_sent:

@@ -7,14 +7,14 @@ candidates, and with only 4/8 cm pulls the planner has no gentle option.)"""
 import numpy as np
 import pytest
 
-from lmap_drake.evaluation.episode import RunEpisode
+from lmap_drake.episode import RunSimEpisode
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.scenario import LoadScenario
 
 @pytest.fixture(scope="module")
 def episode():
     s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
-    return RunEpisode(s)
+    return RunSimEpisode(s)
 
 
 def test_episode_reveals_the_fruit_without_damage_and_improves_the_shape(episode):
@@ -38,10 +38,31 @@ def test_episode_reveals_the_fruit_without_damage_and_improves_the_shape(episode
 def test_episode_record_is_complete(episode):
     r = episode.record
     modes = [m for _, m in r["mode_log"]]
-    assert modes == ["plan_requested", "pregrasp", "approach", "close_gripper", "grasp_wait",
-                     "pull", "hold", "observe", "done"]
+    assert modes == ["capture", "plan_requested", "pregrasp", "approach", "close_gripper",
+                     "grasp_wait", "pull", "hold", "observe", "release", "retreat", "done"]
+    # the leaf settles back when released, without hitting the fruit
+    rel = r["release_outcome"]
+    assert not rel["fruit_collision"] and not rel["plant_hazard"]
+    assert rel["visibility_after_release"] < r["outcome"]["visibility_final"]
     assert r["chosen_action"]["feasible"] and r["chosen_action"]["distance"] > 0
     for k in ("segmentation_s", "shape_completion_s", "generation_collision_s",
               "deformation_s", "visibility_s", "reestimation_s"):
         assert r["stage_seconds"][k] >= 0.0
     assert np.isfinite(r["wall_seconds"])
+
+
+def test_recorded_episode_replays_to_the_identical_action(episode, tmp_path):
+    """Record -> replay: the planning stages on the recorded view 0 (the
+    images, depth and joints the planner saw) choose the run's action."""
+    from lmap_drake.episode import ReplayRun, SaveEpisode
+    from lmap_drake.perception.recording import LoadRecording
+    from lmap_drake.scenario import DumpScenario
+    run = tmp_path / "run"
+    SaveEpisode(episode, run)
+    DumpScenario(episode.world.scenario, run / "scenario.yaml")
+    rec = LoadRecording(run)
+    assert rec.station == "simulation" and len(rec.views) == 2
+    assert rec.views[0].label is not None and rec.views[1].t > rec.views[0].t
+    _, replay = ReplayRun(run, tmp_path / "replay", progress=print)
+    assert replay["same_action_as_run"] is True
+    assert replay["chosen_action"] == episode.record["chosen_action"]

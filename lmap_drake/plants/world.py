@@ -1,0 +1,107 @@
+"""The plant world on the simulated station: the generated plant (cached per
+scenario), the closed leaf grasp, and ``MakePlantStation`` -- the simulated
+station (``lmap_drake.station.MakeStation``) with the scenario's plant added
+to its MultibodyPlant. The station itself knows nothing of plants: this
+module hands it an ``add_world(plant, scene_graph)`` callback."""
+from __future__ import annotations
+
+import dataclasses as dc
+import functools
+
+import numpy as np
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import Diagram
+
+from lmap_drake.scenario import Scenario
+from lmap_drake.station.station import MakeStation
+
+
+@dc.dataclass
+class LeafGrasp:
+    """A closed grasp to build into the station: the leaf vertices whose
+    reference positions, placed by ``X_GA`` (pose of the leaf's reference
+    mesh, i.e. of W at the reference, in the gripper-base frame G), fall in
+    the box ``size`` (m) centred at ``p_GR`` (between the pads) are fixed to
+    the gripper base."""
+    X_GA: RigidTransform
+    p_GR: np.ndarray
+    size: np.ndarray
+
+
+@functools.lru_cache(maxsize=8)
+def _CachedPlantModel(plant_scene_yaml: str, p_WC: tuple):
+    from pydrake.common.yaml import yaml_load_typed
+    from lmap_drake.plants.generator import GeneratePlant
+    from lmap_drake.scenario import PlantSceneConfig
+    cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
+    return GeneratePlant(cfg, np.array(p_WC))
+
+
+def GetPlantModel(scenario: Scenario):
+    """The generated plant (``PlantModel``) of a procedural scenario; cached,
+    deterministic in the scenario."""
+    from pydrake.common.yaml import yaml_dump_typed
+    from lmap_drake.scenario import PlantSceneConfig
+    if scenario.plant_scene.kind != "procedural":
+        raise ValueError("GetPlantModel needs plant_scene.kind: procedural")
+    p_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().translation()
+    return _CachedPlantModel(yaml_dump_typed(scenario.plant_scene, schema=PlantSceneConfig),
+                             tuple(float(x) for x in p_WC))
+
+
+def PlantWorldAdder(scenario: Scenario, leaf_grasp: LeafGrasp | None = None):
+    """``add_world(plant, scene_graph)`` for ``MakeStation``: the procedural
+    plant (FEM leaf; with ``leaf_grasp`` the grasped leaf region fixed to the
+    gripper base) or the rigid placeholder plant."""
+    from lmap_drake.plants.scene import AddPlaceholderPlant, AddProceduralPlant
+
+    def add(plant, scene_graph) -> None:
+        if scenario.plant_scene.kind == "procedural":
+            handles = AddProceduralPlant(plant, scene_graph, GetPlantModel(scenario),
+                                         scenario.plant_scene)
+            if leaf_grasp is not None:
+                from pydrake.geometry import Box
+                plant.mutable_deformable_model().AddFixedConstraint(
+                    handles["leaf_body_id"], plant.GetBodyByName("robotiq_base"),
+                    leaf_grasp.X_GA, Box(*leaf_grasp.size), RigidTransform(leaf_grasp.p_GR))
+        else:
+            if leaf_grasp is not None:
+                raise ValueError("a leaf grasp needs plant_scene.kind: procedural")
+            AddPlaceholderPlant(plant, scenario.plant_scene)
+    return add
+
+
+def MakePlantStation(scenario: Scenario, meshcat=None,
+                     leaf_grasp: LeafGrasp | None = None) -> Diagram:
+    """The simulated station with the scenario's plant (see the module
+    docstring); ports as ``MakeStation``."""
+    return MakeStation(scenario, meshcat, add_world=PlantWorldAdder(scenario, leaf_grasp))
+
+
+def RenderStill(scenario: Scenario, settle: float = 0.0) -> tuple[np.ndarray, np.ndarray,
+                                                                   np.ndarray]:
+    """camera0's (rgb HxWx4 uint8, depth HxW float32 m, label HxW int16)
+    from the simulated plant station with the arm held at ``robot.initial_q``
+    and the gripper at ``robot.initial_gripper_width``, after ``settle``
+    simulated seconds (0: the default context, no simulation)."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakePlantStation(scenario))
+    q = builder.AddSystem(ConstantVectorSource(scenario.robot.initial_q))
+    builder.Connect(q.get_output_port(), station.GetInputPort("ur5.position"))
+    g = builder.AddSystem(ConstantVectorSource([scenario.robot.initial_gripper_width]))
+    builder.Connect(g.get_output_port(), station.GetInputPort("gripper.position"))
+    diagram = builder.Build()
+    if settle > 0:
+        sim = Simulator(diagram)
+        sim.AdvanceTo(settle)
+        root = sim.get_context()
+    else:
+        root = diagram.CreateDefaultContext()
+    ctx = station.GetMyContextFromRoot(root)
+
+    def image(name):
+        return np.array(station.GetOutputPort(f"camera0.{name}_image").Eval(ctx).data)
+    return image("rgb"), image("depth")[..., 0], image("label")[..., 0]
