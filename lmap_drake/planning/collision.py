@@ -52,15 +52,26 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
 
 
 def LeafFruitCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, fruit_sdf,
-                             margin: float) -> str:
+                             margin: float, fruit_box=None, rest_sdf=None) -> str:
     """'' unless a leaf point ends within ``margin`` of the fruit surface (or
     inside it) after moving toward the fruit. Leaf points that already rest
     that close and do not approach are not counted (a leaf lying on its
-    fruit is not a collision caused by the action)."""
+    fruit is not a collision caused by the action). ``fruit_box`` (lo, hi):
+    only deformed points within ``margin`` of it are evaluated (the others
+    are farther than ``margin`` from the fruit); ``rest_sdf``: the SDF at
+    ``rest_W``, when already known (one evaluation for many actions)."""
     if fruit_sdf is None or deformed_W is None or len(deformed_W) == 0:
         return ""
-    d1 = np.asarray(fruit_sdf(deformed_W), float)
-    d0 = np.asarray(fruit_sdf(rest_W), float)
+    deformed_W = np.asarray(deformed_W, float)
+    sel = np.ones(len(deformed_W), bool)
+    if fruit_box is not None:
+        lo, hi = np.asarray(fruit_box[0]) - margin, np.asarray(fruit_box[1]) + margin
+        sel = np.all((deformed_W >= lo) & (deformed_W <= hi), axis=1)
+        if not sel.any():
+            return ""
+    d1 = np.asarray(fruit_sdf(deformed_W[sel]), float)
+    d0 = (np.asarray(rest_sdf, float)[sel] if rest_sdf is not None
+          else np.asarray(fruit_sdf(np.asarray(rest_W)[sel]), float))
     if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):
         return "leaf-fruit (non-finite fruit SDF)"
     bad = (d1 < margin) & (d1 < d0 - 1e-3)

@@ -150,6 +150,9 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
     free = [ctx.q_current + f * (approach.via - ctx.q_current) for f in np.linspace(0, 1, 8)[1:]]
     free += list(approach.to_ready) + list(approach.to_pregrasp)
     leaf_tree = cKDTree(ctx.leaf_W) if len(ctx.leaf_W) else None
+    if leaf_tree is not None:   # only robot points near the leaf's box can be within the margin
+        leaf_lo = ctx.leaf_W.min(axis=0) - cfg.collision_margin
+        leaf_hi = ctx.leaf_W.max(axis=0) + cfg.collision_margin
     # During the approach the leaf must pass between the open pads: every
     # observed leaf point keeps the margin from the robot, pads included.
     for path, when, leaf_why in (
@@ -161,8 +164,10 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
                                        cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
             if why:
                 return f"{why} {when}"
-            if leaf_tree is not None and leaf_tree.query(pts)[0].min() < cfg.collision_margin:
-                return f"robot-leaf {when}{leaf_why}"
+            if leaf_tree is not None:
+                near = pts[np.all((pts >= leaf_lo) & (pts <= leaf_hi), axis=1)]
+                if len(near) and leaf_tree.query(near)[0].min() < cfg.collision_margin:
+                    return f"robot-leaf {when}{leaf_why}"
     return ""
 
 
@@ -410,6 +415,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     for c in cands:
         by_dir.setdefault((c.action.grasp_id, c.action.direction_id), []).append(c)
     forced = ForcedCandidate(cands, cfg.force_action)
+    rest_sdf = None       # the fruit SDF at the observed leaf, evaluated once
     for dir_cands in by_dir.values():
         reached = False
         for c in sorted(dir_cands, key=lambda c: c.action.distance):
@@ -419,8 +425,10 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
             is_forced = c is forced and c.deformed_leaf_W is not None
             if not (c.feasible or is_forced):
                 continue
+            if rest_sdf is None and ctx.fruit_sdf is not None:
+                rest_sdf = np.asarray(ctx.fruit_sdf(ctx.leaf_W), float)
             why = LeafFruitCollisionReason(ctx.leaf_W, c.deformed_leaf_W, ctx.fruit_sdf,
-                                           cfg.collision_margin)
+                                           cfg.collision_margin, ctx.fruit_box, rest_sdf)
             if why:
                 c.reason = c.reason or why
                 if not is_forced:

@@ -24,7 +24,16 @@ def VoxelCenters(points: np.ndarray, voxel: float) -> np.ndarray:
     """Unique voxel centres (M, 3) of ``points`` at ``voxel`` size."""
     if len(points) == 0:
         return np.zeros((0, 3))
-    keys = np.unique(np.floor(np.asarray(points) / voxel).astype(np.int64), axis=0)
+    k = np.floor(np.asarray(points) / voxel).astype(np.int64)
+    lo = k.min(axis=0)
+    k -= lo
+    if k.max() < (1 << 21):
+        # one int64 key per voxel (x, y, z in 21 bits each, x highest): the
+        # same lexicographic order as np.unique(axis=0), several times faster
+        u = np.unique((k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2])
+        keys = np.stack([u >> 42, (u >> 21) & 0x1FFFFF, u & 0x1FFFFF], axis=1) + lo
+    else:
+        keys = np.unique(k, axis=0) + lo
     return (keys + 0.5) * voxel
 
 
@@ -81,6 +90,10 @@ class VisibilityModel:
         self._fruit_pix = np.where(visible, self._pixels(uv), -1)
         self._fruit_z = z
         self._z_far = float(z[visible].max()) + voxel if visible.any() else NEAR
+        # the fruit's own z-buffer (the nearest fruit voxel per pixel)
+        self._fruit_zbuf = np.full(int(np.prod(self.shape)), np.inf)
+        ok = self._fruit_pix >= 0
+        _MinInto(self._fruit_zbuf, self._fruit_pix[ok], self._fruit_z[ok])
         self.max_seen = self.Seen(np.zeros((0, 3)))
 
     def _to_camera(self, p_W: np.ndarray) -> np.ndarray:
@@ -130,9 +143,8 @@ class VisibilityModel:
                         all_pix.append(pix[ok])
                         all_z.append(p_C[sel, 2][ok])
             _MinInto(zbuf, np.concatenate(all_pix), np.concatenate(all_z))
-        fz = np.full(h * w, np.inf)
+        fz = self._fruit_zbuf
         ok = self._fruit_pix >= 0
-        _MinInto(fz, self._fruit_pix[ok], self._fruit_z[ok])
         tol = 0.75 * self.voxel
         seen = np.zeros(len(self.fruit_W), bool)
         pix = self._fruit_pix[ok]
@@ -142,13 +154,11 @@ class VisibilityModel:
 
 
 def _MinInto(buf: np.ndarray, idx: np.ndarray, val: np.ndarray) -> None:
-    """buf[i] = min(buf[i], min of val where idx == i) (a fast np.minimum.at)."""
+    """buf[i] = min(buf[i], min of val where idx == i) (numpy >= 2's
+    ``ufunc.at`` is fast: ~100x a sort-based reduction here)."""
     if len(idx) == 0:
         return
-    order = np.lexsort((val, idx))
-    idx, val = idx[order], val[order]
-    first = np.r_[True, idx[1:] != idx[:-1]]
-    buf[idx[first]] = np.minimum(buf[idx[first]], val[first])
+    np.minimum.at(buf, idx, val)
 
 
 def CountNewlySeen(seen_k: np.ndarray, seen_init: np.ndarray) -> int:
