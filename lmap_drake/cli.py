@@ -15,6 +15,7 @@ episode aborted / no feasible action / not confirmed, 130 interrupted. Errors ar
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -112,6 +113,62 @@ def cmd_replay(args) -> int:
     _stage(f"done in {time.time() - t0:.1f} s; wrote {folder.final}/: "
            + ", ".join(sorted(files)))
     return 0 if record["status"] in ("ok", "no_action_needed") else EXIT_ABORTED
+
+
+def cmd_twin(args) -> int:
+    """The digital twin until Ctrl-C, SIGTERM, a ``quit`` line on stdin or
+    ``--duration`` wall seconds; then it writes its outcome."""
+    import signal
+    import threading
+
+    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
+    from lmap_drake.plants.twin import Twin, TwinOptions, TwinRunOverrides, WriteTwinCalibration
+    from lmap_drake.scenario import LoadScenario
+
+    scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
+                            scenario_text=args.scenario_text)
+    if scenario.plant_scene.kind != "procedural":
+        raise UsageError("the twin needs plant_scene.kind: procedural (the FEM plant world)")
+    if not 0.0 < args.rate <= 1.0:
+        raise UsageError(f"--rate must be in (0, 1] simulated s per wall s, got {args.rate}")
+    out = EnsureWritableFolder(Path(args.output) if args.output
+                               else DefaultOutputFolder(prefix="twin-"))
+    calibration = (out / "calibration.yaml").resolve()
+    options = TwinOptions(host=args.host, camera_port=args.camera_port,
+                          gripper_port=args.gripper_port, rate=args.rate,
+                          stop_after_grasp_move=args.stop_after_grasp_move)
+    _stage("building the plant world")
+    twin = Twin(scenario, options, progress=_stage)
+    WriteTwinCalibration(scenario, calibration)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    if args.duration > 0:
+        threading.Timer(args.duration, stop.set).start()
+
+    def read_stdin():
+        for line in sys.stdin:
+            if line.strip() == "quit":
+                stop.set()
+                return
+    threading.Thread(target=read_stdin, daemon=True).start()
+    try:
+        twin.Start()
+        text = TwinRunOverrides(options, str(calibration))
+        _stage(f"twin ready at {args.host} (UR emulator, Robotiq {args.gripper_port}, camera "
+               f"{args.camera_port}), {args.rate:g} simulated s per wall s; run the episode "
+               f"with:")
+        print(f"  lmap-drake run --hardware --no-confirm --scenario_file {args.scenario_file} "
+              f"--scenario_name {args.scenario_name} --scenario_text \"{text}\"", flush=True)
+        twin.Run(stop)
+    finally:
+        twin.Close()
+    outcome = twin.Finish(out)
+    _stage(f"twin stopped after {twin.world.time:.1f} simulated s (largest lag "
+           f"{twin.lag_max:.2f} s); outcome: " + json.dumps(
+               {k: v for k, v in outcome.items() if k != "release_outcome"}))
+    _stage(f"wrote {out}/: outcome.json, twin_log.json, calibration.yaml")
+    return 0
 
 
 def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
@@ -241,6 +298,22 @@ def _main(argv=None) -> int:
                     help="replace an existing non-empty output folder")
     rp.add_argument("--debug", action="store_true", help="show tracebacks")
     rp.set_defaults(func=cmd_replay)
+    tw = sub.add_parser("twin", help="the digital twin: the simulated plant world behind a UR "
+                        "controller emulator, a Robotiq socket and a camera socket, for "
+                        "lmap-drake run --hardware with the real ur_rtde client")
+    _add_scenario_args(tw)
+    tw.add_argument("--host", default="127.0.0.1",
+                    help="loopback address to listen on (default: %(default)s)")
+    tw.add_argument("--camera_port", type=int, default=50410, help="camera socket port")
+    tw.add_argument("--gripper_port", type=int, default=63352, help="Robotiq URCap port")
+    tw.add_argument("--rate", type=float, default=0.3,
+                    help="simulated seconds per wall second (default: %(default)s)")
+    tw.add_argument("--duration", type=float, default=0.0,
+                    help="stop after this many wall seconds (0: until Ctrl-C or 'quit')")
+    tw.add_argument("--stop_after_grasp_move", type=float, default=0.0,
+                    help="inject a protective stop once the held leaf moved this far (m)")
+    tw.add_argument("--debug", action="store_true", help="show tracebacks")
+    tw.set_defaults(func=cmd_twin)
     ev = sub.add_parser("eval", help="run a scenario suite with LMAP and the baselines; "
                         "write the Table II-V analogues")
     ev.add_argument("--scenario_file", default=str(DEFAULT_SCENARIO_FILE.parent / "suite.yaml"),

@@ -81,7 +81,8 @@ class RealSenseConfig:
     aligned to colour); depth streams at ``depth_width`` x ``depth_height``.
     ``calibration_file`` is a YAML file with the camera pose (see
     ``CameraCalibration``); a relative path is tried from the current folder,
-    then from the repository root."""
+    then from the repository root. ``twin_address`` ("host:port"): read the
+    frames of a digital twin (``lmap-drake twin``) instead of a RealSense."""
     serial: str = ""
     width: int = 640
     height: int = 480
@@ -90,6 +91,7 @@ class RealSenseConfig:
     fps: int = 30
     frame_timeout: float = 5.0
     calibration_file: str = ""
+    twin_address: str = ""
 
 
 @dc.dataclass
@@ -206,3 +208,7 @@ def ValidateHardwareConfig(config: HardwareConfig) -> None:
     need(cam.width > 0 and cam.height > 0 and cam.fps > 0,
          "camera width, height and fps must be > 0")
     need(cam.frame_timeout > 0, "camera.frame_timeout must be > 0 s")
+    if cam.twin_address:
+        host, _, port = cam.twin_address.rpartition(":")
+        need(bool(host) and port.isdigit() and 0 < int(port) < 65536,
+             f"camera.twin_address must be 'host:port', got {cam.twin_address!r}")

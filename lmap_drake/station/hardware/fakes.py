@@ -210,14 +210,17 @@ class _RobotiqHandler(socketserver.StreamRequestHandler):
 
 
 class FakeRobotiqServer(socketserver.ThreadingTCPServer):
-    """FAKE Robotiq URCap socket server on 127.0.0.1 (an ephemeral port).
+    """FAKE Robotiq URCap socket server on ``host`` (default 127.0.0.1) and
+    ``port`` (default an ephemeral one); ``gripper`` is any register model
+    with ``Set(dict) -> bool`` and ``Get(name) -> int | None``.
     ``received`` lists every request line; ``silent`` stops replies;
     ``DropClients`` closes every connection (a lost link)."""
     daemon_threads = True
     allow_reuse_address = True
 
-    def __init__(self, gripper: FakeGripper | None = None):
-        super().__init__(("127.0.0.1", 0), _RobotiqHandler)
+    def __init__(self, gripper: FakeGripper | None = None, host: str = "127.0.0.1",
+                 port: int = 0):
+        super().__init__((host, port), _RobotiqHandler)
         self.gripper = gripper or FakeGripper()
         self.received: list[str] = []
         self.silent = False

@@ -64,7 +64,8 @@ def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> H
     anything is touched). ``read_only``: no RTDE control interface (the arm
     cannot move) and no gripper activation (activation moves the fingers)."""
     ImportUrRtde()
-    ImportPyrealsense2()
+    if not config.camera.twin_address:
+        ImportPyrealsense2()
     ur = gripper = camera = None
     try:
         ur = ConnectUr(config.ur, read_only=read_only)
@@ -72,7 +73,11 @@ def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> H
         gripper = RobotiqClient.Connect(config.gripper, host)
         if config.gripper.activate and not read_only:
             gripper.Activate(timeout=10.0)
-        camera = ConnectRealSense(config.camera)
+        if config.camera.twin_address:     # a digital twin's frames (lmap-drake twin)
+            from lmap_drake.station.hardware.twin_camera import TwinCameraClient
+            camera = TwinCameraClient(config.camera.twin_address, config.camera.frame_timeout)
+        else:
+            camera = ConnectRealSense(config.camera)
     except BaseException:
         HardwareClients(ur, gripper, camera).Close()
         raise
@@ -89,7 +94,8 @@ def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
     config = scenario.hardware
     if own_clients:  # a missing library is the first thing to report
         ImportUrRtde()
-        ImportPyrealsense2()
+        if not config.camera.twin_address:
+            ImportPyrealsense2()
     try:
         ValidateHardwareConfig(config)
     except ValueError as err:

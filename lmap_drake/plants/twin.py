@@ -1,0 +1,304 @@
+"""The digital twin (``lmap-drake twin``): the simulated plant world behind
+the hardware protocols, so that ``lmap-drake run --hardware`` with the real
+``ur_rtde`` client runs a whole LMAP episode without a robot, and the plant
+world scores it.
+
+In one process (run the episode in another: ur_rtde holds the GIL while it
+waits for its controller):
+
+- the UR controller EMULATOR (``station.hardware.ur_emulator``) on
+  ``host`` (dashboard 29999, RTDE 30004, script 30003): the real ur_rtde
+  client connects to it; its emulated joints drive the simulated UR5;
+- the Robotiq URCap socket (``gripper_port``) over a register model whose
+  fingers are the simulated 2F-85's (they stall on the FEM leaf);
+- camera frames rendered from the plant world (``station.hardware.
+  twin_camera``, ``camera_port``), with the scenario's camera model;
+- the grasp as in simulation: when the pads close on the leaf the station is
+  rebuilt with the leaf fixed between them, and undone when they open.
+
+The plant world advances at ``rate`` simulated seconds per wall second (it
+cannot run in real time on 2 cores); the camera tells the episode runner
+that pace so both share one clock. Ground-truth samples are taken as in
+simulation; ``Finish`` writes ``outcome.json`` (up to the release, and
+``release_outcome`` after it) and ``twin_log.json`` (events, pacing, the
+emulator's loop statistics).
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+import json
+import queue
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from lmap_drake.scenario import Scenario
+
+
+@dc.dataclass
+class TwinOptions:
+    """Where the twin listens and how fast it runs."""
+    host: str = "127.0.0.1"
+    camera_port: int = 50410
+    gripper_port: int = 63352
+    rate: float = 0.3                 # simulated s per wall s
+    frame_period: float = 0.1         # re-render at most every this many simulated s
+    stop_after_grasp_move: float = 0.0   # > 0: protective stop once the held leaf moved this far (m)
+
+
+class TwinGripper:
+    """2F-85 registers (ACT, GTO, POS, PRE, OBJ, STA, ...) over the simulated
+    gripper: ``SET POS`` requests an opening, ``GET POS`` reads the
+    simulated fingers, OBJ is 2 when they stand still short of a closing
+    request (an object between the pads), 3 at the request."""
+
+    def __init__(self, config, opening: float):
+        from lmap_drake.station.hardware.robotiq_client import OpeningToPos
+        self.config = config
+        self.lock = threading.Lock()
+        self.regs = {k: 0 for k in ("ACT", "GTO", "ATR", "ADR", "POS", "PRE", "SPE", "FOR",
+                                    "OBJ", "STA", "FLT", "MOD")}
+        pos = OpeningToPos(opening, config)
+        self.regs.update(POS=pos, PRE=pos, OBJ=3)
+        self._moving = False
+
+    def Set(self, values: dict) -> bool:
+        with self.lock:
+            if any(k not in self.regs for k in values):
+                return False
+            values = dict(values)
+            requested = values.pop("POS", None)
+            self.regs.update(values)
+            if values.get("ACT") == 1:
+                self.regs["STA"] = 3          # activation is instant here
+            elif values.get("ACT") == 0:
+                self.regs["STA"] = 0
+            if requested is not None:
+                self.regs["PRE"] = int(requested)
+                self.regs["OBJ"] = 0
+        return True
+
+    def Get(self, var: str):
+        with self.lock:
+            return self.regs.get(var)
+
+    def RequestedOpening(self) -> float:
+        from lmap_drake.station.hardware.robotiq_client import PosToOpening
+        with self.lock:
+            if self.regs["STA"] != 3 or self.regs["GTO"] != 1:
+                return None
+            return PosToOpening(self.regs["PRE"], self.config)
+
+    def SetMeasured(self, opening: float, rate: float) -> None:
+        from lmap_drake.station.hardware.robotiq_client import OpeningToPos
+        with self.lock:
+            pos = OpeningToPos(float(np.clip(opening, 0.0, 0.085)), self.config)
+            self.regs["POS"] = pos
+            if abs(pos - self.regs["PRE"]) <= 1:
+                self.regs["OBJ"] = 3
+            elif abs(rate) < 1e-3:
+                self.regs["OBJ"] = 2 if pos < self.regs["PRE"] else 1   # stalled short
+            else:
+                self.regs["OBJ"] = 0
+
+
+class Twin:
+    """See the module docstring. ``Start``, then ``Run`` (blocks until
+    ``stop`` is set), then ``Finish(out)``."""
+
+    def __init__(self, scenario: Scenario, options: TwinOptions | None = None,
+                 progress: Callable[[str], None] | None = None):
+        from lmap_drake.perception.points import Intrinsics
+        from lmap_drake.plants.simworld import PlantWorldSim
+        self.scenario, self.options = scenario, options or TwinOptions()
+        self.progress = progress or (lambda m: None)
+        self.world = PlantWorldSim(scenario, None, self.progress)
+        self.gripper = TwinGripper(scenario.hardware.gripper, scenario.robot.initial_gripper_width)
+        K = Intrinsics.FromCameraConfig(scenario.cameras["camera0"])
+        self.camera_info = {"width": K.width, "height": K.height, "fx": K.fx, "fy": K.fy,
+                            "cx": K.cx, "cy": K.cy, "serial": "twin",
+                            "depth_scale": float("nan"), "time_scale": self.options.rate}
+        self._requests: queue.Queue = queue.Queue()
+        self._frame = None                     # (t, rgba, depth)
+        self.events: list[dict] = []
+        self.frames: list[dict] = []           # t, visibility of every rendered frame
+        self.lag_max = 0.0
+        self.vis_initial = None
+        self.release_sample = None
+        self.vis_at_release = None
+        self._grasp_tcp = None
+        self.stopped_by_twin = False
+        self.emulator = self.camera = self.gripper_server = None
+
+    # --- servers ------------------------------------------------------------
+    def Start(self) -> "Twin":
+        from lmap_drake.station.hardware.fakes import FakeRobotiqServer
+        from lmap_drake.station.hardware.twin_camera import TwinCameraServer
+        from lmap_drake.station.hardware.ur_emulator import UrEmulator
+        o = self.options
+        try:
+            self.emulator = UrEmulator(o.host, q0=tuple(self.scenario.robot.initial_q)).Start()
+            self.gripper_server = FakeRobotiqServer(self.gripper, o.host, o.gripper_port)
+            self.gripper_server.__enter__()
+            self.camera = TwinCameraServer(self.camera_info, self._FrameRequest, o.host,
+                                           o.camera_port).Start()
+        except OSError as err:
+            self.Close()
+            from lmap_drake.errors import InputError
+            raise InputError(f"twin: cannot listen on {o.host} ({err}); another twin or a "
+                             f"UR emulator may be running there: use --host 127.0.0.2 or other "
+                             f"ports") from None
+        self.world.Hold(0.0)
+        self.vis_initial = self.world.Visibility()
+        return self
+
+    def _FrameRequest(self):
+        """Called by the camera server's threads: the main loop renders."""
+        done = threading.Event()
+        box = {}
+        self._requests.put((done, box))
+        if not done.wait(timeout=30.0):
+            raise TimeoutError("the twin's simulation loop did not answer")
+        if "error" in box:
+            raise RuntimeError(box["error"])
+        return box["frame"]
+
+    def _ServeFrames(self) -> None:
+        while True:
+            try:
+                done, box = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                t = self.world.time
+                if self._frame is None or t - self._frame[0] >= self.options.frame_period - 1e-9:
+                    images = self.world.Images()
+                    rgba = np.array(images["rgb_image"].data, np.uint8)
+                    depth = np.array(images["depth_image"].data[..., 0], np.float32)
+                    self._frame = (t, rgba, depth)
+                    from lmap_drake.plants.outcome import VisibilityFraction
+                    self.world.Visibility()
+                    self.frames.append({"t": t, "visibility": VisibilityFraction(
+                        images["label_image"], self.world._unoccluded)})
+                box["frame"] = self._frame
+            except Exception as err:  # noqa: BLE001 - reported to the camera client
+                box["error"] = f"{type(err).__name__}: {err}"
+            done.set()
+
+    # --- the loop -----------------------------------------------------------
+    def Run(self, stop: threading.Event, step: float = 0.02) -> None:
+        """Advances the plant world at ``rate`` until ``stop`` is set."""
+        w, o = self.world, self.options
+        t0, wall0 = w.time, time.monotonic()
+        last_width = w.GripperWidth()
+        while not stop.is_set():
+            self._ServeFrames()
+            ahead = t0 + (time.monotonic() - wall0) * o.rate - w.time
+            if ahead < step:
+                time.sleep(min(0.02, (step - ahead) / o.rate))
+                continue
+            self.lag_max = max(self.lag_max, ahead - step)
+            w.q_cmd = self.emulator.q_actual
+            opening = self.gripper.RequestedOpening()
+            if opening is not None:
+                w.width_cmd = float(opening)
+            w._fix_inputs()
+            w.AdvanceTo(w.time + step)
+            width = w.GripperWidth()
+            self.gripper.SetMeasured(width, (width - last_width) / step)
+            last_width = width
+            self._GraspAndRelease(width)
+
+    def _GraspAndRelease(self, width: float) -> None:
+        w = self.world
+        closing = w.width_cmd < width - 1e-4
+        if w.grasp_state is None and closing and \
+                width <= self.scenario.planner.grasp_attach_opening:
+            try:
+                w.Grasp()
+                self._grasp_tcp = w.X_WT().translation()
+                self.events.append({"t": w.time, "event": "grasp",
+                                    "p_WT": self._grasp_tcp.tolist(),
+                                    "opening": width})
+                self.progress(f"twin: grasp made at t = {w.time:.2f} s")
+            except RuntimeError as err:
+                self.events.append({"t": w.time, "event": "grasp_failed", "why": str(err)})
+        elif w.grasp_state is not None and w.width_cmd > width + 0.002:
+            self.release_sample = len(w.samples)
+            self.vis_at_release = w.Visibility()
+            w._fix_inputs()
+            w.Release()
+            w._fix_inputs()
+            self.events.append({"t": w.time, "event": "release"})
+            self.progress(f"twin: leaf released at t = {w.time:.2f} s")
+        d = self.options.stop_after_grasp_move
+        if d > 0 and w.grasp_state is not None and not self.stopped_by_twin and \
+                np.linalg.norm(w.X_WT().translation() - self._grasp_tcp) >= d:
+            self.stopped_by_twin = True
+            self.emulator.ProtectiveStop(f"injected by the twin: held leaf moved {d} m")
+            self.events.append({"t": w.time, "event": "protective_stop_injected"})
+            self.progress(f"twin: protective stop injected at t = {w.time:.2f} s")
+
+    # --- results ------------------------------------------------------------
+    def Finish(self, out: Path) -> dict:
+        """Writes ``outcome.json`` and ``twin_log.json`` to ``out``."""
+        from lmap_drake.plants.outcome import Summarize
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        w, cfg = self.world, self.scenario.plant_scene.outcome
+        cut = self.release_sample if self.release_sample is not None else len(w.samples)
+        vis_final = self.vis_at_release if self.vis_at_release is not None else w.Visibility()
+        outcome = Summarize(w.samples[:cut], cfg, self.vis_initial, vis_final).to_dict()
+        if self.release_sample is not None:
+            after = Summarize(w.samples[cut:], cfg, vis_final, w.Visibility()).to_dict()
+            outcome["release_outcome"] = {k: after[k] for k in (
+                "plant_hazard", "fruit_collision", "max_petiole_force",
+                "max_fruit_penetration", "max_fruit_contact_force")}
+        (out / "outcome.json").write_text(json.dumps(outcome, indent=2))
+        stats = dict(self.emulator.stats) if self.emulator is not None else {}
+        log = {"events": self.events, "frames": self.frames, "simulated_seconds": w.time,
+               "rate": self.options.rate, "max_lag_s": self.lag_max,
+               "emulator": stats,
+               "emulator_faults": list(getattr(self.emulator, "fault_log", []))}
+        (out / "twin_log.json").write_text(json.dumps(log, indent=1, default=float))
+        return outcome
+
+    def Close(self) -> None:
+        for server, close in ((self.camera, "Close"), (self.emulator, "Close")):
+            if server is not None:
+                try:
+                    getattr(server, close)()
+                except Exception:  # noqa: BLE001
+                    pass
+        if self.gripper_server is not None:
+            try:
+                self.gripper_server.__exit__(None, None, None)
+            except Exception:  # noqa: BLE001
+                pass
+
+
+def TwinRunOverrides(options: TwinOptions, calibration_file: str) -> str:
+    """The ``--scenario_text`` that points ``lmap-drake run --hardware`` at
+    the twin (a pedestal cell: the plant world's start pose has its wrists
+    below the robot base plane)."""
+    o = options
+    return ("{hardware: {ur: {robot_ip: %s, workspace_min: [-0.85, -0.85, -0.2]}, "
+            "gripper: {host: %s, port: %d}, camera: {twin_address: '%s:%d', "
+            "calibration_file: '%s', fps: 5}}}" % (o.host, o.host, o.gripper_port, o.host,
+                                                    o.camera_port, calibration_file))
+
+
+def WriteTwinCalibration(scenario: Scenario, path: Path) -> None:
+    """The twin camera's pose as a calibration file (serial ``twin``)."""
+    from pydrake.math import RollPitchYaw
+    X = scenario.cameras["camera0"].X_PB.GetDeterministicValue()
+    rpy = np.degrees(RollPitchYaw(X.rotation()).vector())
+    p = X.translation()
+    Path(path).write_text(
+        "# the digital twin's camera pose (written by lmap-drake twin)\n"
+        f"X_WC:\n  base_frame: world\n  translation: [{p[0]:.6f}, {p[1]:.6f}, {p[2]:.6f}]\n"
+        f"  rotation: !Rpy {{ deg: [{rpy[0]:.6f}, {rpy[1]:.6f}, {rpy[2]:.6f}] }}\n"
+        "camera_serial: twin\nnotes: the simulated camera0 of the twin's scenario\n")
