@@ -231,6 +231,16 @@ def test_movej_and_movel_reach_their_targets(robot):
     assert emu.State()["commands_seen"] == {"movej": 1, "movel": 1}
 
 
+@needs_ur_rtde
+def test_unreachable_movel_fails_without_moving(robot):
+    emu, control, receive = robot
+    pose = np.array(receive.getActualTCPPose())
+    pose[:3] += [-0.9, 0.0, 0.0]  # beyond the UR5's reach
+    assert control.moveL(pose.tolist(), 0.25, 1.2) is False
+    assert np.allclose(receive.getActualQ(), Q0, atol=1e-9)
+    assert not emu.State()["script_running"]
+
+
 # ---------------------------------------------------------------- servoJ
 @needs_ur_rtde
 def test_servoj_streaming_follows_and_keeps_the_rate(robot, record_property):

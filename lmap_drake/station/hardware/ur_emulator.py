@@ -475,8 +475,8 @@ class EmulatedArm:
         elif m.kind in ("movej", "movel") and m.failed is None:
             q = m.profile(self.time - m.t0)
             if q is None:
-                m.failed = "inverse kinematics failed on the movel path"
                 self.Hold("halted")
+                self.motion.failed = "inverse kinematics failed on the movel path"
                 return
             self.q_ref = q
         else:  # idle, halted
@@ -604,7 +604,10 @@ class ControlScript:
                 return self.Terminate("control script halted: movej_ik: no IK solution")
             return self._Move(cmd, lambda: arm.MoveJ(q, v, a))
         if cmd == 3:  # movel
-            return self._Move(cmd, lambda: arm.MoveL(PoseToTransform(self._Floats(0)), v, a))
+            T = PoseToTransform(self._Floats(0))
+            if InverseKinematics(T, arm.q, arm.tcp_offset) is None:  # checked before moving
+                return self.Terminate("control script halted: movel: target pose not reachable")
+            return self._Move(cmd, lambda: arm.MoveL(T, v, a))
         if cmd == 4:  # movel_fk
             T = TcpTransform(self._Floats(0), arm.tcp_offset)
             return self._Move(cmd, lambda: arm.MoveL(T, v, a))
