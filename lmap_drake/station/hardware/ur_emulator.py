@@ -1468,6 +1468,7 @@ class EmulatorProcess:
                  q0=None, verbose: bool = False, log_path: str | None = None,
                  startup_timeout: float = 30.0):
         self.host = host
+        self._own_log = log_path is None  # a temporary log, removed by Close
         if log_path is None:
             fd, log_path = tempfile.mkstemp(prefix="ur_emulator_", suffix=".log")
             os.close(fd)
@@ -1489,8 +1490,13 @@ class EmulatorProcess:
         threading.Thread(target=self._Read, daemon=True, name="ur_emu_proc_reader").start()
         ready = self._NextLine(startup_timeout)
         if ready is None or not ready.startswith("{"):
+            try:
+                self.proc.wait(timeout=1.0)  # a failing child exits after its message
+            except subprocess.TimeoutExpired:
+                pass
+            tail = self.LogTail()
             self.Close()
-            raise OSError(f"the UR emulator on {host} did not start: {self.LogTail()}")
+            raise OSError(f"the UR emulator on {host} did not start: {tail}")
         self.info = json.loads(ready)
 
     def _Read(self) -> None:
@@ -1553,7 +1559,7 @@ class EmulatorProcess:
         return self.Command(f"latency {float(seconds)!r}")
 
     def Close(self) -> None:
-        """Stops the child (idempotent)."""
+        """Stops the child (idempotent); removes a temporary log."""
         if self.proc.poll() is None:
             try:
                 self.proc.stdin.close()
@@ -1562,6 +1568,11 @@ class EmulatorProcess:
                 self.proc.kill()
                 self.proc.wait()
         self._log.close()
+        if self._own_log:
+            try:
+                os.remove(self.log_path)
+            except OSError:
+                pass
 
     def __enter__(self) -> "EmulatorProcess":
         return self
