@@ -3,7 +3,9 @@ FakeRobotiqServer on localhost speaking the URCap protocol, a fake
 pyrealsense2 module; see lmap_drake.station.hardware.fakes). Nothing here
 talks to a robot: these tests check the Drake wiring, the port contract,
 the safety paths, not the devices. The whole hardware episode on these
-fakes (plan-only, confirmation, aborts) is tested in tests/test_episode.py."""
+fakes (plan-only, confirmation, aborts) is tested in tests/test_episode_hardware.py."""
+import sys
+
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
@@ -193,8 +195,10 @@ def test_missing_calibration_is_a_clear_error(hw_scenario, gripper_server):
         MakeHardwareStation(hw_scenario, clients=object())
 
 
-def test_make_station_without_libraries_says_how_to_install(scenario):
-    # This machine has no ur_rtde: the error names the hardware station and the extra.
+def test_make_station_without_libraries_says_how_to_install(scenario, monkeypatch):
+    # Without ur_rtde (the test extra installs it: hide it), the error names the
+    # hardware station and the extra.
+    monkeypatch.setitem(sys.modules, "rtde_control", None)
     with pytest.raises(HardwareStationUnavailable,
                        match=r"hardware station needs ur_rtde.*pip install -e \.\[hardware\]"):
         MakeStation(scenario, hardware=True)
