@@ -19,7 +19,9 @@ def test_run_rejects_bad_key(tmp_path, capsys):
     assert "robto" in capsys.readouterr().err
 
 
-def test_run_hardware_not_available(tmp_path, capsys):
+def test_run_hardware_not_available(tmp_path, capsys, monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)   # never reach a device
     assert main(["run", "--hardware", "--output", str(tmp_path)]) == 1
     assert "hardware station" in capsys.readouterr().err
 

@@ -210,7 +210,8 @@ def test_cli_dry_run_needs_hardware(tmp_path, capsys):
         capsys.readouterr().err
 
 
-def test_cli_hardware_dry_run_without_libraries_fails_clearly(tmp_path, capsys):
+def test_cli_hardware_dry_run_without_libraries_fails_clearly(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)   # never reach a device
     assert main(["run", "--hardware", "--dry-run", "--output", str(tmp_path)]) == 1
     assert "pip install -e .[hardware]" in capsys.readouterr().err
 

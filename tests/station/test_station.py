@@ -31,7 +31,9 @@ def test_station_builds_with_exactly_the_contract_ports(name):
     assert sorted(outs) == sorted(STATION_PORTS["outputs"])
 
 
-def test_hardware_request_gives_clear_error(scenario):
+def test_hardware_request_gives_clear_error(scenario, monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)   # never reach a device
     with pytest.raises(HardwareStationUnavailable, match="hardware station"):
         MakeStation(scenario, hardware=True)
 
