@@ -144,7 +144,9 @@ def cmd_twin(args) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     if args.duration > 0:
-        threading.Timer(args.duration, stop.set).start()
+        timer = threading.Timer(args.duration, stop.set)
+        timer.daemon = True
+        timer.start()
 
     def read_stdin():
         for line in sys.stdin:
@@ -306,7 +308,7 @@ def _main(argv=None) -> int:
                     help="loopback address to listen on (default: %(default)s)")
     tw.add_argument("--camera_port", type=int, default=50410, help="camera socket port")
     tw.add_argument("--gripper_port", type=int, default=63352, help="Robotiq URCap port")
-    tw.add_argument("--rate", type=float, default=0.3,
+    tw.add_argument("--rate", type=float, default=0.25,
                     help="simulated seconds per wall second (default: %(default)s)")
     tw.add_argument("--duration", type=float, default=0.0,
                     help="stop after this many wall seconds (0: until Ctrl-C or 'quit')")

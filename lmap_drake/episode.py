@@ -206,9 +206,13 @@ class SimWorld:
 
     def Score(self, record: dict, views, st) -> None:
         """Ground truth: outcome flags (up to the release; the release and
-        retreat separately), visibility at the two views, shape errors."""
+        retreat separately), visibility in the two captured views (what the
+        planner saw, and after the action), shape errors."""
         from lmap_drake.plants.outcome import ShapeErrors, Summarize, VisibilityFraction
         sim = self.sim
+        if views and views[0].label is not None:     # what the planner saw
+            sim.Visibility()
+            self.vis_initial = VisibilityFraction(views[0].label, sim._unoccluded)
         if len(views) >= 2 and views[1].label is not None:
             sim.Visibility()   # computes the unoccluded pixel count once
             vis_final = VisibilityFraction(views[1].label, sim._unoccluded)
@@ -569,11 +573,13 @@ def ConsoleConfirm(plan) -> tuple[bool, str]:
 def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None] = print,
                    hardware: bool = False, plan_only: bool = False, confirm: bool = False,
                    confirm_fn: Callable | None = None, clients=None,
-                   realtime_rate: float = 1.0, resources: EpisodeResources | None = None
+                   realtime_rate: float | None = None,
+                   resources: EpisodeResources | None = None
                    ) -> tuple[list[str], str]:
     """The full LMAP loop on the simulated station (the FEM plant world) or
     the hardware station (``clients`` injected, e.g. the project's fakes, or
-    connected here). Writes ``scenario.yaml`` (as run: on hardware with the
+    connected here), paced at ``realtime_rate`` station seconds per wall
+    second (None: 1, or the digital twin's pace). Writes ``scenario.yaml`` (as run: on hardware with the
     device's intrinsics and the calibrated pose), ``episode.json``,
     ``plan.json``, ``candidates.json``, ``recording/``, images, figures,
     ``diagram.svg``, and in simulation the ground truth, ``outcome.json`` and
@@ -600,6 +606,11 @@ def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None
             q0, _ = clients.ur.ReadState()
             opts = ControllerOptionsFor(scenario, True, plan_only, confirm, initial_q=q0,
                                         initial_gripper=clients.gripper.Opening())
+            if realtime_rate is None:    # a digital twin's camera tells its pace
+                realtime_rate = float(getattr(clients.camera, "time_scale", 1.0))
+                if realtime_rate != 1.0:
+                    progress(f"running at {realtime_rate:g} station seconds per wall second "
+                             f"(the twin's pace)")
             world = HardwareWorld(scenario, resources, opts, clients, read_only=plan_only,
                                   realtime_rate=realtime_rate, progress=progress)
         else:

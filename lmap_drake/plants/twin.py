@@ -44,9 +44,13 @@ class TwinOptions:
     host: str = "127.0.0.1"
     camera_port: int = 50410
     gripper_port: int = 63352
-    rate: float = 0.3                 # simulated s per wall s
+    rate: float = 0.25                # simulated s per wall s
     frame_period: float = 0.1         # re-render at most every this many simulated s
     stop_after_grasp_move: float = 0.0   # > 0: protective stop once the held leaf moved this far (m)
+    # The plant settles to this time (when a simulated episode captures its
+    # first view), then the clock waits for the arm's first motion: the
+    # frames the planner sees are those of the simulated run.
+    start_time: float = 0.31
 
 
 class TwinGripper:
@@ -125,11 +129,16 @@ class Twin:
         self._frame = None                     # (t, rgba, depth)
         self.events: list[dict] = []
         self.frames: list[dict] = []           # t, visibility of every rendered frame
+        self.trace: list[dict] = []            # every 0.1 simulated s: commands and the world
         self.lag_max = 0.0
         self.vis_initial = None
         self.release_sample = None
         self.vis_at_release = None
         self._grasp_tcp = None
+        self._stall_since = None
+        self._fault_t = None
+        self.fault_stop: dict = {}
+        self._grasp_tried_at = None
         self.stopped_by_twin = False
         self.emulator = self.camera = self.gripper_server = None
 
@@ -151,7 +160,7 @@ class Twin:
             raise InputError(f"twin: cannot listen on {o.host} ({err}); another twin or a "
                              f"UR emulator may be running there: use --host 127.0.0.2 or other "
                              f"ports") from None
-        self.world.Hold(0.0)
+        self.world.AdvanceTo(self.options.start_time)
         self.vis_initial = self.world.Visibility()
         return self
 
@@ -192,8 +201,16 @@ class Twin:
     def Run(self, stop: threading.Event, step: float = 0.02) -> None:
         """Advances the plant world at ``rate`` until ``stop`` is set."""
         w, o = self.world, self.options
-        t0, wall0 = w.time, time.monotonic()
         last_width = w.GripperWidth()
+        q0 = self.emulator.q_actual
+        while not stop.is_set():       # the clock starts with the first motion
+            self._ServeFrames()
+            if np.abs(self.emulator.q_actual - q0).max() > 1e-4 or (
+                    self.gripper.RequestedOpening() not in (None, w.width_cmd)):
+                self.events.append({"t": w.time, "event": "first_motion"})
+                break
+            time.sleep(0.005)
+        t0, wall0 = w.time, time.monotonic()
         while not stop.is_set():
             self._ServeFrames()
             ahead = t0 + (time.monotonic() - wall0) * o.rate - w.time
@@ -208,15 +225,29 @@ class Twin:
             w._fix_inputs()
             w.AdvanceTo(w.time + step)
             width = w.GripperWidth()
-            self.gripper.SetMeasured(width, (width - last_width) / step)
+            rate = (width - last_width) / step
+            self.gripper.SetMeasured(width, rate)
             last_width = width
-            self._GraspAndRelease(width)
+            if not self.trace or w.time - self.trace[-1]["t"] >= 0.1 - 1e-9:
+                self.trace.append({"t": w.time, "q_command": w.q_cmd.tolist(),
+                                   "q": w.q().tolist(), "p_WT": w.X_WT().translation().tolist(),
+                                   "opening_command": w.width_cmd, "opening": width})
+            self._GraspAndRelease(width, rate)
+            self._WatchFaults()
 
-    def _GraspAndRelease(self, width: float) -> None:
+    def _GraspAndRelease(self, width: float, rate: float) -> None:
+        """The pads hold the leaf once they close to ``grasp_attach_opening``
+        or stall on it for 0.1 s short of a closing request (what the 2F-85
+        reports as an object); they let go when asked to open."""
         w = self.world
         closing = w.width_cmd < width - 1e-4
-        if w.grasp_state is None and closing and \
-                width <= self.scenario.planner.grasp_attach_opening:
+        stalled = closing and width > w.width_cmd + 0.001 and abs(rate) < 0.005
+        self._stall_since = (w.time if self._stall_since is None else self._stall_since) \
+            if stalled else None
+        stalled_long = stalled and w.time - self._stall_since >= 0.1 - 1e-9
+        if w.grasp_state is None and closing and (
+                width <= self.scenario.planner.grasp_attach_opening or stalled_long) and \
+                self._grasp_tried_at != round(width, 4):
             try:
                 w.Grasp()
                 self._grasp_tcp = w.X_WT().translation()
@@ -225,6 +256,7 @@ class Twin:
                                     "opening": width})
                 self.progress(f"twin: grasp made at t = {w.time:.2f} s")
             except RuntimeError as err:
+                self._grasp_tried_at = round(width, 4)   # not again at the same opening
                 self.events.append({"t": w.time, "event": "grasp_failed", "why": str(err)})
         elif w.grasp_state is not None and w.width_cmd > width + 0.002:
             self.release_sample = len(w.samples)
@@ -241,6 +273,22 @@ class Twin:
             self.emulator.ProtectiveStop(f"injected by the twin: held leaf moved {d} m")
             self.events.append({"t": w.time, "event": "protective_stop_injected"})
             self.progress(f"twin: protective stop injected at t = {w.time:.2f} s")
+
+    def _WatchFaults(self) -> None:
+        """Logs a protective or emergency stop (whoever caused it) and how
+        long the simulated arm took to stand still after it (joint speeds
+        under 0.01 rad/s)."""
+        emu, w = self.emulator, self.world
+        if self._fault_t is None and (emu.protective_stopped or emu.emergency_stopped):
+            self._fault_t = w.time
+            kind = "protective stop" if emu.protective_stopped else "emergency stop"
+            self.events.append({"t": w.time, "event": kind})
+        if self._fault_t is not None and "arm_stopped_after_s" not in self.fault_stop:
+            v = w.station.GetOutputPort("ur5.state_estimated").Eval(w.station_context)[6:]
+            if np.abs(v).max() < 0.01:
+                self.fault_stop["arm_stopped_after_s"] = w.time - self._fault_t
+                self.fault_stop["t_fault"] = self._fault_t
+                self.events.append({"t": w.time, "event": "arm_stopped"})
 
     # --- results ------------------------------------------------------------
     def Finish(self, out: Path) -> dict:
@@ -259,8 +307,10 @@ class Twin:
                 "max_fruit_penetration", "max_fruit_contact_force")}
         (out / "outcome.json").write_text(json.dumps(outcome, indent=2))
         stats = dict(self.emulator.stats) if self.emulator is not None else {}
-        log = {"events": self.events, "frames": self.frames, "simulated_seconds": w.time,
+        log = {"events": self.events, "frames": self.frames, "trace": self.trace,
+               "simulated_seconds": w.time,
                "rate": self.options.rate, "max_lag_s": self.lag_max,
+               "fault_stop": self.fault_stop,
                "emulator": stats,
                "emulator_faults": list(getattr(self.emulator, "fault_log", []))}
         (out / "twin_log.json").write_text(json.dumps(log, indent=1, default=float))
@@ -285,20 +335,19 @@ def TwinRunOverrides(options: TwinOptions, calibration_file: str) -> str:
     the twin (a pedestal cell: the plant world's start pose has its wrists
     below the robot base plane)."""
     o = options
-    return ("{hardware: {ur: {robot_ip: %s, workspace_min: [-0.85, -0.85, -0.2]}, "
+    return ("{hardware: {ur: {robot_ip: %s, workspace_min: [-0.85, -0.85, -0.2], "
+            "joint_speed_limit: 1.5}, "
             "gripper: {host: %s, port: %d}, camera: {twin_address: '%s:%d', "
             "calibration_file: '%s', fps: 5}}}" % (o.host, o.host, o.gripper_port, o.host,
                                                     o.camera_port, calibration_file))
 
 
 def WriteTwinCalibration(scenario: Scenario, path: Path) -> None:
-    """The twin camera's pose as a calibration file (serial ``twin``)."""
-    from pydrake.math import RollPitchYaw
-    X = scenario.cameras["camera0"].X_PB.GetDeterministicValue()
-    rpy = np.degrees(RollPitchYaw(X.rotation()).vector())
-    p = X.translation()
-    Path(path).write_text(
-        "# the digital twin's camera pose (written by lmap-drake twin)\n"
-        f"X_WC:\n  base_frame: world\n  translation: [{p[0]:.6f}, {p[1]:.6f}, {p[2]:.6f}]\n"
-        f"  rotation: !Rpy {{ deg: [{rpy[0]:.6f}, {rpy[1]:.6f}, {rpy[2]:.6f}] }}\n"
-        "camera_serial: twin\nnotes: the simulated camera0 of the twin's scenario\n")
+    """The twin camera's pose as a calibration file (serial ``twin``; the
+    scenario's own pose values, at full precision)."""
+    from pydrake.common.yaml import yaml_dump_typed
+    from lmap_drake.station.hardware_config import CameraCalibration
+    calib = CameraCalibration(X_WC=scenario.cameras["camera0"].X_PB, camera_serial="twin",
+                              notes="the simulated camera0 of the twin's scenario")
+    Path(path).write_text("# the digital twin's camera pose (written by lmap-drake twin)\n"
+                          + yaml_dump_typed(calib))

@@ -71,6 +71,7 @@ MODES = ("idle", "capture", "plan_requested", "confirm_wait", "pregrasp", "appro
          "close_gripper", "grasp_wait", "pull", "hold", "observe", "release", "retreat",
          "done", "planned", "aborted")
 FINISHED = ("done", "planned", "aborted")
+STALL_WINDOW = 0.3   # s: the pads count as stalled on the leaf after this long without closing
 
 
 @dc.dataclass
@@ -110,7 +111,7 @@ class ControllerStatus:
     failed_stage: str = ""              # set when a stage raised (status stage_error)
     pregrasp_path: list = dc.field(default_factory=list)   # joint waypoints to the pre-grasp
     pregrasp_opening: float = 0.0
-    stall_since: float | None = None    # while closing: since when the pads stand still
+    grip_history: list = dc.field(default_factory=list)   # (t, opening) while closing
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -120,6 +121,7 @@ class ControllerStatus:
         out.pull_path = list(self.pull_path)
         out.stage_seconds = dict(self.stage_seconds)
         out.mode_log = list(self.mode_log)
+        out.grip_history = list(self.grip_history)
         return out
 
     @property
@@ -346,15 +348,17 @@ class ArmController(LeafSystem):
         elif mode == "close_gripper":
             # Closed on the leaf when the pads stall (or reach the commanded
             # opening); then hold that opening.
-            # A stall must last 0.1 s (a slow reading is not a stall).
+            # Stalled: the pads closed less than 0.3 mm over the last
+            # STALL_WINDOW s while the command is more than 1 mm tighter (a
+            # window, not one rate reading: a gripper read late is not a stall).
             width, rate = self._g.Eval(context)
             t0, w0, w1, speed = st.gripper_ramp
             commanded = max(w1, w0 - speed * (t - t0))
-            if width > commanded + 0.001 and abs(rate) < 0.25 * speed:
-                st.stall_since = t if st.stall_since is None else st.stall_since
-            else:
-                st.stall_since = None
-            stalled = st.stall_since is not None and t - st.stall_since >= 0.1 - 1e-9
+            st.grip_history = [(tt, ww) for tt, ww in st.grip_history
+                               if t - tt <= STALL_WINDOW + 1e-9] + [(t, float(width))]
+            old_t, old_w = st.grip_history[0]
+            stalled = (t - old_t >= STALL_WINDOW - 1e-9 and old_w - width < 0.0003
+                       and width > commanded + 0.001)
             if commanded <= w1 + 1e-9 or stalled or t - t0 > 2.0:
                 st.gripper_ramp = None
                 st.gripper_cmd = max(w1, float(width) - 0.0005)

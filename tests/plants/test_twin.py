@@ -1,0 +1,130 @@
+"""Hardware in the loop without a robot: the real ``ur_rtde`` client (this
+test process) against the digital twin (``lmap-drake twin`` in a child
+process: the UR controller EMULATOR, the Robotiq socket and the camera
+socket over the FEM plant world). One full episode, and one with a
+protective stop injected by the twin mid-pull."""
+import json
+import random
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rtde_control", reason="the twin test needs ur_rtde (the test extra)")
+
+from lmap_drake.episode import RunLmapEpisode, RunSimEpisode  # noqa: E402
+from lmap_drake.paths import DEFAULT_SCENARIO_FILE  # noqa: E402
+from lmap_drake.plants.twin import TwinOptions, TwinRunOverrides  # noqa: E402
+from lmap_drake.scenario import LoadScenario  # noqa: E402
+
+PORTS = (29999, 30003, 30004, 63352, 50410)
+RUN = "{hardware: {ur: {joint_speed_limit: 3.0}}}"     # faster moves: less twin time
+
+
+def _FreeHost() -> str:
+    for n in random.sample(range(20, 250), 20):
+        host = f"127.0.0.{n}"
+        try:
+            for port in PORTS:
+                with socket.socket() as s:
+                    s.bind((host, port))
+            return host
+        except OSError:
+            continue
+    pytest.skip("no loopback address with the UR ports free")
+
+
+class TwinProcess:
+    """``lmap-drake twin`` in a child process, stopped with ``quit``."""
+
+    def __init__(self, out, *args):
+        self.host, self.out = _FreeHost(), out
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "lmap_drake.cli", "twin", "--host", self.host,
+             "--output", str(out), "--duration", "900", *args],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.lines = []
+        t_end = time.time() + 180
+        while time.time() < t_end:
+            line = self.proc.stdout.readline()
+            if not line:
+                break
+            self.lines.append(line)
+            if "lmap-drake run --hardware" in line:
+                return
+        self.proc.kill()
+        raise AssertionError("the twin did not start:\n" + "".join(self.lines))
+
+    def Stop(self) -> tuple[dict, dict]:
+        self.proc.stdin.write("quit\n")
+        self.proc.stdin.flush()
+        rest, _ = self.proc.communicate(timeout=120)
+        assert self.proc.returncode == 0, "".join(self.lines) + rest
+        return (json.loads((self.out / "outcome.json").read_text()),
+                json.loads((self.out / "twin_log.json").read_text()))
+
+    def Scenario(self):
+        opts = TwinOptions(host=self.host)
+        text = TwinRunOverrides(opts, str(self.out / "calibration.yaml"))
+        return LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults",
+                            scenario_text=[text, RUN])
+
+
+@pytest.fixture(scope="module")
+def twin_episode(tmp_path_factory):
+    out = tmp_path_factory.mktemp("twin")
+    twin = TwinProcess(out / "twin")
+    try:
+        files, status = RunLmapEpisode(twin.Scenario(), out / "run", progress=print,
+                                       hardware=True)
+    finally:
+        outcome, log = twin.Stop()
+    record = json.loads((out / "run" / "episode.json").read_text())
+    return status, record, outcome, log, twin.Scenario()
+
+
+def test_real_ur_rtde_runs_a_full_safe_episode_against_the_twin(twin_episode):
+    status, record, outcome, log, _ = twin_episode
+    assert status == "done", record["message"]
+    assert [m for _, m in record["mode_log"]][-3:] == ["release", "retreat", "done"]
+    assert not (outcome["leaf_damage"] or outcome["plant_hazard"] or outcome["fruit_collision"])
+    assert outcome["visibility_final"] > outcome["visibility_initial"] + 0.3
+    # The arm followed the plan: the twin made its grasp with the TCP within
+    # 1 cm of the chosen grasp point, and released the leaf afterwards.
+    events = [e["event"] for e in log["events"]]
+    assert events.index("grasp") < events.index("release")
+    p_grasp = np.array(next(e["p_WT"] for e in log["events"] if e["event"] == "grasp"))
+    assert np.linalg.norm(p_grasp - record["chosen_action"]["p_WG"]) < 0.01
+    assert log["emulator"]["ticks"] > 0
+
+
+def test_the_twin_sees_what_the_simulation_sees(twin_episode):
+    """The planner on the twin chose the action of the simulated run of the
+    same scenario (plan only; hardware perception settings)."""
+    _, record, *_ = twin_episode
+    s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults",
+                     scenario_text="{perception: {no_return_free_range: 0.0}}")
+    sim = RunSimEpisode(s, plan_only=True).record
+    keys = ("grasp_id", "direction_id", "distance")
+    assert [sim["chosen_action"][k] for k in keys] == \
+        [record["chosen_action"][k] for k in keys]
+
+
+def test_a_protective_stop_mid_pull_stops_the_run_with_the_gripper_holding(tmp_path):
+    twin = TwinProcess(tmp_path / "twin", "--stop_after_grasp_move", "0.01")
+    try:
+        _, status = RunLmapEpisode(twin.Scenario(), tmp_path / "run", progress=print,
+                                   hardware=True)
+    finally:
+        outcome, log = twin.Stop()
+    record = json.loads((tmp_path / "run" / "episode.json").read_text())
+    assert status == "aborted" and "protective stop" in record["message"], (record["message"],
+                                                                             log["events"])
+    assert [m for _, m in record["mode_log"]][-1] == "pull"
+    events = [e["event"] for e in log["events"]]
+    assert "protective_stop_injected" in events and "release" not in events
+    # the arm stood still within 0.1 simulated s of the stop
+    assert log["fault_stop"]["arm_stopped_after_s"] <= 0.1
