@@ -3,12 +3,13 @@ the hardware protocols, so that ``lmap-drake run --hardware`` with the real
 ``ur_rtde`` client runs a whole LMAP episode without a robot, and the plant
 world scores it.
 
-In one process (run the episode in another: ur_rtde holds the GIL while it
-waits for its controller):
+What the twin runs (the episode runs in another process: ur_rtde holds the
+GIL while it waits for its controller):
 
-- the UR controller EMULATOR (``station.hardware.ur_emulator``) on
-  ``host`` (dashboard 29999, RTDE 30004, script 30003): the real ur_rtde
-  client connects to it; its emulated joints drive the simulated UR5;
+- the UR controller EMULATOR (``station.hardware.ur_emulator``, in a child
+  process so its 500 Hz loop never waits for the simulation) on ``host``
+  (dashboard 29999, RTDE 30004, script 30003): the real ur_rtde client
+  connects to it; its emulated joints drive the simulated UR5;
 - the Robotiq URCap socket (``gripper_port``) over a register model whose
   fingers are the simulated 2F-85's (they stall on the FEM leaf);
 - camera frames rendered from the plant world (``station.hardware.
@@ -109,6 +110,50 @@ class TwinGripper:
                 self.regs["OBJ"] = 0
 
 
+class _EmulatorChild:
+    """The UR controller emulator in a child process (``EmulatorProcess``):
+    its 500 Hz loop then never waits for the simulation's Python work (the
+    GIL). ``Poll`` refreshes the state the twin reads."""
+
+    def __init__(self, host: str, q0):
+        from lmap_drake.station.hardware.ur_emulator import EmulatorProcess
+        self.proc = EmulatorProcess(host, q0=q0)
+        self.state = self.proc.State()
+
+    def Poll(self) -> None:
+        self.state = self.proc.State()
+
+    @property
+    def q_actual(self) -> np.ndarray:
+        return np.asarray(self.state["q_actual"], float)
+
+    @property
+    def protective_stopped(self) -> bool:
+        return bool(self.state["protective_stopped"])
+
+    @property
+    def emergency_stopped(self) -> bool:
+        return bool(self.state["emergency_stopped"])
+
+    @property
+    def stats(self) -> dict:
+        return dict(self.state["stats"])
+
+    @property
+    def fault_log(self) -> list:
+        return list(self.state["fault_log"])
+
+    def ProtectiveStop(self, reason: str = "") -> None:
+        self.state = self.proc.ProtectiveStop()
+
+    def Close(self) -> None:
+        try:
+            self.Poll()
+        except Exception:  # noqa: BLE001 - keep the last state
+            pass
+        self.proc.Close()
+
+
 class Twin:
     """See the module docstring. ``Start``, then ``Run`` (blocks until
     ``stop`` is set), then ``Finish(out)``."""
@@ -146,10 +191,9 @@ class Twin:
     def Start(self) -> "Twin":
         from lmap_drake.station.hardware.fakes import FakeRobotiqServer
         from lmap_drake.station.hardware.twin_camera import TwinCameraServer
-        from lmap_drake.station.hardware.ur_emulator import UrEmulator
         o = self.options
         try:
-            self.emulator = UrEmulator(o.host, q0=tuple(self.scenario.robot.initial_q)).Start()
+            self.emulator = _EmulatorChild(o.host, tuple(self.scenario.robot.initial_q))
             self.gripper_server = FakeRobotiqServer(self.gripper, o.host, o.gripper_port)
             self.gripper_server.__enter__()
             self.camera = TwinCameraServer(self.camera_info, self._FrameRequest, o.host,
@@ -205,11 +249,12 @@ class Twin:
         q0 = self.emulator.q_actual
         while not stop.is_set():       # the clock starts with the first motion
             self._ServeFrames()
+            self.emulator.Poll()
             if np.abs(self.emulator.q_actual - q0).max() > 1e-4 or (
                     self.gripper.RequestedOpening() not in (None, w.width_cmd)):
                 self.events.append({"t": w.time, "event": "first_motion"})
                 break
-            time.sleep(0.005)
+            time.sleep(0.02)
         t0, wall0 = w.time, time.monotonic()
         while not stop.is_set():
             self._ServeFrames()
@@ -218,6 +263,7 @@ class Twin:
                 time.sleep(min(0.02, (step - ahead) / o.rate))
                 continue
             self.lag_max = max(self.lag_max, ahead - step)
+            self.emulator.Poll()
             w.q_cmd = self.emulator.q_actual
             opening = self.gripper.RequestedOpening()
             if opening is not None:
