@@ -481,7 +481,7 @@ def test_perception_failure_aborts_the_controller_with_stage_error(scenario):
     cctx = ctrl.GetMyContextFromRoot(sim.get_mutable_context())
     x = np.r_[scenario.robot.initial_q, np.zeros(6)]
     ctrl.GetInputPort("ur5.state_estimated").FixValue(cctx, x)
-    ctrl.GetInputPort("gripper.state_measured").FixValue(cctx, [0.085, 0.0])
+    ctrl.GetInputPort("gripper.state_measured").FixValue(cctx, [0.085, 0.0, np.nan])
     sim.AdvanceTo(0.5)
     st = ctrl.Status(cctx)
     assert st.mode == "aborted" and st.failed_stage == "perception"

@@ -9,7 +9,8 @@ A run's ``recording/`` folder (format ``lmap_drake.recording/1``):
   ``station`` (``simulation`` or ``hardware``); ``views``: one entry per
   captured view with ``index``, ``t`` (station time, s), ``wall_time`` (UNIX
   time, s), ``ur5_q`` (rad), ``ur5_v`` (rad/s), ``gripper`` (opening m,
-  rate m/s), and the file names below.
+  rate m/s, 1/0 the gripper reports an object, null: it cannot tell), and
+  the file names below.
 - ``view<k>_rgb.png``: colour, 8-bit RGBA PNG.
 - ``view<k>_depth.npy``: depth along the optical axis, float32 metres,
   HxW, ``inf`` where the camera had no return (NumPy ``.npy``).
@@ -44,7 +45,7 @@ class CapturedView:
     label: np.ndarray | None        # HxW int16 (simulation) or None
     q: np.ndarray                   # (6,) rad
     v: np.ndarray                   # (6,) rad/s
-    gripper: np.ndarray             # (2,) opening m, rate m/s
+    gripper: np.ndarray             # (3,) opening m, rate m/s, object flag (NaN unknown)
 
 
 class ViewLog(tuple):
@@ -82,7 +83,7 @@ def SaveRecording(folder: Path, views, camera: dict, X_WC: np.ndarray,
     for k, v in enumerate(views):
         entry = {"index": k, "t": float(v.t), "wall_time": float(v.wall_time),
                  "ur5_q": [float(x) for x in v.q], "ur5_v": [float(x) for x in v.v],
-                 "gripper": [float(x) for x in v.gripper],
+                 "gripper": [float(x) if np.isfinite(x) else None for x in v.gripper],
                  "rgb": f"view{k}_rgb.png", "depth": f"view{k}_depth.npy"}
         Image.fromarray(np.ascontiguousarray(v.rgb, np.uint8), "RGBA").save(out / entry["rgb"])
         np.save(out / entry["depth"], np.ascontiguousarray(v.depth, np.float32))
@@ -135,7 +136,8 @@ def LoadRecording(run_dir) -> Recording:
             views.append(CapturedView(int(e["index"]), float(e["t"]), float(e["wall_time"]),
                                       rgb, depth.astype(np.float32), label,
                                       np.asarray(e["ur5_q"], float), np.asarray(e["ur5_v"], float),
-                                      np.asarray(e["gripper"], float)))
+                                      np.array([np.nan if x is None else x
+                                                for x in e["gripper"]], float)))
     except (KeyError, TypeError, ValueError) as err:
         raise RecordingError(f"{manifest_file} is malformed: {type(err).__name__}: {err}") from None
     if not views:

@@ -7,7 +7,9 @@ Exported ports (both modes):
 - ``gripper.position`` (in, 1): commanded 2F-85 opening, m (0 closed, 0.085 open).
 - ``ur5.position_measured`` (out, 6): joint positions, rad.
 - ``ur5.state_estimated`` (out, 12): joint positions (rad) then velocities (rad/s).
-- ``gripper.state_measured`` (out, 2): opening (m) and its rate (m/s).
+- ``gripper.state_measured`` (out, 3): opening (m), its rate (m/s), and
+  whether the gripper reports it stopped on an object while closing (1 or
+  0; NaN: the gripper cannot tell, as in simulation).
 - ``camera0.rgb_image`` (out, ImageRgba8U), ``camera0.depth_image`` (out,
   ImageDepth32F, metres along the optical axis), ``camera0.label_image`` (out,
   ImageLabel16I, sim only; values per ``lmap_drake.labels``).
@@ -25,8 +27,8 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.plant import (AddMultibodyPlant, MultibodyPlant)
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import (Demultiplexer, MatrixGain,
-                                        StateInterpolatorWithDiscreteDerivative)
+from pydrake.systems.primitives import (ConstantVectorSource, Demultiplexer, MatrixGain,
+                                        Multiplexer, StateInterpolatorWithDiscreteDerivative)
 from pydrake.systems.sensors import RgbdSensor
 
 from lmap_drake.labels import ROBOT, EncodeLabel
@@ -133,7 +135,12 @@ def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None, add_world) -> D
         "gripper_state_to_opening", MatrixGain(np.array([[1.0, 1.0, 0.0, 0.0],
                                                          [0.0, 0.0, 1.0, 1.0]])))
     builder.Connect(plant.get_state_output_port(gripper), grip_meas.get_input_port())
-    builder.ExportOutput(grip_meas.get_output_port(), "gripper.state_measured")
+    no_object_sensing = builder.AddNamedSystem("gripper_object_unknown",
+                                               ConstantVectorSource([np.nan]))
+    grip_mux = builder.AddNamedSystem("gripper_state_mux", Multiplexer([2, 1]))
+    builder.Connect(grip_meas.get_output_port(), grip_mux.get_input_port(0))
+    builder.Connect(no_object_sensing.get_output_port(), grip_mux.get_input_port(1))
+    builder.ExportOutput(grip_mux.get_output_port(), "gripper.state_measured")
 
     # Cameras on RenderEngineVtk (EGL, no display needed).
     renderers = set()

@@ -15,7 +15,8 @@ Input ports:
 - ``final_estimate`` (abstract ``SceneEstimate``): evaluated in ``observe``
   (re-estimation on the fused views).
 - ``ur5.state_estimated`` (12: q rad, v rad/s), ``gripper.state_measured``
-  (2: opening m, rate m/s), ``views_fused`` (1: views Perception has fused).
+  (3: opening m, rate m/s, object flag: 1 the gripper stopped on an object,
+  NaN unknown), ``views_fused`` (1: views Perception has fused).
 
 Output ports:
 
@@ -177,7 +178,7 @@ class ArmController(LeafSystem):
         self._final = self.DeclareAbstractInputPort(
             "final_estimate", AbstractValue.Make(SceneEstimate(SemanticScene())))
         self._x = self.DeclareVectorInputPort("ur5.state_estimated", 12)
-        self._g = self.DeclareVectorInputPort("gripper.state_measured", 2)
+        self._g = self.DeclareVectorInputPort("gripper.state_measured", 3)
         self._views = self.DeclareVectorInputPort("views_fused", 1)
         q0 = options.initial_q if options.initial_q is not None else scenario.robot.initial_q
         w0 = (options.initial_gripper if options.initial_gripper is not None
@@ -348,17 +349,21 @@ class ArmController(LeafSystem):
         elif mode == "close_gripper":
             # Closed on the leaf when the pads stall (or reach the commanded
             # opening); then hold that opening.
-            # Stalled: the pads closed less than 0.3 mm over the last
-            # STALL_WINDOW s while the command is more than 1 mm tighter (a
-            # window, not one rate reading: a gripper read late is not a stall).
-            width, rate = self._g.Eval(context)
+            # Stalled on the leaf: what the gripper reports (the 2F-85's
+            # object detection), or, when it cannot tell (simulation), the
+            # pads closed less than 0.3 mm over the last STALL_WINDOW s while
+            # the command is more than 1 mm tighter.
+            width, rate, on_object = self._g.Eval(context)
             t0, w0, w1, speed = st.gripper_ramp
             commanded = max(w1, w0 - speed * (t - t0))
             st.grip_history = [(tt, ww) for tt, ww in st.grip_history
                                if t - tt <= STALL_WINDOW + 1e-9] + [(t, float(width))]
             old_t, old_w = st.grip_history[0]
-            stalled = (t - old_t >= STALL_WINDOW - 1e-9 and old_w - width < 0.0003
-                       and width > commanded + 0.001)
+            if np.isfinite(on_object):
+                stalled = on_object >= 0.5
+            else:
+                stalled = (t - old_t >= STALL_WINDOW - 1e-9 and old_w - width < 0.0003
+                           and width > commanded + 0.001)
             if commanded <= w1 + 1e-9 or stalled or t - t0 > 2.0:
                 st.gripper_ramp = None
                 st.gripper_cmd = max(w1, float(width) - 0.0005)

@@ -8,7 +8,7 @@ ViewRecorder input ports:
   (ImageDepth32F, metres along the optical axis), ``camera0.label_image``
   (ImageLabel16I, optional; simulation labels);
 - ``ur5.state_estimated`` (12: q rad, v rad/s), ``gripper.state_measured``
-  (2: opening m, rate m/s);
+  (3: opening m, rate m/s, object flag);
 - ``capture`` (1): how many views the episode wants. When it exceeds the
   number held, the current images and joint state are captured at the start
   of the next simulation step (per-step unrestricted update).
@@ -98,7 +98,7 @@ class ViewRecorder(_ViewOutputs):
         self._label = self.DeclareAbstractInputPort("camera0.label_image",
                                                     AbstractValue.Make(ImageLabel16I()))
         self._x = self.DeclareVectorInputPort("ur5.state_estimated", 12)
-        self._g = self.DeclareVectorInputPort("gripper.state_measured", 2)
+        self._g = self.DeclareVectorInputPort("gripper.state_measured", 3)
         self._capture = self.DeclareVectorInputPort("capture", 1)
         self._log = self.DeclareAbstractState(AbstractValue.Make(ViewLog()))
         self._DeclareOutputs(self.abstract_state_ticket(self._log))
@@ -123,7 +123,7 @@ class ViewRecorder(_ViewOutputs):
             if data.size and not np.all(data == int(RenderLabel.kEmpty)):
                 label = data
         x = self._x.Eval(context)
-        g = self._g.Eval(context) if self._g.HasValue(context) else np.zeros(2)
+        g = self._g.Eval(context) if self._g.HasValue(context) else np.full(3, np.nan)
         return CapturedView(len(self._Log(context)), context.get_time(), time.time(),
                             np.array(self._rgb.Eval(context).data, np.uint8),
                             np.array(self._depth.Eval(context).data[..., 0], np.float32),

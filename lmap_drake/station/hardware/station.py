@@ -4,7 +4,9 @@ exported ports as the simulated station (``lmap_drake.station.STATION_PORTS``).
 - ``ur5.position`` (in, 6 rad) -> safety checks -> ur_rtde servoJ streaming;
 - ``gripper.position`` (in, 1 m) -> Robotiq ``SET POS .. SPE .. FOR .. GTO 1``;
 - ``ur5.position_measured`` (6), ``ur5.state_estimated`` (12) <- getActualQ/Qd;
-- ``gripper.state_measured`` (2) <- ``GET POS`` (opening m, rate m/s);
+- ``gripper.state_measured`` (3) <- ``GET POS``, ``GET OBJ`` (opening m,
+  rate m/s, 1 when the gripper reports it stopped on an object while
+  closing, else 0);
 - ``camera0.rgb_image`` / ``camera0.depth_image`` <- RealSense, depth aligned
   to colour, metres, +inf where the camera has no return;
 - ``camera0.label_image``: same type and size as in simulation, but every

@@ -72,8 +72,9 @@ class Ur5Driver(LeafSystem):
 
 class RobotiqDriver(LeafSystem):
     """Input ``position`` (1, opening m, 0 closed .. 0.085 open; optional);
-    output ``state_measured`` (2: opening m, its rate m/s by finite
-    difference over ``period``). A new ``SET POS`` is sent only when the
+    output ``state_measured`` (3: opening m, its rate m/s by finite
+    difference over ``period``, and 1 when the gripper's OBJ register says it
+    stopped on an object while closing, else 0). A new ``SET POS`` is sent only when the
     commanded POS register value changes (``command=False``: never; the
     gripper is only read). ``on_abort`` is called before a
     HardwareAbort (a refused command, a lost link) leaves an event."""
@@ -84,14 +85,14 @@ class RobotiqDriver(LeafSystem):
         self._period = float(period)
         self._command = command
         self._input = self.DeclareVectorInputPort("position", 1)
-        self._x = self.DeclareDiscreteState(np.array([client.Opening(), 0.0]))
+        self._x = self.DeclareDiscreteState(np.array([client.Opening(), 0.0, 0.0]))
         self.DeclareInitializationDiscreteUpdateEvent(_StopOnAbort(self._Init, on_abort))
         self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0,
                                                 _StopOnAbort(self._Update, on_abort))
         self.DeclareStateOutputPort("state_measured", self._x)
 
     def _Init(self, context, discrete_state) -> None:
-        discrete_state.set_value(self._x, np.array([self.client.Opening(), 0.0]))
+        discrete_state.set_value(self._x, np.array([self.client.Opening(), 0.0, 0.0]))
 
     def _Update(self, context, discrete_state) -> None:
         if self._command and self._input.HasValue(context):
@@ -101,7 +102,8 @@ class RobotiqDriver(LeafSystem):
                 self.client.MoveToPos(pos)
         old = context.get_discrete_state(self._x).get_value()[0]
         new = self.client.Opening()
-        discrete_state.set_value(self._x, np.array([new, (new - old) / self._period]))
+        on_object = 1.0 if self.client.ObjectStatus() == 2 else 0.0   # stopped while closing
+        discrete_state.set_value(self._x, np.array([new, (new - old) / self._period, on_object]))
 
 
 def EmptyLabelImage(width: int, height: int) -> ImageLabel16I:
