@@ -136,7 +136,7 @@ def cmd_twin(args) -> int:
     calibration = (out / "calibration.yaml").resolve()
     options = TwinOptions(host=args.host, camera_port=args.camera_port,
                           gripper_port=args.gripper_port, rate=args.rate,
-                          stop_after_grasp_move=args.stop_after_grasp_move)
+                          fault=args.fault, fault_after_grasp_move=args.fault_after_grasp_move)
     _stage("building the plant world")
     twin = Twin(scenario, options, progress=_stage)
     WriteTwinCalibration(scenario, calibration)
@@ -312,8 +312,11 @@ def _main(argv=None) -> int:
                     help="simulated seconds per wall second (default: %(default)s)")
     tw.add_argument("--duration", type=float, default=0.0,
                     help="stop after this many wall seconds (0: until Ctrl-C or 'quit')")
-    tw.add_argument("--stop_after_grasp_move", type=float, default=0.0,
-                    help="inject a protective stop once the held leaf moved this far (m)")
+    tw.add_argument("--fault", default="protective_stop",
+                    choices=("protective_stop", "emergency_stop", "drop"),
+                    help="the fault --fault_after_grasp_move injects (default: %(default)s)")
+    tw.add_argument("--fault_after_grasp_move", type=float, default=0.0,
+                    help="inject --fault once the held leaf moved this far (m); 0: never")
     tw.add_argument("--debug", action="store_true", help="show tracebacks")
     tw.set_defaults(func=cmd_twin)
     ev = sub.add_parser("eval", help="run a scenario suite with LMAP and the baselines; "

@@ -47,7 +47,8 @@ class TwinOptions:
     gripper_port: int = 63352
     rate: float = 0.25                # simulated s per wall s
     frame_period: float = 0.1         # re-render at most every this many simulated s
-    stop_after_grasp_move: float = 0.0   # > 0: protective stop once the held leaf moved this far (m)
+    fault: str = "protective_stop"       # protective_stop | emergency_stop | drop
+    fault_after_grasp_move: float = 0.0  # > 0: inject ``fault`` once the held leaf moved this far (m)
     # The plant settles to this time (when a simulated episode captures its
     # first view), then the clock waits for the arm's first motion: the
     # frames the planner sees are those of the simulated run.
@@ -143,8 +144,12 @@ class _EmulatorChild:
     def fault_log(self) -> list:
         return list(self.state["fault_log"])
 
-    def ProtectiveStop(self, reason: str = "") -> None:
-        self.state = self.proc.ProtectiveStop()
+    def Inject(self, fault: str) -> None:
+        """``protective_stop``, ``emergency_stop`` or ``drop`` (every
+        connection closed, new ones refused for 5 s)."""
+        self.state = {"protective_stop": self.proc.ProtectiveStop,
+                      "emergency_stop": self.proc.EmergencyStop,
+                      "drop": lambda: self.proc.DropConnections(5.0)}[fault]()
 
     def Close(self) -> None:
         try:
@@ -312,13 +317,15 @@ class Twin:
             w._fix_inputs()
             self.events.append({"t": w.time, "event": "release"})
             self.progress(f"twin: leaf released at t = {w.time:.2f} s")
-        d = self.options.stop_after_grasp_move
+        d, fault = self.options.fault_after_grasp_move, self.options.fault
         if d > 0 and w.grasp_state is not None and not self.stopped_by_twin and \
                 np.linalg.norm(w.X_WT().translation() - self._grasp_tcp) >= d:
             self.stopped_by_twin = True
-            self.emulator.ProtectiveStop(f"injected by the twin: held leaf moved {d} m")
-            self.events.append({"t": w.time, "event": "protective_stop_injected"})
-            self.progress(f"twin: protective stop injected at t = {w.time:.2f} s")
+            self.emulator.Inject(fault)
+            self._fault_t = w.time if self._fault_t is None else self._fault_t
+            self.events.append({"t": w.time, "event": f"{fault}_injected"})
+            self.progress(f"twin: {fault} injected at t = {w.time:.2f} s (held leaf moved "
+                          f"{d} m)")
 
     def _WatchFaults(self) -> None:
         """Logs a protective or emergency stop (whoever caused it) and how

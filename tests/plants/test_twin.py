@@ -114,7 +114,7 @@ def test_the_twin_sees_what_the_simulation_sees(twin_episode):
 
 
 def test_a_protective_stop_mid_pull_stops_the_run_with_the_gripper_holding(tmp_path):
-    twin = TwinProcess(tmp_path / "twin", "--stop_after_grasp_move", "0.01")
+    twin = TwinProcess(tmp_path / "twin", "--fault_after_grasp_move", "0.01")
     try:
         _, status = RunLmapEpisode(twin.Scenario(), tmp_path / "run", progress=print,
                                    hardware=True)
