@@ -5,6 +5,7 @@
     lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
                     [--distances D,..] [--random_seeds K] [--scenario_names A,B]
                     [--workers W] [--output DIR] [--resume] [--debug]
+                    [--engine pool|ray [--address HOST:PORT]]
 
 Exit codes: 0 done, 1 error, 2 bad input (scenario, weights, calibration,
 output folder, arguments), 3 episode aborted / no feasible action,
@@ -85,6 +86,11 @@ def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
                          f"{args.scenarios}")
     if args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.address and args.engine != "ray":
+        raise UsageError("--address needs --engine ray")
+    if args.engine == "ray":
+        from lmap_drake.evaluation.engines import ImportRay
+        ImportRay(local=not args.address)        # a missing Ray fails now, in one line
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
     if not 0.0 < args.visibility_success <= 1.0:
@@ -146,11 +152,12 @@ def cmd_eval(args) -> int:
                            args.scenario_text)
     if not specs:
         raise UsageError("no episodes to run (check --methods, --distances, --random_seeds)")
+    engine = dict(workers=args.workers, engine=args.engine, address=args.address or None,
+                  resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
+                  threshold=args.visibility_success)
     ResolveSpecs(specs, suite_file)      # loads every episode's scenario: bad input fails now
     EnsureWritableFolder(out)
-    summary = RunEvaluation(specs, suite_file, out, workers=args.workers,
-                            resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
-                            threshold=args.visibility_success)
+    summary = RunEvaluation(specs, suite_file, out, **engine)
     for eid, msg in summary["errors"]:
         print(f"error in {eid}: {msg}", file=sys.stderr)
     return 1 if summary["errors"] else 0
@@ -200,7 +207,15 @@ def _main(argv=None) -> int:
     ev.add_argument("--scenario_text", default="{}",
                     help="YAML overrides for every episode, applied before each method's own "
                          "(e.g. '{planner: {max_energy_per_node: 0.0}}')")
-    ev.add_argument("--workers", type=int, default=2, help="worker processes")
+    ev.add_argument("--workers", type=int, default=2,
+                    help="worker processes (pool), or CPUs of the local Ray instance")
+    ev.add_argument("--engine", choices=("pool", "ray"), default="pool",
+                    help="pool: worker processes on this machine (default); ray: Ray tasks "
+                         "on a local instance or, with --address, a cluster (needs "
+                         "pip install -e '.[ray]')")
+    ev.add_argument("--address", default="",
+                    help="with --engine ray: the cluster's HOST:PORT (`ray start --head` "
+                         "prints it) or auto")
     ev.add_argument("--visibility_success", type=float, default=0.95,
                     help="Table V: final visibility counted as sufficient")
     ev.add_argument("--output", default=None,

@@ -125,6 +125,16 @@ def ScenarioOverride(spec: dict) -> str:
     return f"{{planner: {{{planner}}}, random_seed: {int(spec['seed'])}}}"
 
 
+# Record fields that differ between two runs of the same episode: timings.
+VOLATILE_KEYS = ("wall_seconds", "simulation_wall_seconds", "stage_seconds", "traceback")
+
+
+def Deterministic(record: dict) -> dict:
+    """The record without its timings (``VOLATILE_KEYS``): what two runs of
+    the same episode (any engine, any worker) must agree on."""
+    return {k: v for k, v in record.items() if k not in VOLATILE_KEYS}
+
+
 def LatestRecords(records: list[dict]) -> dict[str, dict]:
     """episode_id -> the last record with that id (a resumed run appends)."""
     out = {}
