@@ -1,6 +1,7 @@
 """``lmap-drake eval``: runs episodes of a scenario suite on an engine
 (``engines.py``: worker processes on this machine, or Ray tasks) and
-writes the Table II-V analogues (see ``tables.py``).
+writes the Table II-V analogues (see ``tables.py``); ``RunSweep`` does it
+for every point of a grid of scenario overrides (``sweep.py``).
 
 Each worker loads its own scenario and builds its own diagram and models;
 an exception inside an episode becomes a record with status ``error``
@@ -53,10 +54,12 @@ def ScenarioHash(scenario) -> str:
 
 
 def _LoadSpec(spec: dict, suite_file: str):
-    """The spec's scenario: suite entry, eval-wide ``scenario_text``, then
-    the method's override."""
+    """The spec's scenario: suite entry, eval-wide ``scenario_text``, the
+    method's override, then a sweep point's override (``sweep_text``)."""
     from lmap_drake.scenario import LoadScenario
     texts = [spec.get("scenario_text", "{}"), T.ScenarioOverride(spec)]
+    if spec.get("sweep_text"):
+        texts.append(spec["sweep_text"])
     return LoadScenario(filename=suite_file, scenario_name=spec["scenario"],
                         scenario_text=texts)
 
@@ -168,7 +171,8 @@ def _ProgressLine(k: int, n: int, spec: dict, rec: dict, eta: float | None) -> s
              f"{o.get('visibility_final', 0):.2f} safe={T.IsSafe(rec)}"
              if o else f" {rec.get('message', '')[:200]}")
     wall = rec.get("wall_seconds")
-    return (f"[{k}/{n}] {spec['scenario']} {spec['method']} "
+    point = f"{spec['sweep_point']} " if spec.get("sweep_point") else ""
+    return (f"[{k}/{n}] {point}{spec['scenario']} {spec['method']} "
             f"{T.DistanceLabel(spec['distance'])} seed {spec['seed']}: "
             f"{rec.get('status')} in {'?' if wall is None else f'{wall:.1f}'} s;{extra}"
             + ("" if eta is None else f"; eta {P.Duration(eta)}"))
@@ -243,3 +247,35 @@ def RunEvaluation(specs: list[dict], suite_file: str | Path, out: str | Path,
     progress(f"wrote {', '.join(['episodes.jsonl'] + files)} to {out} "
              f"({time.perf_counter() - t_start:.0f} s)")
     return dict(summary, files=files)
+
+
+def RunSweep(point_specs: list[list[dict]], sweep, points: list[dict], labels: list[str],
+             sweep_file: str | Path, suite_file: str | Path, out: str | Path,
+             workers: int = 2, resume: bool = False,
+             progress: Callable[[str], None] = print,
+             threshold: float = T.VISIBILITY_SUCCESS, threads_per_worker: int = 1,
+             engine: str = "pool", address: str | None = None,
+             bar: bool | None = None) -> dict:
+    """Runs every grid point's specs on one engine into ``out/<label>/``
+    (episodes.jsonl and tables each), then writes ``sweep_summary.json``
+    and ``sweep_summary.png`` (``sweep.Summary``) in ``out``."""
+    from lmap_drake.evaluation import sweep as S
+    out = Path(out)
+    t_start = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sweep.yaml").write_text(Path(sweep_file).read_text())
+    groups = [(out / lab, specs) for lab, specs in zip(labels, point_specs)]
+    summary = _RunGroups(groups, suite_file, engine, workers, address, threads_per_worker,
+                         resume, progress, bar)
+    records = []
+    for (folder, _), p in zip(groups, points):
+        rs = T.ReadRecords(folder / "episodes.jsonl")
+        records.append(rs)
+        T.WriteTables(rs, folder, threshold, notes=f"Sweep point {S.OverrideText(p)} "
+                      f"({Path(sweep_file).name}).")
+    data = S.Summary(sweep, points, labels, records, threshold, str(sweep_file))
+    (out / "sweep_summary.json").write_text(json.dumps(data, indent=2))
+    files = ["sweep_summary.json", S.SaveSummaryPlot(data, out / "sweep_summary.png")]
+    progress(f"wrote {len(labels)} grid point folder(s) ({labels[0]} ...) and "
+             f"{', '.join(files)} to {out} ({time.perf_counter() - t_start:.0f} s)")
+    return dict(summary, files=files, summary=data)

@@ -318,14 +318,18 @@ def Table5Row(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dic
 
 
 def Table5(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dict:
-    """{"lmap_lambda0": row, "lmap": row} for the methods present."""
+    """{"lmap_lambda0": row, "lmap": row} for the methods present; the
+    energy weight the records ran with when they agree on one (a sweep may
+    set it), else the method's own."""
     latest = list(LatestRecords(records).values())
     out = {}
     for m in ("lmap_lambda0", "lmap"):
         rs = [r for r in latest if r["eval"]["method"] == m]
         if rs:
             out[m] = Table5Row(rs, threshold)
-            out[m]["energy_weight"] = LMAP_METHODS[m]
+            ran = {r.get("energy_weight") for r in rs if r.get("status") != "error"}
+            w = ran.pop() if len(ran) == 1 else None
+            out[m]["energy_weight"] = float(w) if w is not None else LMAP_METHODS[m]
     return out
 
 
