@@ -175,6 +175,23 @@ def CheckAddress(address: str, timeout: float = 5.0) -> None:
                           "local instance") from None
 
 
+def _SignalHandlers() -> dict:
+    import signal
+    return {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+
+def _RestoreSignalHandlers(handlers: dict) -> None:
+    """``ray.init`` installs its own SIGTERM handler (a stack dump, then
+    exit, skipping our cleanup): put back the command's (SIGTERM as Ctrl-C,
+    ``errors.RunMain``) so tasks are cancelled and the instance stopped."""
+    import signal
+    for sig, h in handlers.items():
+        try:
+            signal.signal(sig, h if h is not None else signal.SIG_DFL)
+        except (ValueError, TypeError):        # not the main thread
+            pass
+
+
 def _RayTask(fn, threads: int, *args):
     """A Ray task: one torch / BLAS thread in this worker, then ``fn``."""
     InitWorker(threads)
@@ -204,6 +221,7 @@ class RayEngine:
             else:
                 kw = dict(num_cpus=self.workers, object_store_memory=LOCAL_OBJECT_STORE_BYTES,
                           logging_level=logging.ERROR)
+            handlers = _SignalHandlers()
             try:
                 ray.init(include_dashboard=False, **kw)
             except Exception as err:  # noqa: BLE001 - one line for the CLI
@@ -211,6 +229,8 @@ class RayEngine:
                     "a local Ray instance"
                 raise EngineError(f"cannot connect to {where}: "
                                   f"{' '.join(str(err).split())[:300]}") from None
+            finally:
+                _RestoreSignalHandlers(handlers)
             self._own = True
         self.slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
         self._task = ray.remote(num_cpus=1, max_retries=1)(_RayTask)

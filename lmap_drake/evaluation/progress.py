@@ -26,11 +26,12 @@ DEFAULT_CORE_SECONDS = 19.0
 
 
 def EpisodeCosts(records: list[dict]) -> dict[str, tuple[float, int]]:
-    """method -> (median ``wall_seconds``, count) of the finished (non-error)
-    records."""
+    """method -> (median cost, count) of the finished (non-error) records;
+    an episode's cost is its ``cpu_seconds`` (``wall_seconds`` in records
+    made before that field)."""
     by: dict[str, list[float]] = {}
     for r in records:
-        w = r.get("wall_seconds")
+        w = r.get("cpu_seconds") or r.get("wall_seconds")
         m = (r.get("eval") or {}).get("method")
         if r.get("status") == "error" or m is None or not isinstance(w, (int, float)) or w <= 0:
             continue
@@ -53,7 +54,9 @@ def Estimate(specs: list[dict], slots: int, records: list[dict] = ()) -> dict:
             core_s += EPISODE_CORE_SECONDS.get(m, DEFAULT_CORE_SECONDS)
     n_meas = sum(measured[m][1] for m in used)
     source = (f"medians of {n_meas} finished record(s) in episodes.jsonl" if used
-              else "measured per-episode constants (lmap 19 s, baselines 14 s of one core)")
+              else f"per-episode constants measured here: lmap "
+              f"{EPISODE_CORE_SECONDS['lmap']:.0f} s, upward {EPISODE_CORE_SECONDS['upward']:.0f} s "
+              f"of one core")
     slots = max(1, int(slots))
     busy = max(1, min(slots, len(specs)))      # fewer episodes than slots: some idle
     return {"episodes": len(specs), "core_seconds": core_s, "core_hours": core_s / 3600.0,

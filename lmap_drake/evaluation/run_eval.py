@@ -104,8 +104,10 @@ def _SuiteCopy(suite_file: str, suite_text: str) -> str:
 def RunOneEpisode(spec: dict, suite_file: str, suite_text: str | None = None) -> dict:
     """Runs one spec in this process; never raises (errors become records).
     ``suite_text``: the suite as the run started, for workers that cannot
-    read ``suite_file`` (the record names ``suite_file`` either way)."""
-    t0 = time.perf_counter()
+    read ``suite_file`` (the record names ``suite_file`` either way).
+    ``cpu_seconds``: this process's CPU time for the episode (its cost in
+    core-seconds, whatever else the machine ran)."""
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         from lmap_drake.evaluation.episode import RunEpisode
         local = suite_file if suite_text is None else _SuiteCopy(suite_file, suite_text)
@@ -120,6 +122,7 @@ def RunOneEpisode(spec: dict, suite_file: str, suite_text: str | None = None) ->
         record = {"status": "error", "message": f"{type(err).__name__}: {err}",
                   "traceback": traceback.format_exc(),
                   "wall_seconds": time.perf_counter() - t0}
+    record["cpu_seconds"] = time.process_time() - c0
     record["eval"] = _EvalEntry(spec, suite_file)
     return record
 

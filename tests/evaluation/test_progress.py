@@ -24,6 +24,8 @@ def test_estimate_from_the_constants_and_from_recorded_medians():
     recs = [dict(status="done", wall_seconds=w, eval={"method": "lmap"}) for w in (10, 30, 40)]
     recs.append(dict(status="error", wall_seconds=1.0, eval={"method": "lmap"}))
     assert P.EpisodeCosts(recs) == {"lmap": (30.0, 3)}
+    # the CPU time of an episode is its cost when recorded (not the wall time)
+    assert P.EpisodeCosts([dict(recs[0], cpu_seconds=8.0)]) == {"lmap": (8.0, 1)}
     est = P.Estimate(specs, slots=4, records=recs)
     assert est["core_seconds"] == 2 * (P.EPISODE_CORE_SECONDS["upward"] + 30.0)
     assert "medians of 3 finished record(s)" in est["source"]
