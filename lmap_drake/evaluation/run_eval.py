@@ -21,6 +21,7 @@ pid); Ray tasks are cancelled when the run stops.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -53,13 +54,46 @@ def ScenarioHash(scenario) -> str:
     return hashlib.sha1(yaml_dump_typed(scenario, schema=Scenario).encode()).hexdigest()[:8]
 
 
-def _LoadSpec(spec: dict, suite_file: str):
+@functools.lru_cache(maxsize=4)
+def SuiteEntries(suite_text: str) -> dict[str, str]:
+    """Each top-level scenario of a suite's YAML as its own YAML text (the
+    entry's map, cut from the text by the parser's marks): loading one
+    scenario then parses that entry, not the whole suite (a 250-scene suite
+    is 180 kB). Empty when the text does not parse."""
+    import textwrap
+
+    import yaml
+    try:
+        root = yaml.compose(suite_text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    except yaml.YAMLError:
+        return {}
+    if not isinstance(root, yaml.MappingNode):
+        return {}
+    out = {}
+    for key, value in root.value:
+        if not isinstance(key, yaml.ScalarNode) or value.start_mark.index is None:
+            continue
+        body = suite_text[value.start_mark.index:value.end_mark.index]
+        out[key.value] = textwrap.dedent(" " * value.start_mark.column + body)
+    return out
+
+
+def _LoadSpec(spec: dict, suite_file: str, suite_text: str | None = None):
     """The spec's scenario: suite entry, eval-wide ``scenario_text``, the
-    method's override, then a sweep point's override (``sweep_text``)."""
+    method's override, then a sweep point's override (``sweep_text``).
+    With ``suite_text`` (``suite_file``'s text) only the entry is parsed
+    (``SuiteEntries``); anything it cannot load is loaded from the file,
+    whose error names the file and the key."""
     from lmap_drake.scenario import LoadScenario
     texts = [spec.get("scenario_text", "{}"), T.ScenarioOverride(spec)]
     if spec.get("sweep_text"):
         texts.append(spec["sweep_text"])
+    entry = SuiteEntries(suite_text).get(spec["scenario"]) if suite_text else None
+    if entry and entry.strip() not in ("", "{}", "null", "~"):
+        try:
+            return LoadScenario(scenario_text=[entry] + texts)
+        except Exception:  # noqa: BLE001 - the full load below says why
+            pass
     return LoadScenario(filename=suite_file, scenario_name=spec["scenario"],
                         scenario_text=texts)
 
@@ -69,11 +103,15 @@ def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True)
     ``episode_id`` that includes it. ``strict``: a scenario that does not
     load raises (ScenarioError); otherwise that spec is left as it is (its
     worker records the error)."""
+    try:
+        suite_text = Path(suite_file).read_text()
+    except (OSError, UnicodeDecodeError):
+        suite_text = None           # the loads below name the file's problem
     for spec in specs:
         if spec.get("scenario_hash"):
             continue
         try:
-            spec["scenario_hash"] = ScenarioHash(_LoadSpec(spec, str(suite_file)))
+            spec["scenario_hash"] = ScenarioHash(_LoadSpec(spec, str(suite_file), suite_text))
         except Exception:
             if strict:
                 raise
@@ -111,7 +149,7 @@ def RunOneEpisode(spec: dict, suite_file: str, suite_text: str | None = None) ->
     try:
         from lmap_drake.evaluation.episode import RunEpisode
         local = suite_file if suite_text is None else _SuiteCopy(suite_file, suite_text)
-        scenario = _LoadSpec(spec, local)
+        scenario = _LoadSpec(spec, local, suite_text)
         if spec.get("scenario_hash") and ScenarioHash(scenario) != spec["scenario_hash"]:
             raise EvalConflict(f"{suite_file} changed while the evaluation ran: "
                                f"{spec['scenario']} no longer matches {spec['episode_id']}")

@@ -76,3 +76,18 @@ def test_address_needs_ray_and_a_cluster(capsys, tmp_path):
     s.close()                      # nothing listens there now
     with pytest.raises(EngineError, match=f"no Ray cluster answers at --address 127.0.0.1:{port}"):
         CheckAddress(f"127.0.0.1:{port}", timeout=2.0)
+
+
+def test_a_suite_entry_alone_loads_the_scenario_of_the_whole_file():
+    """Specs load from their suite entry's text (``SuiteEntries``: a large
+    suite is not parsed once per episode) and resolve as from the file."""
+    from lmap_drake.evaluation.run_eval import ScenarioHash, SuiteEntries, _LoadSpec
+    for path, names, methods in [(SUITE, SCENES, ["lmap", "upward"]),
+                                 (DIAGRAMS_DIR / "default.yaml", ["OneOfEverything"], ["lmap"])]:
+        text = path.read_text()
+        assert set(names) <= set(SuiteEntries(text))
+        for spec in T.EpisodeSpecs(names, methods, [0.04], scenario_text="{random_seed: 3}"):
+            spec["sweep_text"] = "{planner: {energy_weight: 0.5}}"
+            assert ScenarioHash(_LoadSpec(spec, str(path), text)) == \
+                ScenarioHash(_LoadSpec(spec, str(path))), spec["scenario"]
+    assert SuiteEntries("[1, 2]") == {} and SuiteEntries("a: [1") == {}
