@@ -227,8 +227,11 @@ class RayEngine:
             except Exception as err:  # noqa: BLE001 - one line for the CLI
                 where = f"the Ray cluster at {self.address}" if self.address else \
                     "a local Ray instance"
+                hint = ("; a cluster with token authentication needs RAY_AUTH_MODE=token "
+                        "and its ~/.ray/auth_token here (README: A Ray cluster)"
+                        if self.address else "")
                 raise EngineError(f"cannot connect to {where}: "
-                                  f"{' '.join(str(err).split())[:300]}") from None
+                                  f"{' '.join(str(err).split())[:300]}{hint}") from None
             finally:
                 _RestoreSignalHandlers(handlers)
             self._own = True
