@@ -179,18 +179,18 @@ def cmd_eval(args) -> int:
                            args.scenario_text)
     if not specs:
         raise UsageError("no episodes to run (check --methods, --distances, --random_seeds)")
-    engine = dict(workers=args.workers, engine=args.engine, address=args.address or None,
-                  resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
-                  threshold=args.visibility_success)
+    run_args = dict(workers=args.workers, engine=args.engine, address=args.address or None,
+                    resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
+                    threshold=args.visibility_success)
     if sweep is not None:
         point_specs = _SweepSpecs(specs, sweep, points, labels, suite_file, args.sweep)
         EnsureWritableFolder(out)
         summary = RunSweep(point_specs, sweep, points, labels, args.sweep, suite_file, out,
-                           **engine)
+                           **run_args)
     else:
         ResolveSpecs(specs, suite_file)      # loads every episode's scenario: bad input fails now
         EnsureWritableFolder(out)
-        summary = RunEvaluation(specs, suite_file, out, **engine)
+        summary = RunEvaluation(specs, suite_file, out, **run_args)
     for eid, msg in summary["errors"]:
         print(f"error in {eid}: {msg}", file=sys.stderr)
     return 1 if summary["errors"] else 0

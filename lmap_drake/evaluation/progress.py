@@ -54,10 +54,10 @@ def Estimate(specs: list[dict], slots: int, records: list[dict] = ()) -> dict:
         else:
             core_s += EPISODE_CORE_SECONDS.get(m, DEFAULT_CORE_SECONDS)
     n_meas = sum(measured[m][1] for m in used)
+    c = EPISODE_CORE_SECONDS
     source = (f"medians of {n_meas} finished record(s) in episodes.jsonl" if used
-              else f"per-episode constants measured here: lmap "
-              f"{EPISODE_CORE_SECONDS['lmap']:.0f} s, upward {EPISODE_CORE_SECONDS['upward']:.0f} s "
-              f"of one core")
+              else f"per-episode constants measured here: lmap {c['lmap']:.0f} s, "
+              f"upward {c['upward']:.0f} s of one core")
     slots = max(1, int(slots))
     busy = max(1, min(slots, len(specs)))      # fewer episodes than slots: some idle
     return {"episodes": len(specs), "core_seconds": core_s, "core_hours": core_s / 3600.0,
