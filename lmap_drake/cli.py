@@ -7,6 +7,7 @@
     lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
                     [--distances D,..] [--random_seeds K] [--scenario_names A,B]
                     [--workers W] [--output DIR] [--resume] [--debug]
+                    [--engine pool|ray [--address HOST:PORT]] [--sweep FILE]
 
 Exit codes: 0 done (or planned, with --plan-only), 1 error, 2 bad input
 (scenario, weights, calibration, recording, output folder, arguments), 3
@@ -180,6 +181,11 @@ def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
                          f"{args.scenarios}")
     if args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.address and args.engine != "ray":
+        raise UsageError("--address needs --engine ray")
+    if args.engine == "ray":
+        from lmap_drake.evaluation.engines import ImportRay
+        ImportRay(local=not args.address)        # a missing Ray fails now, in one line
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
     if not 0.0 < args.visibility_success <= 1.0:
@@ -208,14 +214,41 @@ def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
     return methods, distances
 
 
+def _SweepSpecs(specs: list[dict], sweep, points: list[dict], labels: list[str],
+                suite_file, sweep_file) -> list[list[dict]]:
+    """The suite's specs once per grid point, each carrying the point's
+    override, resolved (a scenario that does not load with a point's values
+    fails now, naming the point and the sweep file)."""
+    from lmap_drake.evaluation import sweep as S
+    from lmap_drake.evaluation.run_eval import ResolveSpecs
+    from lmap_drake.scenario import ScenarioError
+    out = []
+    for p, label in zip(points, labels):
+        text = S.OverrideText(p)
+        group = [dict(s, sweep_text=text, sweep_point=label, sweep_values=p) for s in specs]
+        try:
+            ResolveSpecs(group, suite_file)
+        except ScenarioError as err:
+            raise S.SweepError(f"{sweep_file}: grid point {text}: "
+                               f"{str(err).replace('--scenario_text', 'the sweep')}") from None
+        out.append(group)
+    return out
+
+
 def cmd_eval(args) -> int:
     from lmap_drake.evaluation import tables as T
-    from lmap_drake.evaluation.run_eval import ResolveSpecs, RunEvaluation
+    from lmap_drake.evaluation.run_eval import ResolveSpecs, RunEvaluation, RunSweep
     from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
     from lmap_drake.scenario import LoadScenario, _RawYaml, _ReadScenarioFile
 
     methods, distances = _CheckEvalArgs(args)
     LoadScenario(scenario_text=args.scenario_text)      # fail now on a bad override
+    sweep = points = labels = None
+    if args.sweep:
+        from lmap_drake.evaluation import sweep as S
+        sweep = S.LoadSweep(args.sweep)
+        points = S.CheckPoints(sweep, args.sweep, args.scenario_text)
+        labels = [S.PointLabel(i, p) for i, p in enumerate(points)]
     out = Path(args.output) if args.output else DefaultOutputFolder(prefix="eval-")
     if args.scenarios:
         from lmap_drake.plants.suite import RandomSuite, SuiteYaml
@@ -241,11 +274,18 @@ def cmd_eval(args) -> int:
                            args.scenario_text)
     if not specs:
         raise UsageError("no episodes to run (check --methods, --distances, --random_seeds)")
-    ResolveSpecs(specs, suite_file)      # loads every episode's scenario: bad input fails now
-    EnsureWritableFolder(out)
-    summary = RunEvaluation(specs, suite_file, out, workers=args.workers,
-                            resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
-                            threshold=args.visibility_success)
+    run_args = dict(workers=args.workers, engine=args.engine, address=args.address or None,
+                    resume=args.resume, progress=lambda m: _stage(f"eval: {m}"),
+                    threshold=args.visibility_success)
+    if sweep is not None:
+        point_specs = _SweepSpecs(specs, sweep, points, labels, suite_file, args.sweep)
+        EnsureWritableFolder(out)
+        summary = RunSweep(point_specs, sweep, points, labels, args.sweep, suite_file, out,
+                           **run_args)
+    else:
+        ResolveSpecs(specs, suite_file)      # loads every episode's scenario: bad input fails now
+        EnsureWritableFolder(out)
+        summary = RunEvaluation(specs, suite_file, out, **run_args)
     for eid, msg in summary["errors"]:
         print(f"error in {eid}: {msg}", file=sys.stderr)
     return 1 if summary["errors"] else 0
@@ -338,7 +378,20 @@ def _main(argv=None) -> int:
     ev.add_argument("--scenario_text", default="{}",
                     help="YAML overrides for every episode, applied before each method's own "
                          "(e.g. '{planner: {max_energy_per_node: 0.0}}')")
-    ev.add_argument("--workers", type=int, default=2, help="worker processes")
+    ev.add_argument("--workers", type=int, default=2,
+                    help="worker processes (pool), or CPUs of the local Ray instance")
+    ev.add_argument("--engine", choices=("pool", "ray"), default="pool",
+                    help="pool: worker processes on this machine (default); ray: Ray tasks "
+                         "on a local instance or, with --address, a cluster (needs "
+                         "pip install -e '.[ray]')")
+    ev.add_argument("--address", default="",
+                    help="with --engine ray: the cluster's HOST:PORT (`ray start --head` "
+                         "prints it) or auto")
+    ev.add_argument("--sweep", default="",
+                    help="YAML grid of scenario overrides (dotted key: [values]; several keys: "
+                         "cartesian product) crossed with the suite: one folder and table per "
+                         "grid point, sweep_summary.json/.png (e.g. "
+                         "diagrams/sweep_energy_weight.yaml)")
     ev.add_argument("--visibility_success", type=float, default=0.95,
                     help="Table V: final visibility counted as sufficient")
     ev.add_argument("--output", default=None,

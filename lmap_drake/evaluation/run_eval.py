@@ -1,53 +1,101 @@
-"""``lmap-drake eval``: runs episodes of a scenario suite in worker
-processes and writes the Table II-V analogues (see ``tables.py``).
+"""``lmap-drake eval``: runs episodes of a scenario suite on an engine
+(``engines.py``: worker processes on this machine, or Ray tasks) and
+writes the Table II-V analogues (see ``tables.py``); ``RunSweep`` does it
+for every point of a grid of scenario overrides (``sweep.py``).
 
-Each worker process loads its own scenario and builds its own diagram and
-models; an exception inside an episode becomes a record with status
-``error`` (message and traceback) instead of ending the run. Records are
-appended to ``episodes.jsonl`` as episodes finish, so an interrupted run
-can be continued with ``resume=True`` (episodes whose latest record is not
-an error are skipped) and the tables are rebuilt from all records.
+Each worker loads its own scenario and builds its own diagram and models;
+an exception inside an episode becomes a record with status ``error``
+(message and traceback) instead of ending the run. Records are appended
+to ``episodes.jsonl`` as episodes finish (whichever engine ran them), so
+an interrupted run can be continued with ``resume=True`` (episodes whose
+latest record is not an error are skipped) and the tables are rebuilt
+from all records.
 
 Each episode id carries a hash of its resolved scenario (``ResolveSpecs``):
 resuming with other settings (``--scenario_text``, an edited suite) is
 refused instead of mixing results. Torn lines of a killed run are set aside
-to ``episodes.jsonl.torn`` and their episodes re-run. Workers die with the
-parent (``PR_SET_PDEATHSIG`` on Linux, and a watchdog on the parent pid).
+to ``episodes.jsonl.torn`` and their episodes re-run. Pool workers die with
+the parent (``PR_SET_PDEATHSIG`` on Linux, and a watchdog on the parent
+pid); Ray tasks are cancelled when the run stops.
 """
 from __future__ import annotations
 
-import concurrent.futures as cf
+import contextlib
+import functools
+import hashlib
 import json
-import multiprocessing as mp
 import os
+import tempfile
 import time
 import traceback
 from pathlib import Path
 from typing import Callable
 
 from lmap_drake.errors import InputError
+from lmap_drake.evaluation import progress as P
 from lmap_drake.evaluation import tables as T
+from lmap_drake.evaluation.engines import InitWorker as _init_worker  # noqa: F401
+from lmap_drake.evaluation.engines import MakeEngine
 
 
 class EvalConflict(InputError):
     """``--resume`` would mix results of different settings."""
 
 
+class EvalExists(InputError, FileExistsError):
+    """``episodes.jsonl`` exists and ``--resume`` was not given."""
+
+
 def ScenarioHash(scenario) -> str:
     """8 hex digits of the resolved scenario (all fields, YAML-dumped)."""
-    import hashlib
-
     from pydrake.common.yaml import yaml_dump_typed
 
     from lmap_drake.scenario import Scenario
     return hashlib.sha1(yaml_dump_typed(scenario, schema=Scenario).encode()).hexdigest()[:8]
 
 
-def _LoadSpec(spec: dict, suite_file: str):
+@functools.lru_cache(maxsize=4)
+def SuiteEntries(suite_text: str) -> dict[str, str]:
+    """Each top-level scenario of a suite's YAML as its own YAML text (the
+    entry's map, cut from the text by the parser's marks): loading one
+    scenario then parses that entry, not the whole suite (a 250-scene suite
+    is 180 kB). Empty when the text does not parse."""
+    import textwrap
+
+    import yaml
+    try:
+        root = yaml.compose(suite_text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    except yaml.YAMLError:
+        return {}
+    if not isinstance(root, yaml.MappingNode):
+        return {}
+    out = {}
+    for key, value in root.value:
+        if not isinstance(key, yaml.ScalarNode) or value.start_mark.index is None:
+            continue
+        body = suite_text[value.start_mark.index:value.end_mark.index]
+        out[key.value] = textwrap.dedent(" " * value.start_mark.column + body)
+    return out
+
+
+def _LoadSpec(spec: dict, suite_file: str, suite_text: str | None = None):
+    """The spec's scenario: suite entry, eval-wide ``scenario_text``, the
+    method's override, then a sweep point's override (``sweep_text``).
+    With ``suite_text`` (``suite_file``'s text) only the entry is parsed
+    (``SuiteEntries``); anything it cannot load is loaded from the file,
+    whose error names the file and the key."""
     from lmap_drake.scenario import LoadScenario
+    texts = [spec.get("scenario_text", "{}"), T.ScenarioOverride(spec)]
+    if spec.get("sweep_text"):
+        texts.append(spec["sweep_text"])
+    entry = SuiteEntries(suite_text).get(spec["scenario"]) if suite_text else None
+    if entry and entry.strip() not in ("", "{}", "null", "~"):
+        try:
+            return LoadScenario(scenario_text=[entry] + texts)
+        except Exception:  # noqa: BLE001 - the full load below says why
+            pass
     return LoadScenario(filename=suite_file, scenario_name=spec["scenario"],
-                        scenario_text=[spec.get("scenario_text", "{}"),
-                                       T.ScenarioOverride(spec)])
+                        scenario_text=texts)
 
 
 def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True) -> None:
@@ -55,11 +103,15 @@ def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True)
     ``episode_id`` that includes it. ``strict``: a scenario that does not
     load raises (ScenarioError); otherwise that spec is left as it is (its
     worker records the error)."""
+    try:
+        suite_text = Path(suite_file).read_text()
+    except (OSError, UnicodeDecodeError):
+        suite_text = None           # the loads below name the file's problem
     for spec in specs:
         if spec.get("scenario_hash"):
             continue
         try:
-            spec["scenario_hash"] = ScenarioHash(_LoadSpec(spec, str(suite_file)))
+            spec["scenario_hash"] = ScenarioHash(_LoadSpec(spec, str(suite_file), suite_text))
         except Exception:
             if strict:
                 raise
@@ -67,51 +119,37 @@ def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True)
         spec["episode_id"] = T.EpisodeId(spec)
 
 
-def _WatchParent(parent: int) -> None:
-    """Exits this worker when the parent process is gone (reparented)."""
-    import threading
-
-    def watch():
-        while True:
-            time.sleep(1.0)
-            if os.getppid() != parent:
-                os._exit(1)
-    threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
-
-
-def _DieWithParent() -> None:
-    """Linux: the kernel kills this process when its parent exits."""
-    import signal
+def _SuiteCopy(suite_file: str, suite_text: str) -> str:
+    """A path on this machine holding ``suite_text``: ``suite_file`` when it
+    does (always, on the machine that started the run), else a copy in the
+    temp folder (a Ray worker on another node, or a suite edited since)."""
     try:
-        import ctypes
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGKILL)      # PR_SET_PDEATHSIG
-    except Exception:  # noqa: BLE001 - not Linux: the watchdog remains
+        if Path(suite_file).read_text() == suite_text:
+            return suite_file
+    except (OSError, UnicodeDecodeError):
         pass
+    digest = hashlib.sha1(suite_text.encode()).hexdigest()[:16]
+    folder = Path(tempfile.gettempdir()) / "lmap_drake_suites"
+    folder.mkdir(exist_ok=True)
+    path = folder / f"{digest}.yaml"
+    if not path.exists():
+        tmp = path.with_name(f".{digest}.{os.getpid()}.tmp")
+        tmp.write_text(suite_text)
+        os.replace(tmp, path)
+    return str(path)
 
 
-def _init_worker(threads: int, parent: int | None = None) -> None:
-    if parent is not None:
-        _DieWithParent()
-        if os.getppid() != parent:          # the parent died before prctl
-            os._exit(1)
-        _WatchParent(parent)
-    # Two workers on a two-core machine: one BLAS/torch thread each.
-    for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-        os.environ.setdefault(k, str(threads))
-    try:
-        import torch
-        torch.set_num_threads(threads)
-    except Exception:
-        pass
-
-
-def RunOneEpisode(spec: dict, suite_file: str) -> dict:
-    """Runs one spec in this process; never raises (errors become records)."""
-    t0 = time.perf_counter()
+def RunOneEpisode(spec: dict, suite_file: str, suite_text: str | None = None) -> dict:
+    """Runs one spec in this process; never raises (errors become records).
+    ``suite_text``: the suite as the run started, for workers that cannot
+    read ``suite_file`` (the record names ``suite_file`` either way).
+    ``cpu_seconds``: this process's CPU time for the episode (its cost in
+    core-seconds, whatever else the machine ran)."""
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         from lmap_drake.episode import RunSimEpisode
-        scenario = _LoadSpec(spec, suite_file)
+        local = suite_file if suite_text is None else _SuiteCopy(suite_file, suite_text)
+        scenario = _LoadSpec(spec, local, suite_text)
         if spec.get("scenario_hash") and ScenarioHash(scenario) != spec["scenario_hash"]:
             raise EvalConflict(f"{suite_file} changed while the evaluation ran: "
                                f"{spec['scenario']} no longer matches {spec['episode_id']}")
@@ -122,6 +160,7 @@ def RunOneEpisode(spec: dict, suite_file: str) -> dict:
         record = {"status": "error", "message": f"{type(err).__name__}: {err}",
                   "traceback": traceback.format_exc(),
                   "wall_seconds": time.perf_counter() - t0}
+    record["cpu_seconds"] = time.process_time() - c0
     record["eval"] = _EvalEntry(spec, suite_file)
     return record
 
@@ -138,25 +177,22 @@ def _json_default(x):
         return str(x)
 
 
-def RunEvaluation(specs: list[dict], suite_file: str | Path, out: str | Path,
-                  workers: int = 2, resume: bool = False,
-                  progress: Callable[[str], None] = print,
-                  threshold: float = T.VISIBILITY_SUCCESS, notes: str = "",
-                  threads_per_worker: int = 1) -> dict:
-    """Runs ``specs`` (skipping finished ones with ``resume``), appends to
-    ``out/episodes.jsonl`` and writes the tables. Returns a summary."""
-    out = Path(out)
+def _Prepare(specs: list[dict], out: Path, resume: bool,
+             progress: Callable[[str], None]) -> tuple[Path, list[dict], list[dict]]:
+    """One output folder before anything runs: refuses an existing log
+    without ``resume``; with it, sets torn lines aside and refuses mixed
+    settings. Returns (log, specs still to run, records already there)."""
     out.mkdir(parents=True, exist_ok=True)
     log = out / "episodes.jsonl"
     if log.exists() and not resume:
-        raise FileExistsError(f"{log} exists: pass --resume to continue it, or choose "
-                              "another --output")
-    ResolveSpecs(specs, suite_file, strict=False)
+        raise EvalExists(f"{log} exists: pass --resume to continue it, or choose "
+                         "another --output")
+    records: list[dict] = []
     done: set = set()
     if resume:
         torn = T.RepairLog(log)
         if torn:
-            progress(f"set aside {torn} torn line(s) of {log.name} to {log.name}.torn; "
+            progress(f"set aside {torn} torn line(s) of {log} to {log.name}.torn; "
                      f"their episodes run again")
         records = T.ReadRecords(log)
         conflicts = T.ResumeConflicts(records, specs)
@@ -167,57 +203,120 @@ def RunEvaluation(specs: list[dict], suite_file: str | Path, out: str | Path,
                                      if len(conflicts) > 1 else "")
                 + "; use another --output for these settings")
         done = T.CompletedIds(records)
-    todo = [s for s in specs if s["episode_id"] not in done]
-    progress(f"{len(specs)} episode(s), {len(specs) - len(todo)} already in {log.name}; "
-             f"running {len(todo)} with {workers} worker(s)")
-    t_start = time.perf_counter()
-    errors = []
-    if todo:
-        ctx = mp.get_context("spawn")
-        pool = cf.ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx,
-                                      initializer=_init_worker,
-                                      initargs=(threads_per_worker, os.getpid()))
-        try:
-            _RunPool(pool, todo, suite_file, log, errors, progress)
-        except BaseException:
-            # Ctrl-C, SIGTERM or an error here: no orphaned workers.
-            for p in list((getattr(pool, "_processes", None) or {}).values()):
-                p.kill()
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
-    records = T.ReadRecords(log)
-    files = T.WriteTables(records, out, threshold, notes=notes)
-    progress(f"wrote {', '.join(['episodes.jsonl'] + files)} to {out} "
-             f"({time.perf_counter() - t_start:.0f} s)")
-    return {"ran": len(todo), "skipped": len(specs) - len(todo), "errors": errors,
-            "files": files}
+    return log, [s for s in specs if s["episode_id"] not in done], records
 
 
-def _RunPool(pool, todo: list[dict], suite_file, log: Path, errors: list,
-             progress: Callable[[str], None]) -> None:
-    """Submits ``todo`` and appends each record to ``log`` as it finishes
-    (one write per line, flushed and synced)."""
-    with open(log, "a") as f:
-        futures = {pool.submit(RunOneEpisode, s, str(suite_file)): s for s in todo}
-        for k, fut in enumerate(cf.as_completed(futures), 1):
-            spec = futures[fut]
-            try:
-                rec = fut.result()
-            except Exception as err:  # the worker process itself died
-                rec = {"status": "error", "message": f"worker: {type(err).__name__}: "
-                       f"{err}", "wall_seconds": None, "eval": _EvalEntry(spec, suite_file)}
+def _ProgressLine(k: int, n: int, spec: dict, rec: dict, eta: float | None) -> str:
+    o = rec.get("outcome") or {}
+    extra = (f" vis {o.get('visibility_initial', 0):.2f}->"
+             f"{o.get('visibility_final', 0):.2f} safe={T.IsSafe(rec)}"
+             if o else f" {rec.get('message', '')[:200]}")
+    wall = rec.get("wall_seconds")
+    point = f"{spec['sweep_point']} " if spec.get("sweep_point") else ""
+    return (f"[{k}/{n}] {point}{spec['scenario']} {spec['method']} "
+            f"{T.DistanceLabel(spec['distance'])} seed {spec['seed']}: "
+            f"{rec.get('status')} in {'?' if wall is None else f'{wall:.1f}'} s;{extra}"
+            + ("" if eta is None else f"; eta {P.Duration(eta)}"))
+
+
+def _RunGroups(groups: list[tuple[Path, list[dict]]], suite_file: str | Path,
+               engine: str, workers: int, address: str | None, threads: int,
+               resume: bool, progress: Callable[[str], None],
+               bar: bool | None) -> dict:
+    """Runs the specs of every (output folder, specs) group on one engine,
+    appending each record to its group's ``episodes.jsonl`` as it finishes
+    (one write per line, flushed and synced). Everything that can be
+    refused is checked before the engine starts."""
+    all_specs = [s for _, g in groups for s in g]
+    ResolveSpecs(all_specs, suite_file, strict=False)
+    jobs, existing = [], []
+    for out, specs in groups:
+        log, todo, records = _Prepare(specs, Path(out), resume, progress)
+        jobs += [(s, log) for s in todo]
+        existing += records
+    n_all = len(all_specs)
+    progress(f"{n_all} episode(s), {n_all - len(jobs)} already recorded; running "
+             f"{len(jobs)} on the {engine} engine")
+    errors: list = []
+    if not jobs:
+        return {"ran": 0, "skipped": n_all, "errors": errors, "estimate": None}
+    suite_text = Path(suite_file).read_text()
+    args = [(s, str(suite_file), suite_text) for s, _ in jobs]
+    with contextlib.ExitStack() as stack:
+        eng = stack.enter_context(MakeEngine(engine, workers, threads, address))
+        est = P.Estimate([s for s, _ in jobs], eng.slots, existing)
+        progress(P.EstimateLine(est, eng.name))
+        logs: dict[Path, object] = {}
+        show = stack.enter_context(P.Progress(len(jobs), progress, enabled=bar))
+        t0 = time.perf_counter()
+        for k, (i, out) in enumerate(eng.Imap(RunOneEpisode, args), 1):
+            spec, log = jobs[i]
+            rec = out if isinstance(out, dict) else {
+                "status": "error", "message": f"worker: {type(out).__name__}: {out}",
+                "wall_seconds": None, "eval": _EvalEntry(spec, suite_file)}
+            if log not in logs:
+                logs[log] = stack.enter_context(open(log, "a"))
+            f = logs[log]
             f.write(json.dumps(rec, default=_json_default) + "\n")
             f.flush()
             os.fsync(f.fileno())
             if rec.get("status") == "error":
                 errors.append((spec["episode_id"], rec["message"]))
-            o = rec.get("outcome") or {}
-            extra = (f" vis {o.get('visibility_initial', 0):.2f}->"
-                     f"{o.get('visibility_final', 0):.2f} safe={T.IsSafe(rec)}"
-                     if o else f" {rec.get('message', '')[:200]}")
-            wall = rec.get("wall_seconds")
-            progress(f"[{k}/{len(todo)}] {spec['scenario']} {spec['method']} "
-                     f"{T.DistanceLabel(spec['distance'])} seed {spec['seed']}: "
-                     f"{rec.get('status')} in "
-                     f"{'?' if wall is None else f'{wall:.1f}'} s;{extra}")
+            show.Step()
+            eta = P.EtaSeconds(k, len(jobs), time.perf_counter() - t0)
+            show.Say(_ProgressLine(k, len(jobs), spec, rec, eta if k < len(jobs) else None))
+    return {"ran": len(jobs), "skipped": n_all - len(jobs), "errors": errors,
+            "estimate": est}
+
+
+def RunEvaluation(specs: list[dict], suite_file: str | Path, out: str | Path,
+                  workers: int = 2, resume: bool = False,
+                  progress: Callable[[str], None] = print,
+                  threshold: float = T.VISIBILITY_SUCCESS, notes: str = "",
+                  threads_per_worker: int = 1, engine: str = "pool",
+                  address: str | None = None, bar: bool | None = None) -> dict:
+    """Runs ``specs`` (skipping finished ones with ``resume``) on ``engine``
+    (``pool``: ``workers`` processes; ``ray``: a local instance with
+    ``workers`` CPUs, or the cluster at ``address``), appends to
+    ``out/episodes.jsonl`` and writes the tables. ``bar``: a progress bar
+    on stderr (None: when it is a terminal). Returns a summary."""
+    out = Path(out)
+    t_start = time.perf_counter()
+    summary = _RunGroups([(out, specs)], suite_file, engine, workers, address,
+                         threads_per_worker, resume, progress, bar)
+    files = T.WriteTables(T.ReadRecords(out / "episodes.jsonl"), out, threshold, notes=notes)
+    progress(f"wrote {', '.join(['episodes.jsonl'] + files)} to {out} "
+             f"({time.perf_counter() - t_start:.0f} s)")
+    return dict(summary, files=files)
+
+
+def RunSweep(point_specs: list[list[dict]], sweep, points: list[dict], labels: list[str],
+             sweep_file: str | Path, suite_file: str | Path, out: str | Path,
+             workers: int = 2, resume: bool = False,
+             progress: Callable[[str], None] = print,
+             threshold: float = T.VISIBILITY_SUCCESS, threads_per_worker: int = 1,
+             engine: str = "pool", address: str | None = None,
+             bar: bool | None = None) -> dict:
+    """Runs every grid point's specs on one engine into ``out/<label>/``
+    (episodes.jsonl and tables each), then writes ``sweep_summary.json``
+    and ``sweep_summary.png`` (``sweep.Summary``) in ``out``."""
+    from lmap_drake.evaluation import sweep as S
+    out = Path(out)
+    t_start = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sweep.yaml").write_text(Path(sweep_file).read_text())
+    groups = [(out / lab, specs) for lab, specs in zip(labels, point_specs)]
+    summary = _RunGroups(groups, suite_file, engine, workers, address, threads_per_worker,
+                         resume, progress, bar)
+    records = []
+    for (folder, _), p in zip(groups, points):
+        rs = T.ReadRecords(folder / "episodes.jsonl")
+        records.append(rs)
+        T.WriteTables(rs, folder, threshold, notes=f"Sweep point {S.OverrideText(p)} "
+                      f"({Path(sweep_file).name}).")
+    data = S.Summary(sweep, points, labels, records, threshold, str(sweep_file))
+    (out / "sweep_summary.json").write_text(json.dumps(data, indent=2))
+    files = ["sweep_summary.json", S.SaveSummaryPlot(data, out / "sweep_summary.png")]
+    progress(f"wrote {len(labels)} grid point folder(s) ({labels[0]} ...) and "
+             f"{', '.join(files)} to {out} ({time.perf_counter() - t_start:.0f} s)")
+    return dict(summary, files=files, summary=data)

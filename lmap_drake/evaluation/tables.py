@@ -1,5 +1,5 @@
 """Functional core of ``lmap-drake eval``: episode specs, and the
-aggregation of episode records (``RunEpisode(...).record`` plus an ``eval``
+aggregation of episode records (``episode.RunSimEpisode(...).record`` plus an ``eval``
 entry naming the spec) into analogues of the paper's Tables II-V, written as
 JSON, Markdown and matplotlib bar charts. Pure functions on dicts; nothing
 here simulates.
@@ -123,6 +123,17 @@ def ScenarioOverride(spec: dict) -> str:
     else:
         planner = f"method: {spec['method']}, distances: [{float(spec['distance'])!r}]"
     return f"{{planner: {{{planner}}}, random_seed: {int(spec['seed'])}}}"
+
+
+# Record fields that differ between two runs of the same episode: timings.
+VOLATILE_KEYS = ("wall_seconds", "cpu_seconds", "simulation_wall_seconds", "stage_seconds",
+                 "traceback")
+
+
+def Deterministic(record: dict) -> dict:
+    """The record without its timings (``VOLATILE_KEYS``): what two runs of
+    the same episode (any engine, any worker) must agree on."""
+    return {k: v for k, v in record.items() if k not in VOLATILE_KEYS}
 
 
 def LatestRecords(records: list[dict]) -> dict[str, dict]:
@@ -308,14 +319,18 @@ def Table5Row(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dic
 
 
 def Table5(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dict:
-    """{"lmap_lambda0": row, "lmap": row} for the methods present."""
+    """{"lmap_lambda0": row, "lmap": row} for the methods present; the
+    energy weight the records ran with when they agree on one (a sweep may
+    set it), else the method's own."""
     latest = list(LatestRecords(records).values())
     out = {}
     for m in ("lmap_lambda0", "lmap"):
         rs = [r for r in latest if r["eval"]["method"] == m]
         if rs:
             out[m] = Table5Row(rs, threshold)
-            out[m]["energy_weight"] = LMAP_METHODS[m]
+            ran = {r.get("energy_weight") for r in rs if r.get("status") != "error"}
+            w = ran.pop() if len(ran) == 1 else None
+            out[m]["energy_weight"] = float(w) if w is not None else LMAP_METHODS[m]
     return out
 
 
