@@ -301,7 +301,9 @@ def EvaluateScenario(scenario, args, with_corr: bool, log) -> dict:
            "distance_m": args.distance}
     pulls = []
     sim_cache: dict[tuple, dict] = {}
-    for (name, u, d), a, p in zip(jobs, actions, preds):
+    from tqdm import tqdm
+    for (name, u, d), a, p in tqdm(list(zip(jobs, actions, preds)), desc="FEM pulls",
+                                   unit="pull", file=sys.stderr):
         key = (tuple(np.round(u, 9)), round(d, 9))
         if key not in sim_cache:
             log(f"  pull {name}: {d * 100:g} cm along {np.round(u, 3).tolist()}")

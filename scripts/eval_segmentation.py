@@ -81,8 +81,9 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
     from lmap_drake.scenario import LoadScenario
     from lmap_drake.plants.world import RenderStill
     names = names or _scenario_names(scenario_file)
+    from tqdm import tqdm
     results = {b: {"scenarios": {}} for b in backends}
-    for name in names:
+    for name in tqdm(names, desc="eval_segmentation", unit="scene", file=sys.stderr):
         s = LoadScenario(filename=scenario_file, scenario_name=name, scenario_text=scenario_text)
         t0 = time.time()
         rgb, depth, label = RenderStill(s, settle)

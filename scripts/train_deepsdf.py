@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -56,7 +57,8 @@ def main(argv=None):
 
     rng = np.random.default_rng(a.seed)
     shapes, pts, sdf = [], [], []
-    for i in range(a.num_shapes):
+    from tqdm import tqdm
+    for i in tqdm(range(a.num_shapes), desc="sampling shapes", unit="shape", file=sys.stderr):
         shape = SamplePepperShape(rng)
         pep = MakePepper(shape, subdivisions=4)
         p, d = deepsdf.MeshSdfSamples(pep.mesh.vertices, pep.mesh.faces,
@@ -64,9 +66,6 @@ def main(argv=None):
         shapes.append(shape)
         pts.append(p)
         sdf.append(d)
-        if (i + 1) % 64 == 0 or i + 1 == a.num_shapes:
-            print(f"shapes {i + 1}/{a.num_shapes} sampled ({time.time() - t_start:.0f} s)",
-                  flush=True)
     pts, sdf = np.stack(pts), np.stack(sdf)
     t_data = time.time() - t_start
 

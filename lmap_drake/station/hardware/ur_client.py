@@ -217,13 +217,28 @@ class UrClient:
                                          cfg.servo_lookahead_time, cfg.servo_gain)
                 self.servo_count += 1
                 if ok is False:
-                    self._fault = "servoJ was rejected by the UR5 controller"
+                    # Usually a stop the status stream has not shown yet:
+                    # name it when it shows within 0.1 s.
+                    self._fault = self._StopReasonSoon() or \
+                        "servoJ was rejected by the UR5 controller"
                     break
                 self.control.waitPeriod(t_start)
         except Exception as err:  # ur_rtde raises RuntimeError when the link drops
             self._fault = f"UR5 streaming failed ({err})"
         if self._fault is not None:
             self._StopArm()
+
+    def _StopReasonSoon(self, wait: float = 0.1, poll: float = 0.01) -> str | None:
+        """The stop reason the robot reports within ``wait`` s, or None."""
+        t_end = time.monotonic() + wait
+        while True:
+            try:
+                reason = self._StopStatus()
+            except Exception:  # noqa: BLE001 - the link itself failed
+                return None
+            if reason is not None or time.monotonic() >= t_end:
+                return reason
+            time.sleep(poll)
 
     # ---- stopping ----------------------------------------------------------
     def _StopArm(self) -> None:
