@@ -132,7 +132,20 @@ class FruitConfig:
     short peduncle at a stem node, its body pressed away from the stem). The
     fruit sits as close to the branch as ``gap_to_branch`` (m, branch surface
     to fruit surface) allows; the peduncle stalk runs from the fruit top to
-    the stem."""
+    the stem.
+
+    ``mesh_file`` (OBJ, PLY or STL; empty = the procedural pepper above)
+    puts a given pepper mesh in its place, placed the same way: the file's
+    +z is the fruit's peduncle axis, the peduncle leaves at the top, units
+    are metres times ``mesh_scale`` (0.001 for a file in millimetres); the
+    file's origin is ignored (the fruit is centred on its volume centroid).
+    ``peduncle_file`` (optional, same frame and units): the stalk, rendered
+    and labelled as branch, joined to the branch from its far end.
+    ``peduncle_point`` (optional, file frame and units): where the peduncle
+    leaves the fruit; default: nearest the peduncle mesh, else where the +z
+    axis through the centroid leaves the surface. The shape keys (``size``
+    ... ``lobe_phase_deg``, ``stripes``) are ignored for a file fruit. See
+    ``lmap_drake/plants/fruit_mesh.py`` for the checks and repairs."""
     variant: str = "blocky"
     size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
     lobes: int = 4
@@ -152,6 +165,10 @@ class FruitConfig:
     lean_deg: float = 0.0
     peduncle_length: float = 0.015
     peduncle_radius: float = 0.004
+    mesh_file: str = ""
+    peduncle_file: str = ""
+    mesh_scale: float = 1.0
+    peduncle_point: list[float] = dc.field(default_factory=list)
 
 
 @dc.dataclass
@@ -691,6 +708,7 @@ _RULES = {
     "plant_scene.fruit.gap_to_branch": ">=0",
     "plant_scene.fruit.peduncle_length": ">0",
     "plant_scene.fruit.peduncle_radius": ">0",
+    "plant_scene.fruit.mesh_scale": ">0",
     "plant_scene.pull.pregrasp_distance": ">0",
     "plant_scene.pull.pregrasp_opening": "(0,0.085]",
     "plant_scene.pull.direction_W": "3xfinite",
@@ -962,6 +980,18 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
                     taper=fr.taper, cone=fr.cone).validate()
     except ValueError as err:
         fail("plant_scene.fruit", f"is not a valid pepper shape: {err}")
+    need(len(fr.peduncle_point) in (0, 3), "plant_scene.fruit.peduncle_point",
+         f"must be empty or [x, y, z], got {list(fr.peduncle_point)}")
+    need(not fr.peduncle_file or fr.mesh_file, "plant_scene.fruit.peduncle_file",
+         "needs plant_scene.fruit.mesh_file (the procedural pepper has its own stalk)")
+    if fr.mesh_file and ps.kind == "procedural":
+        from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
+        try:
+            LoadFruitMeshOf(fr)
+        except FruitMeshError as err:
+            fail(err.key, err.detail)
+    need(not fr.mesh_file or ps.kind == "procedural", "plant_scene.fruit.mesh_file",
+         "needs plant_scene.kind: procedural")
     need(s.shape.weights_file or s.shape.method == "supeps", "shape.weights_file",
          "is empty; the ssc and homa methods need the DeepSDF weights")
     fa = s.planner.force_action

@@ -25,6 +25,22 @@ iterations had an active negative loss (``neg_iters``) and an active
 peduncle loss (``ped_iters``), and how many negative points the estimate
 still has inside it (``neg_inside``: leaf, observed branch, free space,
 more than 0.5 mm deep).
+
+``--fruit_mesh_dir DIR`` evaluates pepper meshes from files instead of the
+suite's procedural peppers: every ``DIR/NAME.{obj,ply,stl}`` (with
+``DIR/NAME.peduncle.{obj,ply,stl}`` as its stalk when present; metres, +z =
+peduncle axis, see ``lmap_drake/plants/fruit_mesh.py``) is put in each suite
+scene (``--num_cases`` / ``--scenario_names``) as
+``plant_scene.fruit.mesh_file``, with the scene's pose and occlusion. The
+tables are then means over fruits and scenes; ``"per_fruit"`` holds the same
+layout per fruit (``d["per_fruit"][NAME][method][condition][metric]``),
+``"fruits"`` each file's volume and extents, and ``"skipped"`` the scenes a
+fruit could not be placed in (e.g. a leaf too small to hide a large fruit as
+much as asked), with the reason. A mesh that fails the checks stops the run
+before anything is evaluated (exit code 2, the file named).
+
+  .venv/bin/python scripts/make_test_peppers.py --out out/test_peppers --count 6
+  .venv/bin/python scripts/eval_shape.py --fruit_mesh_dir out/test_peppers --out out/shape_files.json
 """
 from __future__ import annotations
 
@@ -51,16 +67,69 @@ CONDITIONS = ("initial_occlusion", "without_occlusion")
 NAMES = {"supeps": "SupEps", "homa": "HoMa (DeepSDF, no scene)", "ssc": "SSC"}
 
 
-def Cases(source: str, num: int):
+MESH_SUFFIXES = (".obj", ".ply", ".stl")
+
+
+def FruitMeshFiles(folder) -> dict:
+    """NAME -> (fruit file, peduncle file or "") for every
+    ``folder/NAME.{obj,ply,stl}`` (``NAME.peduncle.*`` are the stalks)."""
+    from lmap_drake.errors import InputError
+    d = Path(folder)
+    if not d.is_dir():
+        raise InputError(f"--fruit_mesh_dir {folder}: not a folder")
+    files = sorted(f for f in d.iterdir() if f.suffix.lower() in MESH_SUFFIXES
+                   and not f.stem.endswith(".peduncle"))
+    if not files:
+        raise InputError(f"--fruit_mesh_dir {folder} holds no .obj, .ply or .stl mesh")
+    out = {}
+    for f in files:
+        if f.stem in out:
+            raise InputError(f"--fruit_mesh_dir {folder}: two meshes named {f.stem} "
+                             f"({out[f.stem][0].name}, {f.name})")
+        peds = [d / f"{f.stem}.peduncle{x}" for x in MESH_SUFFIXES]
+        peds = [p for p in peds if p.is_file()]
+        out[f.stem] = (f, peds[0] if peds else "")
+    return out
+
+
+def Cases(source: str, num: int, fruit_files: dict | None = None, names=None):
+    """(source, case name, fruit name, make(occluded) -> ShapeCase)."""
     suite = REPO_ROOT / benchmark.SUITE_FILE
-    if source == "suite" or (source == "auto" and suite.is_file()):
-        names = benchmark.SuiteScenarioNames(suite)[:num]
+    if fruit_files is not None:
+        if not suite.is_file():
+            from lmap_drake.errors import InputError
+            raise InputError(f"--fruit_mesh_dir needs the suite {suite} (make it with "
+                             f"scripts/make_suite.py)")
+        names = names or benchmark.SuiteScenarioNames(suite)[:num]
+        for fruit, (f, ped) in fruit_files.items():
+            text = ("{plant_scene: {fruit: {mesh_file: " + json.dumps(str(f.resolve())) +
+                    ", peduncle_file: " + json.dumps(str(Path(ped).resolve()) if ped else "")
+                    + "}}}")
+            for n in names:
+                yield "suite+files", f"{fruit}@{n}", fruit, \
+                    lambda occ, n=n, text=text, c=f"{fruit}@{n}": benchmark.MakeSuiteCase(
+                        suite, n, occ, scenario_text=text, case_name=c)
+    elif source == "suite" or (source == "auto" and suite.is_file()):
+        names = names or benchmark.SuiteScenarioNames(suite)[:num]
         for n in names:
-            yield "suite", n, lambda occ, n=n: benchmark.MakeSuiteCase(suite, n, occ)
+            yield "suite", n, "", lambda occ, n=n: benchmark.MakeSuiteCase(suite, n, occ)
     else:
         for i in range(num):
-            yield "synthetic", f"synthetic_{i:02d}", \
+            yield "synthetic", f"synthetic_{i:02d}", "", \
                 lambda occ, i=i: benchmark.MakeSyntheticCase(i, occ)
+
+
+def Means(rows, methods) -> dict:
+    """``{method: {condition: {metric: mean}}}`` over ``rows``."""
+    out = {}
+    for m in methods:
+        out[m] = {}
+        for cond in CONDITIONS:
+            sel = [r for r in rows if r["method"] == m and r["condition"] == cond]
+            out[m][cond] = {k: float(np.mean([r[k] for r in sel])) if sel else float("nan")
+                            for k in METRICS}
+            out[m][cond]["num_cases"] = len({r["case"] for r in sel})
+    return out
 
 
 def SceneNegatives(sem, voxel: float) -> np.ndarray:
@@ -95,6 +164,25 @@ def Markdown(res: dict, methods) -> str:
                 lines.append(f"- {cond.replace('_', ' ')}, {NAMES[m]}: {r['chamfer_cm']:.3f} / "
                              f"{r['volume_err_cm3']:.2f} / {r['center_err_cm']:.3f} / "
                              f"{r['angle_err_deg']:.2f}")
+    if res.get("per_fruit"):
+        lines += ["", "Per fruit (Chamfer cm / volume err cm^3 / centre err cm / angle err deg; "
+                  "mean over the scenes it was placed in):", "",
+                  "| fruit | volume (cm^3) | scenes | condition | " +
+                  " | ".join(NAMES[m] for m in methods) + " |",
+                  "| --- | --- | --- | --- | " + " | ".join("---" for _ in methods) + " |"]
+        for fruit, d in res["per_fruit"].items():
+            for cond in CONDITIONS:
+                cells = []
+                for m in methods:
+                    r = d[m][cond]
+                    cells.append(f"{r['chamfer_cm']:.2f} / {r['volume_err_cm3']:.1f} / "
+                                 f"{r['center_err_cm']:.2f} / {r['angle_err_deg']:.1f}")
+                lines.append(f"| {fruit} | {res['fruits'][fruit]['volume_cm3']:.0f} | "
+                             f"{d[methods[0]][cond]['num_cases']} | {cond.replace('_', ' ')} | "
+                             + " | ".join(cells) + " |")
+        if res.get("skipped"):
+            lines += ["", f"{len(res['skipped'])} fruit-scene pairs could not be built and "
+                      "are left out (`skipped` in the JSON)."]
     lines += ["", "TCoRe is not evaluated: its trained weights are not available."]
     return "\n".join(lines) + "\n"
 
@@ -112,7 +200,23 @@ def main(argv=None):
     ap.add_argument("--seeds", default="0", help="optimiser seeds, comma-separated")
     ap.add_argument("--shape_text", default="{}",
                     help="YAML overrides of ShapeConfig, e.g. \"{peduncle_max_distance: 0.03}\"")
+    ap.add_argument("--fruit_mesh_dir", default=None,
+                    help="evaluate the pepper meshes DIR/NAME.{obj,ply,stl} (+ NAME.peduncle.*) "
+                         "in the suite's scenes instead of the procedural peppers")
+    ap.add_argument("--scenario_names", default=None,
+                    help="comma-separated suite scenes (default: the first --num_cases)")
     a = ap.parse_args(argv)
+    fruit_files, fruits = None, {}
+    if a.fruit_mesh_dir:
+        from lmap_drake.plants.fruit_mesh import LoadFruitMesh
+        fruit_files = FruitMeshFiles(a.fruit_mesh_dir)
+        for name, (f, ped) in fruit_files.items():   # every file checked before any work
+            fm = LoadFruitMesh(str(f), str(ped) if ped else "")
+            fruits[name] = {"file": str(f), "peduncle_file": str(ped) if ped else "",
+                            "volume_cm3": fm.volume * 1e6,
+                            "extents_cm": [float(x) * 100 for x in fm.mesh.extents],
+                            "repairs": fm.repairs}
+    names = a.scenario_names.split(",") if a.scenario_names else None
     torch.set_num_threads(a.threads)
     methods = a.methods.split(",")
     cfg = yaml_load_typed(schema=ShapeConfig, data=a.shape_text, defaults=ShapeConfig())
@@ -121,12 +225,21 @@ def main(argv=None):
     if a.iterations:
         P.iterations = a.iterations
     seeds = [int(x) for x in a.seeds.split(",")]
-    rows, source = [], None
+    rows, source, skipped = [], None, []
     t_all = time.time()
-    for src, name, make in Cases(a.source, a.num_cases):
+    from lmap_drake.plants.generator import PlantGenerationError
+    for src, name, fruit, make in Cases(a.source, a.num_cases, fruit_files, names):
         source = src
+        try:
+            cases = {cond: make(cond == "initial_occlusion") for cond in CONDITIONS}
+        except PlantGenerationError as err:
+            if fruit_files is None:
+                raise
+            skipped.append({"case": name, "fruit": fruit, "reason": str(err)})
+            print(f"{name:28s} skipped: {err}", flush=True)
+            continue
         for cond in CONDITIONS:
-            case = make(cond == "initial_occlusion")
+            case = cases[cond]
             sem = case.semantic
             negatives = None
             for seed in seeds:
@@ -139,7 +252,7 @@ def main(argv=None):
                                      case.gt_vertices_W, case.gt_faces, case.gt_axis_W)
                     r.update(seconds=tm.get("fruit_s", 0.0),
                              branch_seconds=tm.get("branch_s", 0.0), case=case.name,
-                             condition=cond, method=m, seed=seed,
+                             condition=cond, method=m, seed=seed, fruit=fruit,
                              visible_fraction=case.visible_fraction,
                              num_fruit_points=int(len(sem.fruit_points_W)))
                     if m != "supeps":
@@ -157,11 +270,17 @@ def main(argv=None):
     res = {"source": source, "num_cases": len({r["case"] for r in rows}), "threads": a.threads,
            "iterations": P.iterations, "seeds": seeds,
            "total_seconds": round(time.time() - t_all, 1)}
-    for m in methods:
-        res[m] = {}
-        for cond in CONDITIONS:
-            sel = [r for r in rows if r["method"] == m and r["condition"] == cond]
-            res[m][cond] = {k: float(np.mean([r[k] for r in sel])) for k in METRICS}
+    if not rows:
+        from lmap_drake.errors import InputError
+        raise InputError("no case could be built" + (
+            f" ({len(skipped)} skipped: {skipped[0]['reason']})" if skipped else ""))
+    res.update(Means(rows, methods))
+    if fruit_files is not None:
+        res["fruit_mesh_dir"] = str(a.fruit_mesh_dir)
+        res["fruits"] = fruits
+        res["per_fruit"] = {f: Means([r for r in rows if r["fruit"] == f], methods)
+                            for f in fruits if any(r["fruit"] == f for r in rows)}
+        res["skipped"] = skipped
     if len(seeds) > 1:
         res["seed_std"] = {m: {cond: {k: float(np.std([np.mean(
             [r[k] for r in rows if r["method"] == m and r["condition"] == cond

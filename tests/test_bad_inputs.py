@@ -496,3 +496,15 @@ def test_script_bad_argument_has_no_traceback(tmp_path):
                        timeout=120)
     assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
     assert "missing.jsonl" in r.stderr
+
+
+def test_fruit_mesh_in_millimetres_is_refused_by_the_cli(capsys, tmp_path):
+    import trimesh
+    f = tmp_path / "pepper_mm.stl"
+    trimesh.creation.icosphere(subdivisions=3, radius=38.0).export(f)
+    out = tmp_path / "o"
+    code, err = _run(capsys, "run", "--output", str(out), "--scenario_text",
+                     f"{{plant_scene: {{kind: procedural, fruit: {{mesh_file: '{f}'}}}}}}")
+    assert code == EXIT_BAD_INPUT and str(f) in err and "plant_scene.fruit.mesh_file" in err
+    assert "mesh_scale: 0.001" in err, err
+    assert not out.exists()

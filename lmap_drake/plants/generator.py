@@ -18,7 +18,7 @@ import trimesh
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape,
                                     OrientTets, TriangulateLeaf, HalfWidth)
 from lmap_drake.errors import InputError
-from lmap_drake.plants.pepper import MakePepper, PepperShape
+from lmap_drake.plants.pepper import MakePepper, Pepper, PepperShape
 
 # A generated plant's occlusion (ray cast from camera0) may differ from the
 # requested ``plant_scene.occlusion`` by at most OCCLUSION_TOLERANCE. When
@@ -62,6 +62,9 @@ class PlantModel:
     occlusion_predicted: float       # fraction of camera-visible fruit surface hidden
     occlusion_requested: float = float("nan")   # plant_scene.occlusion
     occlusion_clamped: bool = False  # the leaf could not hide as much as requested
+    peduncle_mesh_W: trimesh.Trimesh | None = None   # a file fruit's stalk (labelled branch)
+    fruit_file: str = ""             # plant_scene.fruit.mesh_file (resolved), "" = procedural
+    fruit_mesh_repairs: list = dc.field(default_factory=list)
 
     @property
     def branch_axis_W(self) -> np.ndarray:
@@ -87,7 +90,9 @@ class PlantModel:
                 "occlusion_requested": self.occlusion_requested,
                 "occlusion_clamped": self.occlusion_clamped,
                 "leaf_num_vertices": int(len(self.leaf_rest_W)),
-                "leaf_num_tets": int(len(self.leaf_tets))}
+                "leaf_num_tets": int(len(self.leaf_tets)),
+                "fruit_source": self.fruit_file or "procedural",
+                "fruit_mesh_repairs": list(self.fruit_mesh_repairs)}
 
 
 def SaveGroundTruth(model: PlantModel, folder: str | Path) -> list[str]:
@@ -220,7 +225,8 @@ def _ray_occlusion(fruit: trimesh.Trimesh, leaf: trimesh.Trimesh, others: list,
 
 def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     """Builds the plant described by ``cfg`` (a ``PlantSceneConfig`` with
-    ``kind: procedural``), tuning the leaf's sideways swing so that it hides
+    ``kind: procedural``; the fruit is the procedural pepper or, with
+    ``fruit.mesh_file``, the file's mesh placed the same way), tuning the leaf's sideways swing so that it hides
     ``cfg.occlusion`` of the fruit surface visible from the camera at
     ``p_WC``."""
     p_WC = np.asarray(p_WC, float)
@@ -232,10 +238,17 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     branch = BranchCenterline(base, b.length, b.bend, -e_lat)
 
     # Fruit: hanging beside the branch, axis tilted, peduncle stalk to the branch.
-    shape = PepperShape(size=tuple(fr.size), lobes=fr.lobes, lobe_depth=fr.lobe_depth,
-                        variant=fr.variant, squareness=fr.squareness, shoulder=fr.shoulder,
-                        taper=fr.taper, cone=fr.cone, lobe_phase=np.deg2rad(fr.lobe_phase_deg))
-    pepper = MakePepper(shape)
+    file_fruit = None
+    if fr.mesh_file:
+        from lmap_drake.plants.fruit_mesh import LoadFruitMeshOf
+        file_fruit = LoadFruitMeshOf(fr)
+        pepper = Pepper(mesh=file_fruit.mesh, p_O_peduncle=file_fruit.p_O_peduncle, shape=None)
+    else:
+        shape = PepperShape(size=tuple(fr.size), lobes=fr.lobes, lobe_depth=fr.lobe_depth,
+                            variant=fr.variant, squareness=fr.squareness,
+                            shoulder=fr.shoulder, taper=fr.taper, cone=fr.cone,
+                            lobe_phase=np.deg2rad(fr.lobe_phase_deg))
+        pepper = MakePepper(shape)
     tilt_axis = _rot_about([0, 0, 1], np.deg2rad(fr.tilt_azimuth_deg)) @ d_fwd
     R_WO = _rot_about(tilt_axis, np.deg2rad(fr.tilt_deg)) @ _rot_about(
         [0, 0, 1], np.arctan2(d_fwd[1], d_fwd[0]))
@@ -253,6 +266,10 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     axis = R_WO[:, 2]
     top = center + R_WO @ pepper.p_O_peduncle
     tip = top + axis * fr.peduncle_length
+    peduncle_W = None
+    if file_fruit is not None and file_fruit.peduncle is not None:
+        peduncle_W = file_fruit.peduncle.copy().apply_transform(X_WO)
+        tip = center + R_WO @ file_fruit.p_O_peduncle_tip
     top_W = float(branch[-1, 2])
     if tip[2] + 0.005 > top_W:
         raise PlantGenerationError(
@@ -261,6 +278,7 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
             f"plant_scene.fruit.height_on_branch ({fr.height_on_branch} m) or lengthen "
             f"plant_scene.branch.length ({b.length} m)")
     stalk_end = _branch_point_at_height(branch, tip[2] + 0.005) + e_lat * 0.5 * b.radius
+    stalk_start = top if peduncle_W is None else tip
     phi = np.arctan2(*(pepper.mesh.vertices[pepper.mesh.faces].mean(1)[:, [1, 0]].T))
     stripes = (np.cos(fr.stripes * (phi - 0.3)) > 0.75) if fr.stripes > 0 else \
         np.zeros(len(fruit.faces), bool)
@@ -286,6 +304,8 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     others = [trimesh.creation.cylinder(b.radius, b.length,
                                         transform=trimesh.transformations.translation_matrix(
                                             base + [0, 0, b.length / 2]))]
+    if peduncle_W is not None:
+        others.append(peduncle_W)
 
     def build(swing_deg: float, reach_: float):
         side = 1.0 if cfg.fruit_side >= 0 else -1.0
@@ -349,11 +369,13 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     return PlantModel(
         branch_points_W=branch, branch_radius=b.radius, fruit_mesh_W=fruit,
         fruit_stripe_faces=stripes, X_WO=X_WO, fruit_center_W=center,
-        peduncle_axis_W=axis, peduncle_tip_W=tip, stalk_W=np.array([top, stalk_end]),
+        peduncle_axis_W=axis, peduncle_tip_W=tip, stalk_W=np.array([stalk_start, stalk_end]),
         fruit_volume=float(fruit.volume), leaf_rest_W=V, leaf_tets=tets,
         leaf_uv=nodes[:, :2], leaf_fixed=fixed, leaf_attach_W=attach, leaf_normal_W=normal,
         leaf_midrib_W=midrib, leaf_swing_deg=swing, occlusion_predicted=occ_final,
-        occlusion_requested=target, occlusion_clamped=bool(clamped))
+        occlusion_requested=target, occlusion_clamped=bool(clamped), peduncle_mesh_W=peduncle_W,
+        fruit_file=file_fruit.file if file_fruit else "",
+        fruit_mesh_repairs=list(file_fruit.repairs) if file_fruit else [])
 
 
 def LeafPointAt(model: PlantModel, u: float, v: float) -> np.ndarray:

@@ -105,6 +105,11 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     RegisterLabeledGeometry(plant, branch_body, X,
                             Cylinder(cfg.fruit.peduncle_radius, length + 0.004), "peduncle",
                             cfg.branch.color, EncodeLabel(BRANCH, 0), collision=False)
+    if getattr(model, "peduncle_mesh_W", None) is not None:   # a file fruit's own stalk
+        RegisterLabeledGeometry(plant, branch_body, RigidTransform(),
+                                _ObjMesh(model.peduncle_mesh_W, "peduncle_mesh"),
+                                "peduncle_mesh", cfg.branch.color, EncodeLabel(BRANCH, 0),
+                                collision=False)
 
     fruit = model.fruit_mesh_W
     fruit_ids = []

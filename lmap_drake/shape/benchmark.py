@@ -238,20 +238,24 @@ def SuiteScenarioNames(suite_file) -> list[str]:
 
 
 def MakeSuiteCase(suite_file, scenario_name: str, occluded: bool = True,
-                  noise: float = 0.0005) -> ShapeCase:
+                  noise: float = 0.0005, scenario_text: str = "{}",
+                  case_name: str | None = None) -> ShapeCase:
     """A case from the plant-world suite: ``GeneratePlant`` of the scenario's
-    ``plant_scene`` (kind procedural), camera0's pose and intrinsics, the
-    fruit, branch (+ peduncle stalk, labelled branch) and rest leaf ray-cast
-    as above. ``occluded=False`` removes the leaf."""
+    ``plant_scene`` (kind procedural; ``scenario_text``: YAML overrides, e.g.
+    a ``plant_scene.fruit.mesh_file``), camera0's pose and intrinsics, the
+    fruit, branch (+ peduncle stalk and a file fruit's peduncle mesh,
+    labelled branch) and rest leaf ray-cast as above. ``occluded=False``
+    removes the leaf."""
     import trimesh
-    from lmap_drake.plants.generator import GeneratePlant
     from lmap_drake.scenario import LoadScenario
-    sc = LoadScenario(filename=suite_file, scenario_name=scenario_name)
+    sc = LoadScenario(filename=suite_file, scenario_name=scenario_name,
+                      scenario_text=scenario_text)
     cam = sc.cameras["camera0"]
     X_WC = np.asarray(cam.X_PB.GetDeterministicValue().GetAsMatrix4(), float)
     K = dict(width=cam.width, height=cam.height, fx=cam.focal_x(), fy=cam.focal_y(),
              cx=cam.principal_point()[0], cy=cam.principal_point()[1])
-    model = GeneratePlant(sc.plant_scene, X_WC[:3, 3])
+    from lmap_drake.plants.world import GetPlantModel
+    model = GetPlantModel(sc)        # cached: the two conditions share one plant
     branch = []
     bp = model.branch_points_W
     for i in range(len(bp) - 1):
@@ -261,9 +265,11 @@ def MakeSuiteCase(suite_file, scenario_name: str, occluded: bool = True,
     L = np.linalg.norm(b - a)
     branch.append(_cylinder(a - 0.002 * (b - a) / L, (b - a) / L, L + 0.004,
                             sc.plant_scene.fruit.peduncle_radius, 12))
+    if model.peduncle_mesh_W is not None:     # a file fruit's own stalk, labelled branch
+        branch.append(model.peduncle_mesh_W)
     branch = [trimesh.util.concatenate(branch)]
     leaf = model.LeafSurface() if occluded else None
-    return RenderCase(scenario_name, model.fruit_mesh_W, branch, leaf, X_WC, K,
+    return RenderCase(case_name or scenario_name, model.fruit_mesh_W, branch, leaf, X_WC, K,
                       gt_axis_W=model.peduncle_axis_W, noise=noise,
                       rng=np.random.default_rng(0), source="suite",
                       gt_center_W=model.fruit_center_W)

@@ -1,0 +1,221 @@
+#!/usr/bin/env python
+"""Pepper-like test meshes made by other means than the procedural family
+(``lmap_drake/plants/pepper.py``), for ``scripts/eval_shape.py
+--fruit_mesh_dir`` and ``plant_scene.fruit.mesh_file``:
+
+* ``blob``: a smooth union (soft-min of signed distances) of 3-4 tilted
+  ellipsoidal lobes around the axis, minus a soft stem cavity that is deep and
+  off the axis; the surface is found along each direction of an icosphere by
+  bisection of the implicit function (star-shaped about the centre).
+* ``bent``: a superellipsoid (signed-power map of a sphere) tapered toward the
+  blossom end and bent sideways by x += k z^2 (a bijection, so no
+  self-intersections).
+* ``sculpted``: an icosphere displaced by random Gaussian bumps and dents
+  (lobes, a shoulder, a stem dent), then Taubin-smoothed.
+
+Each fruit gets a curved tube peduncle (``NAME.peduncle.EXT``, 1-8 cm long,
+leaving the fruit 0-60 deg off its axis, capped) unless ``--no_peduncle``.
+Frame: metres, +z = peduncle axis, peduncle at the top. Formats cycle through
+OBJ, PLY and STL. Volumes are printed (about 40-270 cm^3).
+
+  .venv/bin/python scripts/make_test_peppers.py --out out/test_peppers --count 6 --seed 0
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+KINDS = ("blob", "bent", "sculpted")
+FORMATS = ("obj", "ply", "stl")
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _rot_z(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def _radial_surface(f, rmax: float, subdivisions: int = 5) -> trimesh.Trimesh:
+    """The zero set of ``f`` (negative inside, star-shaped about the origin)
+    along each icosphere direction, by bisection in (0, rmax)."""
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    d = _unit(np.asarray(sphere.vertices, float))
+    lo, hi = np.zeros(len(d)), np.full(len(d), rmax)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        inside = f(d * mid[:, None]) < 0
+        lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
+    return trimesh.Trimesh(d * (0.5 * (lo + hi))[:, None], sphere.faces, process=True)
+
+
+def Blob(rng) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Soft union of lobes minus an off-centre stem cavity; (mesh, cavity
+    axis point (x, y))."""
+    R = rng.uniform(0.022, 0.042)                 # lobe ring radius scale
+    H = R * rng.uniform(1.6, 3.0)                 # height
+    n = int(rng.integers(3, 5))
+    phase = rng.uniform(0, 2 * np.pi)
+    lobes = []
+    for i in range(n):
+        a = phase + 2 * np.pi * i / n + rng.uniform(-0.2, 0.2)
+        c = 0.45 * R * np.array([np.cos(a), np.sin(a), rng.uniform(-0.1, 0.1) * H])
+        ax = np.array([0.62 * R, 0.55 * R, 0.5 * H]) * rng.uniform(0.9, 1.1, 3)
+        lobes.append((c, ax, _rot_z(a)))
+    cav_xy = rng.uniform(-0.25, 0.25, 2) * R      # off-centre stem cavity
+    cav_r = R * rng.uniform(0.3, 0.45)
+    cav_c = np.array([cav_xy[0], cav_xy[1], 0.5 * H + cav_r * rng.uniform(0.1, 0.5)])
+
+    def f(p):
+        ds = []
+        for c, ax, Rz in lobes:
+            q = (p - c) @ Rz / ax
+            ds.append((np.linalg.norm(q, axis=1) - 1.0) * ax.min())
+        ds = np.stack(ds)
+        k = 0.008                                   # soft-min width (m)
+        d = -k * np.log(np.sum(np.exp(-ds / k), axis=0))
+        cav = cav_r - np.linalg.norm(p - cav_c, axis=1)
+        kk = 0.004
+        return kk * np.log(np.exp(d / kk) + np.exp(cav / kk))   # soft max: subtract
+    mesh = _radial_surface(f, 2.0 * H)
+    return mesh, cav_xy
+
+
+def Bent(rng) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Tapered, bent superellipsoid; (mesh, stem point (x, y))."""
+    w = rng.uniform(0.04, 0.066)
+    size = np.array([w, w * rng.uniform(0.85, 1.1), w * rng.uniform(0.9, 1.5)])
+    e = rng.uniform(0.55, 0.85)                    # exponent < 1: boxy
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    d = _unit(np.asarray(sphere.vertices, float))
+    v = np.sign(d) * np.abs(d) ** e * (0.5 * size)
+    zn = v[:, 2] / (0.5 * size[2])
+    taper = rng.uniform(0.1, 0.45)
+    v[:, :2] *= (1.0 - taper * 0.5 * (1.0 - zn))[:, None]
+    # shallow stem dent around the axis at the top
+    rho = np.linalg.norm(v[:, :2], axis=1) / (0.5 * w)
+    v[:, 2] -= (zn > 0) * 0.012 * rng.uniform(0.3, 1.0) * np.exp(-(rho / 0.35) ** 2)
+    k = rng.uniform(-4.0, 4.0)                    # bend (1/m)
+    v[:, 0] += k * v[:, 2] ** 2
+    return trimesh.Trimesh(v, sphere.faces, process=True), np.zeros(2)
+
+
+def Sculpted(rng) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Icosphere with random bumps and dents, smoothed; (mesh, stem (x, y))."""
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    d = _unit(np.asarray(sphere.vertices, float))
+    r0 = rng.uniform(0.021, 0.034)
+    scale = np.array([1.0, rng.uniform(0.85, 1.1), rng.uniform(0.9, 1.6)])
+    r = np.ones(len(d))
+    n = int(rng.integers(3, 5))
+    for i in range(n):                              # lobes: bumps around the equator
+        a = 2 * np.pi * i / n + rng.uniform(-0.3, 0.3)
+        c = _unit(np.array([np.cos(a), np.sin(a), rng.uniform(-0.3, 0.2)]))
+        r += rng.uniform(0.08, 0.16) * np.exp(-(np.arccos(np.clip(d @ c, -1, 1)) / 0.6) ** 2)
+    for _ in range(int(rng.integers(3, 7))):        # random small dents and bumps
+        c = _unit(rng.normal(size=3))
+        r += rng.uniform(-0.06, 0.06) * np.exp(-(np.arccos(np.clip(d @ c, -1, 1)) / 0.4) ** 2)
+    stem = _unit(np.array([*rng.uniform(-0.2, 0.2, 2), 1.0]))
+    r -= rng.uniform(0.1, 0.25) * np.exp(-(np.arccos(np.clip(d @ stem, -1, 1)) / 0.3) ** 2)
+    v = d * (r0 * r)[:, None] * scale
+    mesh = trimesh.Trimesh(v, sphere.faces, process=True)
+    trimesh.smoothing.filter_taubin(mesh, iterations=10)
+    return mesh, np.zeros(2)
+
+
+def CurvedTube(p0, angle: float, azimuth: float, length: float, radius: float,
+               ring: int = 12, segments: int = 24) -> trimesh.Trimesh:
+    """A capped tube from ``p0`` starting along +z and bending, as a circular
+    arc, to ``angle`` (rad) off +z toward ``azimuth`` at its end."""
+    s = np.linspace(0.0, length, segments + 1)
+    h = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+    if angle < 1e-6:
+        c = p0 + np.outer(s, [0, 0, 1.0])
+        t = np.tile([0, 0, 1.0], (len(s), 1))
+    else:
+        rc = length / angle
+        th = s / rc
+        c = p0 + np.outer(rc * np.sin(th), [0, 0, 1.0]) + np.outer(rc * (1 - np.cos(th)), h)
+        t = np.outer(np.cos(th), [0, 0, 1.0]) + np.outer(np.sin(th), h)
+    verts, faces = [], []
+    ang = np.linspace(0, 2 * np.pi, ring, endpoint=False)
+    for ci, ti in zip(c, t):
+        u = _unit(np.cross(ti, [0.0, 1.0, 0.0]) if abs(ti[1]) < 0.9 else np.cross(ti, [1.0, 0, 0]))
+        w = np.cross(ti, u)
+        verts.append(ci + radius * (np.outer(np.cos(ang), u) + np.outer(np.sin(ang), w)))
+    V = np.vstack(verts + [c[:1], c[-1:]])
+    nb, nt = len(V) - 2, len(V) - 1
+    for i in range(segments):
+        for j in range(ring):
+            a, b = i * ring + j, i * ring + (j + 1) % ring
+            faces += [[a, b, b + ring], [a, b + ring, a + ring]]
+    for j in range(ring):
+        faces.append([nb, (j + 1) % ring, j])
+        a = segments * ring
+        faces.append([nt, a + j, a + (j + 1) % ring])
+    m = trimesh.Trimesh(V, np.array(faces), process=True)
+    trimesh.repair.fix_normals(m)
+    return m
+
+
+def MakeTestPepper(kind: str, rng, peduncle: bool = True):
+    """(fruit mesh, peduncle mesh or None), metres, +z peduncle axis; the
+    fruit is centred on its volume centroid."""
+    fruit, stem_xy = {"blob": Blob, "bent": Bent, "sculpted": Sculpted}[kind](rng)
+    fruit.apply_translation(-fruit.center_mass)
+    if not peduncle:
+        return fruit, None
+    from lmap_drake.plants.pepper import _RayHitDistance
+    o = np.array([stem_xy[0], stem_xy[1], 0.0])
+    t = _RayHitDistance(fruit, o, np.array([0.0, 0.0, 1.0]))
+    if not np.isfinite(t):
+        o, t = np.zeros(3), _RayHitDistance(fruit, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    base = o + [0, 0, t - 0.004]                       # starts 4 mm inside the fruit
+    ped = CurvedTube(base, np.deg2rad(rng.uniform(0, 60)), rng.uniform(0, 2 * np.pi),
+                     rng.uniform(0.01, 0.08) + 0.004, rng.uniform(0.003, 0.005))
+    return fruit, ped
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True, help="output folder")
+    ap.add_argument("--count", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--no_peduncle", action="store_true")
+    a = ap.parse_args(argv)
+    kinds = a.kinds.split(",")
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    info = {}
+    for i in range(a.count):
+        rng = np.random.default_rng(a.seed * 1000 + i)
+        kind = kinds[i % len(kinds)]
+        ext = FORMATS[i % len(FORMATS)]
+        fruit, ped = MakeTestPepper(kind, rng, not a.no_peduncle)
+        assert fruit.is_watertight and fruit.volume > 0, kind
+        name = f"{kind}_{a.seed:02d}_{i:02d}"
+        fruit.export(out / f"{name}.{ext}")
+        if ped is not None:
+            ped.export(out / f"{name}.peduncle.{ext}")
+        info[name] = {"kind": kind, "volume_cm3": round(float(fruit.volume) * 1e6, 1),
+                      "extents_cm": [round(float(x) * 100, 1) for x in fruit.extents],
+                      "peduncle_length_cm": (round(float(np.linalg.norm(
+                          ped.vertices.max(0) - ped.vertices.min(0))) * 100, 1)
+                          if ped is not None else 0.0)}
+        print(f"{name}.{ext}: {info[name]}", flush=True)
+    (out / "test_peppers.json").write_text(json.dumps(info, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    from lmap_drake.errors import RunMain
+    sys.exit(RunMain(main, prog="make_test_peppers.py", strip_debug=True))

@@ -1,0 +1,53 @@
+"""scripts/eval_shape.py --fruit_mesh_dir: pepper meshes from a folder in the
+suite's scenes, the usual JSON layout plus per-fruit rows (kept cheap: one
+tiny mesh, one scene, 40 iterations)."""
+import json
+import runpy
+
+import numpy as np
+
+from lmap_drake.paths import REPO_ROOT
+
+_MAKER = runpy.run_path(str(REPO_ROOT / "scripts" / "make_test_peppers.py"), run_name="mtp")
+
+
+def test_eval_shape_on_a_folder_of_meshes(tmp_path):
+    d = tmp_path / "peppers"
+    d.mkdir()
+    fruit, ped = _MAKER["MakeTestPepper"]("sculpted", np.random.default_rng(2), True)
+    fruit.export(d / "tiny.ply")
+    ped.export(d / "tiny.peduncle.ply")
+    (d / "notes.txt").write_text("not a mesh")
+    mod = runpy.run_path(str(REPO_ROOT / "scripts" / "eval_shape.py"), run_name="eval_shape")
+    out = tmp_path / "shape.json"
+    assert mod["main"](["--fruit_mesh_dir", str(d), "--out", str(out), "--iterations", "40",
+                        "--scenario_names", "small_leaf_thin_branch_round_red_heavy"]) in (0, None)
+    res = json.loads(out.read_text())
+    assert res["source"] == "suite+files" and res["skipped"] == []
+    assert set(res["fruits"]) == {"tiny"}
+    assert res["fruits"]["tiny"]["peduncle_file"].endswith("tiny.peduncle.ply")
+    assert abs(res["fruits"]["tiny"]["volume_cm3"] - fruit.volume * 1e6) < 0.01 * fruit.volume * 1e6
+    for m in ("supeps", "homa", "ssc"):
+        for cond in ("initial_occlusion", "without_occlusion"):
+            for k in ("chamfer_cm", "volume_err_cm3", "center_err_cm", "angle_err_deg",
+                      "seconds"):
+                assert np.isfinite(res[m][cond][k])
+                assert res["per_fruit"]["tiny"][m][cond][k] == res[m][cond][k]
+    assert {r["fruit"] for r in res["rows"]} == {"tiny"}
+    assert len(res["rows"]) == 6
+    assert "| tiny |" in (tmp_path / "shape.md").read_text()
+
+
+def test_eval_shape_refuses_a_bad_mesh_before_any_work(tmp_path, capsys):
+    import subprocess
+    import sys
+    d = tmp_path / "peppers"
+    d.mkdir()
+    fruit, _ = _MAKER["MakeTestPepper"]("bent", np.random.default_rng(0), False)
+    fruit.apply_scale(1000.0).export(d / "in_mm.stl")
+    r = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "eval_shape.py"),
+                        "--fruit_mesh_dir", str(d), "--out", str(tmp_path / "s.json")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert "in_mm.stl" in r.stderr and "mesh_scale: 0.001" in r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "s.json").exists()
