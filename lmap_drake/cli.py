@@ -4,6 +4,8 @@
                    [--output DIR] [--overwrite] [--hardware] [--plan-only | --dry-run]
                    [--confirm | --no-confirm] [--speed_scale S] [--scripted] [--debug]
     lmap-drake replay RUN_DIR [--scenario_text YAML] [--output DIR] [--overwrite]
+    lmap-drake twin [--scenario_file F] [--scenario_name N] [--host H] [--rate R]
+                    [--output DIR] [--duration S] [--fault K --fault_after_grasp_move D]
     lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
                     [--distances D,..] [--random_seeds K] [--scenario_names A,B]
                     [--workers W] [--output DIR] [--resume] [--debug]
@@ -11,7 +13,8 @@
 
 Exit codes: 0 done (or planned, with --plan-only), 1 error, 2 bad input
 (scenario, weights, calibration, recording, output folder, arguments), 3
-episode aborted / no feasible action / not confirmed, 130 interrupted. Errors are one line on stderr; --debug adds the traceback.
+episode aborted / no feasible action / not confirmed, 130 interrupted. Errors
+are one line on stderr; --debug adds the traceback.
 """
 from __future__ import annotations
 

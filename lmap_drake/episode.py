@@ -208,14 +208,12 @@ class SimWorld:
         """Ground truth: outcome flags (up to the release; the release and
         retreat separately), visibility in the two captured views (what the
         planner saw, and after the action), shape errors."""
-        from lmap_drake.plants.outcome import ShapeErrors, Summarize, VisibilityFraction
+        from lmap_drake.plants.outcome import ShapeErrors, Summarize
         sim = self.sim
         if views and views[0].label is not None:     # what the planner saw
-            sim.Visibility()
-            self.vis_initial = VisibilityFraction(views[0].label, sim._unoccluded)
+            self.vis_initial = sim.Visibility(views[0].label)
         if len(views) >= 2 and views[1].label is not None:
-            sim.Visibility()   # computes the unoccluded pixel count once
-            vis_final = VisibilityFraction(views[1].label, sim._unoccluded)
+            vis_final = sim.Visibility(views[1].label)
         else:
             vis_final = sim.Visibility()
         cut = self.release_sample if self.release_sample is not None else len(sim.samples)
@@ -367,7 +365,8 @@ def DescribePlan(plan) -> str:
            if plan.seen_max and c.seen >= 0 else "n/a")
     e = c.EnergyPerNode()
     return (f"grasp {a.grasp_id} at {np.round(a.p_WG, 3).tolist()} m, pull "
-            f"{a.distance * 100:.0f} cm along {np.round(a.dp_W / max(a.distance, 1e-9), 2).tolist()}"
+            f"{a.distance * 100:.0f} cm along "
+            f"{np.round(a.dp_W / max(a.distance, 1e-9), 2).tolist()}"
             f"; predicted visibility {vis}; predicted energy per node "
             + (f"{e:.2e} m^2" if e is not None else "n/a"))
 
@@ -426,10 +425,10 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
     views = tuple(world.diagram.GetSubsystemByName("view_recorder").GetOutputPort(
         "views").Eval(world.diagram.GetSubsystemByName("view_recorder").GetMyContextFromRoot(
             world.context)))
-    from lmap_drake.systems.view_recorder import _Images
+    from lmap_drake.systems.view_recorder import ViewImages
 
     def images(view):
-        rgb, depth, label = _Images(view)
+        rgb, depth, label = ViewImages(view)
         return {"rgb_image": rgb, "depth_image": depth, "label_image": label}
     current = world.CurrentImages()
     before = images(views[0]) if views else current
@@ -579,11 +578,12 @@ def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None
     """The full LMAP loop on the simulated station (the FEM plant world) or
     the hardware station (``clients`` injected, e.g. the project's fakes, or
     connected here), paced at ``realtime_rate`` station seconds per wall
-    second (None: 1, or the digital twin's pace). Writes ``scenario.yaml`` (as run: on hardware with the
-    device's intrinsics and the calibrated pose), ``episode.json``,
-    ``plan.json``, ``candidates.json``, ``recording/``, images, figures,
-    ``diagram.svg``, and in simulation the ground truth, ``outcome.json`` and
-    ``scene.html``. Returns (files, status: done | planned | aborted ...)."""
+    second (None: 1, or the digital twin's pace). Writes ``scenario.yaml`` (as run:
+    on hardware with the device's intrinsics and the calibrated pose),
+    ``episode.json``, ``plan.json``, ``candidates.json``, ``recording/``, images,
+    figures, ``diagram.svg``, and in simulation the ground truth, ``outcome.json``
+    and ``scene.html``. Returns (files, status: done | planned | aborted ...).
+    """
     from lmap_drake.diagram import WriteDiagramSvg
 
     out = Path(out)

@@ -124,7 +124,7 @@ class PlantWorldSim:
         self.scene_graph = self.station.GetSubsystemByName("scene_graph")
         self.deformable = self.plant.deformable_model()
         self.leaf_id = self.deformable.GetBodyByName("leaf").body_id()
-        self._fix_inputs()
+        self.ApplyCommands()
         self.simulator.Initialize()
 
     @staticmethod
@@ -144,7 +144,9 @@ class PlantWorldSim:
         """True when this object commands the station (no controller)."""
         return self.diagram is self.station
 
-    def _fix_inputs(self) -> None:
+    def ApplyCommands(self) -> None:
+        """Sets the station's inputs to ``q_cmd`` and ``width_cmd`` (when
+        this object commands the station)."""
         if self.drives_ports:
             self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
             self.station.GetInputPort("gripper.position").FixValue(self.context,
@@ -193,10 +195,13 @@ class PlantWorldSim:
             out[name] = copy_
         return out
 
-    def Visibility(self) -> float:
+    def Visibility(self, label=None) -> float:
+        """The fruit's visible fraction in camera0 now, or in ``label`` (a
+        label image or array, e.g. a captured view's)."""
         if self._unoccluded is None:
             self._unoccluded = UnoccludedFruitPixels(self.scenario)
-        label = self.station.GetOutputPort("camera0.label_image").Eval(self.station_context)
+        if label is None:
+            label = self.station.GetOutputPort("camera0.label_image").Eval(self.station_context)
         return VisibilityFraction(label, self._unoccluded)
 
     def Sample(self) -> OutcomeSample:

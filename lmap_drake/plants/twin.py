@@ -48,7 +48,7 @@ class TwinOptions:
     rate: float = 0.25                # simulated s per wall s
     frame_period: float = 0.1         # re-render at most every this many simulated s
     fault: str = "protective_stop"       # protective_stop | emergency_stop | drop
-    fault_after_grasp_move: float = 0.0  # > 0: inject ``fault`` once the held leaf moved this far (m)
+    fault_after_grasp_move: float = 0.0  # > 0: inject ``fault`` once the held leaf moved (m)
     # The plant settles to this time (when a simulated episode captures its
     # first view), then the clock waits for the arm's first motion: the
     # frames the planner sees are those of the simulated run.
@@ -69,7 +69,7 @@ class TwinGripper:
                                     "OBJ", "STA", "FLT", "MOD")}
         pos = OpeningToPos(opening, config)
         self.regs.update(POS=pos, PRE=pos, OBJ=3)
-        self._moving = False
+        self._still_since = None
 
     def Set(self, values: dict) -> bool:
         with self.lock:
@@ -98,15 +98,23 @@ class TwinGripper:
                 return None
             return PosToOpening(self.regs["PRE"], self.config)
 
-    def SetMeasured(self, opening: float, rate: float) -> None:
+    def SetMeasured(self, opening: float, rate: float, t: float) -> None:
+        """The simulated fingers at simulated time ``t``: an object is
+        reported once they stood still short of the request for 0.1 s (not
+        in the instant a new request arrives, before they move)."""
         from lmap_drake.station.hardware.robotiq_client import OpeningToPos
         with self.lock:
             pos = OpeningToPos(float(np.clip(opening, 0.0, 0.085)), self.config)
             self.regs["POS"] = pos
+            still_short = abs(pos - self.regs["PRE"]) > 1 and abs(rate) < 1e-3
+            if not still_short:
+                self._still_since = None
+            elif self._still_since is None:
+                self._still_since = t
             if abs(pos - self.regs["PRE"]) <= 1:
                 self.regs["OBJ"] = 3
-            elif abs(rate) < 1e-3:
-                self.regs["OBJ"] = 2 if pos < self.regs["PRE"] else 1   # stalled short
+            elif still_short and t - self._still_since >= 0.1 - 1e-9:
+                self.regs["OBJ"] = 2 if pos < self.regs["PRE"] else 1   # 2: stalled closing
             else:
                 self.regs["OBJ"] = 0
 
@@ -237,10 +245,8 @@ class Twin:
                     rgba = np.array(images["rgb_image"].data, np.uint8)
                     depth = np.array(images["depth_image"].data[..., 0], np.float32)
                     self._frame = (t, rgba, depth)
-                    from lmap_drake.plants.outcome import VisibilityFraction
-                    self.world.Visibility()
-                    self.frames.append({"t": t, "visibility": VisibilityFraction(
-                        images["label_image"], self.world._unoccluded)})
+                    self.frames.append({"t": t, "visibility": self.world.Visibility(
+                        images["label_image"])})
                 box["frame"] = self._frame
             except Exception as err:  # noqa: BLE001 - reported to the camera client
                 box["error"] = f"{type(err).__name__}: {err}"
@@ -273,11 +279,11 @@ class Twin:
             opening = self.gripper.RequestedOpening()
             if opening is not None:
                 w.width_cmd = float(opening)
-            w._fix_inputs()
+            w.ApplyCommands()
             w.AdvanceTo(w.time + step)
             width = w.GripperWidth()
             rate = (width - last_width) / step
-            self.gripper.SetMeasured(width, rate)
+            self.gripper.SetMeasured(width, rate, w.time)
             last_width = width
             if not self.trace or w.time - self.trace[-1]["t"] >= 0.1 - 1e-9:
                 self.trace.append({"t": w.time, "q_command": w.q_cmd.tolist(),
@@ -312,9 +318,9 @@ class Twin:
         elif w.grasp_state is not None and w.width_cmd > width + 0.002:
             self.release_sample = len(w.samples)
             self.vis_at_release = w.Visibility()
-            w._fix_inputs()
+            w.ApplyCommands()
             w.Release()
-            w._fix_inputs()
+            w.ApplyCommands()
             self.events.append({"t": w.time, "event": "release"})
             self.progress(f"twin: leaf released at t = {w.time:.2f} s")
         d, fault = self.options.fault_after_grasp_move, self.options.fault

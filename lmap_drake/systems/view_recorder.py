@@ -34,7 +34,9 @@ from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 from lmap_drake.perception.recording import CapturedView, ViewLog
 
 
-def _Images(view: CapturedView | None):
+def ViewImages(view: CapturedView | None):
+    """(ImageRgba8U, ImageDepth32F, ImageLabel16I) of a captured view (empty
+    images for None; labels all ``kEmpty`` when the view has none)."""
     if view is None:
         return ImageRgba8U(), ImageDepth32F(), ImageLabel16I()
     h, w = view.depth.shape
@@ -75,7 +77,7 @@ class _ViewOutputs(LeafSystem):
         view = log[-1] if log else None
         cached = getattr(self, "_cache", None)
         if cached is None or cached[0] is not view:   # keeps the view alive: `is` is safe
-            self._cache = cached = (view, _Images(view))
+            self._cache = cached = (view, ViewImages(view))
         return cached[1]
 
     def _QDeps(self, log_ticket):
