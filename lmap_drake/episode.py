@@ -189,7 +189,7 @@ class SimWorld:
                 return str(err)
             controller = self.diagram.GetSubsystemByName("arm_controller")
             controller.AcknowledgeGrasp(controller.GetMyContextFromRoot(self.context))
-        if st.mode in ("release", "retreat", "done") and self.sim.grasp_state is not None:
+        if st.released and self.sim.grasp_state is not None:
             self.release_sample = len(self.sim.samples)
             self.sim.Release()
             self.progress("released the leaf")

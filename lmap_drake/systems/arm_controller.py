@@ -5,6 +5,10 @@ Drake LeafSystem, the same on the simulated and the hardware station.
     approach -> close_gripper -> grasp_wait -> pull -> hold -> observe ->
     release -> retreat -> done            (or planned, or aborted)
 
+Release: the arm carries the held leaf back along the pull to where it was
+grasped, then the gripper opens (no spring-back); retreat: the approach in
+reverse (grasp -> pre-grasp -> ready -> via), then the start pose.
+
 Input ports:
 
 - ``plan`` (abstract ``PlanResult``): evaluated once, in ``plan_requested``
@@ -112,6 +116,9 @@ class ControllerStatus:
     failed_stage: str = ""              # set when a stage raised (status stage_error)
     pregrasp_path: list = dc.field(default_factory=list)   # joint waypoints to the pre-grasp
     pregrasp_opening: float = 0.0
+    grasp_path: list = dc.field(default_factory=list)       # pre-grasp -> grasp joints
+    released: bool = False              # the gripper was told to let the leaf go
+    t_released: float = 0.0
     grip_history: list = dc.field(default_factory=list)   # (t, opening) while closing
 
     def __deepcopy__(self, memo):
@@ -388,13 +395,18 @@ class ArmController(LeafSystem):
                     self._enter(st, "done", t, "action executed; shape re-estimated on the "
                                 "fused views")
                     return
-                c = st.plan.chosen
-                st.gripper_cmd = (c.approach.opening if c.approach is not None
-                                  and c.approach.opening else self._pregrasp_opening)
+                # Back along the pull, still holding, so the leaf returns to
+                # rest in the gripper instead of springing back when let go.
+                back = st.pull_path[::-1][1:] + [st.grasp_path[-1]]
+                self._start_path(st, t, back, 0.3, self._pull_duration(st))
                 self._enter(st, "release", t, "shape re-estimated on the fused views; "
-                            "releasing the leaf")
+                            "returning the leaf, then releasing it")
         elif mode == "release":
-            if t - st.t_mode >= self._release_time / self._speed_scale:
+            if not st.released and self._traj_done(st, t):
+                st.trajectory = None
+                st.gripper_cmd = st.pregrasp_opening
+                st.released, st.t_released = True, t
+            elif st.released and t - st.t_released >= self._release_time / self._speed_scale:
                 self._Retreat(st, t)
         elif mode == "retreat":
             if self._traj_done(st, t):
@@ -449,6 +461,7 @@ class ArmController(LeafSystem):
                                               self._pregrasp_opening)
         st.pull_path = PlanPull(self._robot, X_WT, c.action.dp_W, approach.to_grasp[-1])
         st.segments = [approach.to_grasp]
+        st.grasp_path = list(approach.to_grasp)
         st.pregrasp_path = [approach.via] + approach.to_ready + approach.to_pregrasp
         st.pregrasp_opening = approach.opening or self._pregrasp_opening
         # The whole motion is checked before anything moves (timing does not
@@ -473,11 +486,10 @@ class ArmController(LeafSystem):
         self._enter(st, "pregrasp", t, message)
 
     def _Retreat(self, st: ControllerStatus, t: float) -> None:
-        """Straight back out along the approach axis (TCP -z) by the
-        pre-grasp distance, then a joint move to the episode's start pose."""
-        X_WT = self._robot.TcpPose(st.q_hold)
-        back = -self._scenario.planner.pregrasp_distance * X_WT.rotation().col(2)
-        path = PlanPull(self._robot, X_WT, back, st.q_hold)
-        st.segments = [([self._q_start.copy()], 0.5)]
-        self._start_path(st, t, path, 0.15)
+        """The approach in reverse (all of it checked at planning time):
+        back out to the pre-grasp pose, through the ready and via poses,
+        then the joint move to the episode's start pose."""
+        out = st.grasp_path[::-1][1:] + [st.pregrasp_path[-1]]
+        st.segments = [(st.pregrasp_path[::-1][1:], 0.5), ([self._q_start.copy()], 0.5)]
+        self._start_path(st, t, out, 0.15)
         self._enter(st, "retreat", t)
