@@ -193,6 +193,7 @@ class Twin:
         self.release_sample = None
         self.vis_at_release = None
         self._grasp_tcp = None
+        self._held_moved, self.vis_held = 0.0, None
         self._stall_since = None
         self._fault_t = None
         self.fault_stop: dict = {}
@@ -245,8 +246,13 @@ class Twin:
                     rgba = np.array(images["rgb_image"].data, np.uint8)
                     depth = np.array(images["depth_image"].data[..., 0], np.float32)
                     self._frame = (t, rgba, depth)
-                    self.frames.append({"t": t, "visibility": self.world.Visibility(
-                        images["label_image"])})
+                    vis = self.world.Visibility(images["label_image"])
+                    self.frames.append({"t": t, "visibility": vis})
+                    if self.world.grasp_state is not None:     # the held leaf's farthest view
+                        moved = float(np.linalg.norm(self.world.X_WT().translation()
+                                                     - self._grasp_tcp))
+                        if moved >= self._held_moved - 1e-4:
+                            self._held_moved, self.vis_held = moved, vis
                 box["frame"] = self._frame
             except Exception as err:  # noqa: BLE001 - reported to the camera client
                 box["error"] = f"{type(err).__name__}: {err}"
@@ -357,7 +363,10 @@ class Twin:
         out.mkdir(parents=True, exist_ok=True)
         w, cfg = self.world, self.scenario.plant_scene.outcome
         cut = self.release_sample if self.release_sample is not None else len(w.samples)
-        vis_final = self.vis_at_release if self.vis_at_release is not None else w.Visibility()
+        # the final visibility: in the frame where the held leaf was moved
+        # farthest (the episode observes there, at the end of the pull)
+        vis_final = next(v for v in (self.vis_held, self.vis_at_release, w.Visibility())
+                         if v is not None)
         outcome = Summarize(w.samples[:cut], cfg, self.vis_initial, vis_final).to_dict()
         if self.release_sample is not None:
             after = Summarize(w.samples[cut:], cfg, vis_final, w.Visibility()).to_dict()
