@@ -100,8 +100,8 @@ from typing import Callable
 
 import numpy as np
 
-from lmap_drake.station.robot import (UR5_DH_A, UR5_DH_ALPHA, UR5_DH_D, UR5_VELOCITY_LIMIT,
-                                      Ur5DhForwardKinematics)
+from lmap_drake.station.robot import (UR5_VELOCITY_LIMIT, Ur5DhForwardKinematics,
+                                      Ur5DhFrames)
 
 LOG = logging.getLogger("lmap_drake.ur_emulator")
 
@@ -255,21 +255,6 @@ def TransformToPose(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], RotationToRotvec(T[:3, :3])])
 
 
-def _DhFrames(q) -> list[np.ndarray]:
-    """Base-frame transforms of DH frames 0..6 of the UR5 (standard DH, the
-    same parameters as ``Ur5DhForwardKinematics``)."""
-    frames = [np.eye(4)]
-    for i in range(6):
-        ct, st = math.cos(q[i]), math.sin(q[i])
-        ca, sa = math.cos(UR5_DH_ALPHA[i]), math.sin(UR5_DH_ALPHA[i])
-        A = np.array([[ct, -st * ca, st * sa, UR5_DH_A[i] * ct],
-                      [st, ct * ca, -ct * sa, UR5_DH_A[i] * st],
-                      [0.0, sa, ca, UR5_DH_D[i]],
-                      [0.0, 0.0, 0.0, 1.0]])
-        frames.append(frames[-1] @ A)
-    return frames
-
-
 def TcpTransform(q, tcp_offset=np.zeros(6)) -> np.ndarray:
     """Base-frame transform of the TCP: UR5 DH flange pose times the TCP
     offset (a UR pose in the flange frame)."""
@@ -278,7 +263,7 @@ def TcpTransform(q, tcp_offset=np.zeros(6)) -> np.ndarray:
 
 def TcpJacobian(q, tcp_offset=np.zeros(6)) -> np.ndarray:
     """6x6 geometric Jacobian of the TCP (linear rows first), base frame."""
-    frames = _DhFrames(q)
+    frames = Ur5DhFrames(q)
     p_tcp = (frames[6] @ PoseToTransform(tcp_offset))[:3, 3]
     J = np.zeros((6, 6))
     for i in range(6):
@@ -980,7 +965,7 @@ class UrEmulator:
         T = TcpTransform(arm.q, arm.tcp_offset)
         T_ref = TcpTransform(arm.q_ref, arm.tcp_offset)
         tcp_speed = TcpJacobian(arm.q, arm.tcp_offset) @ arm.qd
-        frames = _DhFrames(arm.q)
+        frames = Ur5DhFrames(arm.q)
         joint_mode = JOINT_MODE_RUNNING if self.powered else JOINT_MODE_POWER_OFF
         snap = {
             "timestamp": now - self._t_start,
