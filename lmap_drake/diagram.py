@@ -3,6 +3,7 @@
     station -> ViewRecorder -> Perception -> ShapeCompletion -> ActionCandidates
             -> DeformationPrediction -> ActionSelection -> ArmController -> station
     Perception (fused views) -> ShapeCompletion (re-estimation) -> ArmController
+    ArmController (status) + re-estimation -> ContinuationPlanning -> ArmController
 
 and the same planning stages on recorded views (``MakeReplayDiagram``).
 
@@ -117,6 +118,14 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station:
     b.Connect(controller.GetOutputPort("gripper.position"),
               station.GetInputPort("gripper.position"))
     b.Connect(controller.GetOutputPort("capture"), views.GetInputPort("capture"))
+    from lmap_drake.systems.planning import ContinuationPlanning
+    replan = b.AddNamedSystem("continuation_planning", ContinuationPlanning(
+        scenario, stages["action_candidates"]))
+    b.Connect(controller.GetOutputPort("status"), replan.GetInputPort("status"))
+    b.Connect(stages["shape_reestimation"].GetOutputPort("scene_estimate"),
+              replan.GetInputPort("scene_estimate"))
+    b.Connect(views.GetOutputPort("ur5.position"), replan.GetInputPort("ur5.position"))
+    b.Connect(replan.GetOutputPort("plan"), controller.GetInputPort("continuation"))
     diagram = b.Build()
     diagram.set_name("lmap")
     return diagram

@@ -212,8 +212,8 @@ class SimWorld:
         sim = self.sim
         if views and views[0].label is not None:     # what the planner saw
             self.vis_initial = sim.Visibility(views[0].label)
-        if len(views) >= 2 and views[1].label is not None:
-            vis_final = sim.Visibility(views[1].label)
+        if len(views) >= 2 and views[-1].label is not None:   # after the last motion
+            vis_final = sim.Visibility(views[-1].label)
         else:
             vis_final = sim.Visibility()
         cut = self.release_sample if self.release_sample is not None else len(sim.samples)
@@ -364,9 +364,11 @@ def DescribePlan(plan) -> str:
     vis = (f"{c.seen / plan.seen_max:.2f} (from {plan.seen_init / plan.seen_max:.2f})"
            if plan.seen_max and c.seen >= 0 else "n/a")
     e = c.EnergyPerNode()
-    return (f"grasp {a.grasp_id} at {np.round(a.p_WG, 3).tolist()} m, pull "
-            f"{a.distance * 100:.0f} cm along "
-            f"{np.round(a.dp_W / max(a.distance, 1e-9), 2).tolist()}"
+    how = (f"pull {a.distance * 100:.0f} cm along "
+           f"{np.round(a.dp_W / max(a.distance, 1e-9), 2).tolist()}" if a.family == "pull" else
+           f"{a.Describe()} about {np.round(a.axis_W, 2).tolist()} through the estimated "
+           f"petiole attachment {np.round(a.pivot_W, 3).tolist()} m")
+    return (f"grasp {a.grasp_id} at {np.round(a.p_WG, 3).tolist()} m, {how}"
             f"; predicted visibility {vis}; predicted energy per node "
             + (f"{e:.2e} m^2" if e is not None else "n/a"))
 
@@ -399,7 +401,8 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
             if st.finished:
                 break
             if st.mode == "confirm_wait" and st.confirmed is None:
-                accepted, note = confirm(st.plan) if confirm is not None else (
+                asked = st.continuations[-1] if st.pending_motion is not None else st.plan
+                accepted, note = confirm(asked) if confirm is not None else (
                     False, "no operator to confirm")
                 c.Confirm(cctx, accepted, note)
                 world.Pause()
@@ -432,7 +435,7 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
         return {"rgb_image": rgb, "depth_image": depth, "label_image": label}
     current = world.CurrentImages()
     before = images(views[0]) if views else current
-    after = images(views[1]) if len(views) >= 2 else current
+    after = images(views[-1]) if len(views) >= 2 else current
     plan = st.plan
     chosen = plan.chosen.Row() if plan is not None and plan.chosen is not None else None
     record = {
@@ -451,6 +454,12 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
         "failed_stage": "diagram" if error.startswith("stage_error") else (
             st.failed_stage or None),
         "chosen_action": chosen,
+        # Every executed motion: the plan's action, then the continuations
+        # planned from the held leaf (``planner.max_replans``).
+        "motions": [dict(p.chosen.Row(), predicted_visibility=(
+            p.chosen.seen / p.seen_max if p.seen_max and p.chosen.seen >= 0 else None))
+            for p in st.plans if p.chosen is not None][:len(st.motion_paths)],
+        "replans": list(st.replan_log),
         # The planner's own visibility model (voxels of the estimated fruit):
         # seen initially, at most (fruit alone) and after the chosen action.
         "predicted_visibility": None if plan is None or not plan.seen_max else {
@@ -535,6 +544,9 @@ def SaveEpisode(result: EpisodeResult, out: Path, clients=None) -> list[str]:
     if plan is not None:
         plan.SaveJson(out / "candidates.json")
         files.append("candidates.json")
+    for k, cont in enumerate(result.status.continuations, start=1):
+        cont.SaveJson(out / f"continuation_{k}.json")      # planned from the held leaf
+        files.append(f"continuation_{k}.json")
     camera, X_WC = RecordingCamera(world.scenario, clients)
     files += SaveRecording(out, result.views, camera, X_WC,
                            "hardware" if world.hardware else "simulation")

@@ -421,6 +421,7 @@ class DeformationConfig:
     arap_method: str = "lbfgs"
     leaf_branch_edge_radius: float = 0.016
     leaf_branch_weight: float = 100.0
+    branch_edge_weight: float = 1.0
     max_grasp_distance: float = 0.02
     handle_fallback_neighbors: int = 3
     interpolation_neighbors: int = 8
@@ -451,7 +452,30 @@ class PlannerConfig:
     moves, approach, pull, release, retreat); on hardware the joint speed is
     also bounded by ``hardware.ur.joint_speed_limit``. ``release_and_retreat``
     ends the episode by opening the gripper and backing out to the start
-    pose (false: the episode ends holding the leaf after the re-estimation)."""
+    pose (false: the episode ends holding the leaf after the re-estimation).
+
+    ``action_families``: 'pull' (the paper's straight pulls: ``distances``
+    along the ``num_directions`` fixed directions) and 'arc' (ours: the
+    grasped leaf swung about its estimated petiole attachment by each of
+    ``arc_angles_deg`` about ``num_arc_axes`` axes perpendicular to the
+    attachment-grasp line, the gripper turning with it; direction ids
+    100 + axis). ``force_action`` names an arc by its chord (m).
+
+    ``max_replans``: after the action and the re-estimation, while the
+    fruit is predicted less than ``early_stop_fraction`` visible, plan a
+    further motion from the held leaf (its deformation predicted from the
+    leaf as now observed) up to this many times; each is executed, held and
+    observed like the first. The leaf is carried back along all of them
+    before it is released.
+
+    ``hinge_bending_weight`` (m^2 per rad^2 per leaf node): the petiole's
+    bending at its attachment, added to every action's predicted energy as
+    weight * theta^2, theta the turn of the grasp point about the estimated
+    attachment (``planning.lmap.PetioleBendingEnergy``; 0 = the ARAP energy
+    alone, as in the paper). Chosen on two suite scenes with
+    ``scripts/eval_hazard_prediction.py`` (it maximises the Spearman rank
+    correlation of the predicted energy with the FEM petiole force over
+    pulls and arcs together) and checked on two others."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -472,6 +496,11 @@ class PlannerConfig:
     method: str = "lmap"  # lmap | random | upward | min_overlap
     speed_scale: float = 1.0
     release_and_retreat: bool = True
+    action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc"])
+    arc_angles_deg: list[float] = dc.field(default_factory=lambda: [15.0, 30.0, 45.0, 60.0])
+    num_arc_axes: int = 8
+    max_replans: int = 1
+    hinge_bending_weight: float = 3.0e-7
 
 
 @dc.dataclass
@@ -818,6 +847,10 @@ _RULES = {
     "planner.energy_weight": ">=0",
     "planner.max_energy_per_node": ">=0",
     "planner.speed_scale": "(0,1]",
+    "planner.arc_angles_deg": "+x>0",
+    "planner.num_arc_axes": ">=1",
+    "planner.max_replans": ">=0",
+    "planner.hinge_bending_weight": ">=0",
 }
 _ENUMS = {
     "plant_scene.kind": ("placeholder", "procedural"),
@@ -994,6 +1027,11 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
          "needs plant_scene.kind: procedural")
     need(s.shape.weights_file or s.shape.method == "supeps", "shape.weights_file",
          "is empty; the ssc and homa methods need the DeepSDF weights")
+    fams = list(s.planner.action_families)
+    need(bool(fams) and all(f in ("pull", "arc") for f in fams) and len(set(fams)) == len(fams),
+         "planner.action_families", f"must be a non-empty list of 'pull' and/or 'arc', got {fams}")
+    need(all(0 < a < 180 for a in s.planner.arc_angles_deg), "planner.arc_angles_deg",
+         f"must be angles in (0, 180) degrees, got {list(s.planner.arc_angles_deg)}")
     fa = s.planner.force_action
     need(len(fa) in (0, 3) and (not fa or (float(fa[0]).is_integer() and
                                            float(fa[1]).is_integer() and fa[2] > 0)),

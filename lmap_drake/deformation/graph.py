@@ -150,7 +150,7 @@ def BuildLeafGraph(leaf_points_W: np.ndarray, branch_points_W: np.ndarray,
     w_lb = np.full(len(lb), config.leaf_branch_weight)
     bb = fixed_tree.query_pairs(config.edge_radius, output_type="ndarray").astype(np.int64)
     bb += n_leaf
-    w_bb = np.full(len(bb), w_none)
+    w_bb = np.full(len(bb), config.branch_edge_weight)
     edges = np.vstack([ll, lb, bb])
     weights = np.concatenate([w_ll, w_lb, w_bb]).astype(float)
     return LeafGraph(nodes_W=np.vstack([leaf_nodes, fixed]), num_leaf=n_leaf, vein=vein,

@@ -59,13 +59,23 @@ def PrepareGrasp(leaf_graph: LeafGraph, p_WG: np.ndarray, R_WG: np.ndarray,
     return GraspSolution(g, problem, interp)
 
 
+def HandleDisplacements(handle_W: np.ndarray, actions: list[Action]) -> np.ndarray:
+    """(len(actions), h, 3): each handle node's displacement (m) when the
+    gripper moves rigidly from (p_WG, R_WG) to (p_WG + dp_W, R_delta R_WG)."""
+    out = np.empty((len(actions),) + np.shape(handle_W))
+    for i, a in enumerate(actions):
+        rel = handle_W - a.p_WG
+        out[i] = a.p_WG + a.dp_W + rel @ a.R_delta.T - handle_W
+    return out
+
+
 def SolveActions(prep: GraspSolution, actions: list[Action], config: DeformationConfig):
     """``ArapResult`` of all ``actions`` (sharing ``prep``'s grasp), solved
-    in one batch: fixed nodes stay, handle nodes move by each action's dp_W."""
+    in one batch: fixed nodes stay, handle nodes move rigidly with the
+    gripper (``HandleDisplacements``)."""
     g = prep.graph
-    dp = np.array([a.dp_W for a in actions]).reshape(len(actions), 1, 3)
     u_c = np.zeros((len(actions), g.num_constrained, 3))
-    u_c[:, g.num_fixed:] = dp
+    u_c[:, g.num_fixed:] = HandleDisplacements(g.nodes_W[g.num_free + g.num_fixed:], actions)
     return prep.problem.Solve(u_c, config.max_iterations, config.relative_tolerance,
                               method=config.arap_method)
 

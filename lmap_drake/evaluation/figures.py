@@ -108,9 +108,11 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
         c = plan.chosen
         if c.deformed_leaf_W is not None:
             ax.scatter(*c.deformed_leaf_W.T, s=1, c="lime", label="predicted leaf")
-        p, dp = c.action.p_WG, c.action.dp_W
-        ax.quiver(*p, *dp, color="blue", linewidth=2, label="pull")
-        ax.set_title(f"chosen action: {c.action.distance * 100:.0f} cm, "
+        path = np.vstack([c.action.p_WG] + [p for p, _ in c.action.Poses(0.01)])
+        ax.plot(*path[:-1].T, color="blue", linewidth=2)
+        ax.quiver(*path[-2], *(path[-1] - path[-2]), color="blue", linewidth=2,
+                  label=c.action.family)
+        ax.set_title(f"chosen action: {c.action.Describe()}, "
                      f"E={c.energy:.2e}, N_vis={c.n_vis}")
     ax.legend(loc="upper left", fontsize=7)
     _EqualAxes(ax)
@@ -182,11 +184,12 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
         if c.deformed_leaf_W is not None:
             dots(c.deformed_leaf_W, (60, 255, 60), max(1, len(c.deformed_leaf_W) // 3000))
         a = c.action
-        (u0, v0), (u1, v1) = _Project(np.vstack([a.p_WG, a.p_WG + a.dp_W]), K, X_WC)
-        if np.all(np.isfinite([u0, v0, u1, v1])):
-            draw.line([u0, v0, u1, v1], fill=(0, 120, 255), width=3)
+        uv = _Project(np.vstack([a.p_WG] + [p for p, _ in a.Poses(0.005)]), K, X_WC)
+        (u0, v0), (u1, v1) = uv[0], uv[-1]
+        if np.all(np.isfinite(uv)):
+            draw.line([tuple(x) for x in uv], fill=(0, 120, 255), width=3)
             draw.ellipse([u0 - 5, v0 - 5, u0 + 5, v0 + 5], outline=(0, 120, 255), width=2)
-            d = np.array([u1 - u0, v1 - v0])
+            d = uv[-1] - uv[max(0, len(uv) - 4)]
             if np.linalg.norm(d) > 1:
                 d /= np.linalg.norm(d)
                 n = np.array([-d[1], d[0]])
@@ -196,13 +199,13 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
         e = c.EnergyPerNode()
         vis = (f"{plan.seen_init / plan.seen_max:.2f} -> {c.seen / plan.seen_max:.2f}"
                if plan.seen_max and c.seen >= 0 else "n/a")
-        lines += [f"grasp {a.grasp_id}, pull {a.distance * 100:.0f} cm",
+        lines += [f"grasp {a.grasp_id}, {a.Describe()}",
                   f"predicted visibility {vis}",
                   "predicted energy/node " + (f"{e:.2e} m^2" if e is not None else "n/a")]
     else:
         lines.append(plan.message[:90])
     legend = [("observed leaf", (255, 225, 0)), ("predicted leaf", (60, 255, 60)),
-              ("fruit estimate", (255, 0, 200)), ("grasp + pull", (0, 120, 255))]
+              ("fruit estimate", (255, 0, 200)), ("grasp + motion", (0, 120, 255))]
     y = 4
     for text, color in [(t, (255, 255, 255)) for t in lines] + legend:
         draw.rectangle([4, y, 4 + 7 * len(text) + 6, y + 13], fill=(0, 0, 0))

@@ -31,6 +31,7 @@ STAGES = {
     "deformation_simulation": ("deformation_s",),
     "visibility_checking": ("visibility_s",),
     "reestimation": ("reestimation_s",),
+    "replanning": ("replanning_s",),
 }
 VISIBILITY_SUCCESS = 0.95
 
@@ -220,7 +221,32 @@ def Table2Row(records: list[dict]) -> dict:
     row["visibility_initial_mean"], row["visibility_initial_std"] = v0["mean"], v0["std"]
     row["move_distance_cm_mean"] = _mean_std(dist)["mean"]
     row["perception"] = PerceptionLabel(ok)
+    row.update(MotionSummary(ok))
     return row
+
+
+def MotionSummary(records: list[dict]) -> dict:
+    """``motions_mean``: executed motions per episode (the action and its
+    continuations; 0 when nothing moved); ``action_families``: how many
+    executed motions were of each family ('pull', 'arc'). Records made
+    before motions were recorded count their chosen action as one pull."""
+    counts: dict[str, int] = {}
+    per_episode = []
+    for r in records:
+        motions = r.get("motions")
+        if motions is None:
+            ca = r.get("chosen_action")
+            motions = [dict(ca, family=ca.get("family", "pull"))] if ca else []
+        per_episode.append(len(motions))
+        for m in motions:
+            counts[m.get("family", "pull")] = counts.get(m.get("family", "pull"), 0) + 1
+    return {"motions_mean": _mean_std(per_episode)["mean"],
+            "action_families": dict(sorted(counts.items()))}
+
+
+def _Families(r: dict) -> str:
+    fam = r.get("action_families") or {}
+    return ", ".join(f"{k} {v}" for k, v in fam.items()) or "-"
 
 
 def PerceptionLabel(records) -> str:
@@ -315,6 +341,7 @@ def Table5Row(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dic
         else:
             row["success"] += 1
     row["success_rate"] = row["success"] / row["n"] if row["n"] else None
+    row.update(MotionSummary(ok))
     return row
 
 
@@ -351,8 +378,9 @@ def Markdown(tables: dict, title: str = "lmap-drake eval", notes: str = "") -> s
         L += [notes, ""]
     L += ["## Table II analogue: action planning (safety, visibility)", "",
           "| Method | Move distance | Safe | Plant hazard | Fruit collision | Leaf damage "
-          "| Visibility fraction | Initial visibility | Errors | Perception (segmenter / camera) |",
-          "|---|---|---|---|---|---|---|---|---|---|"]
+          "| Visibility fraction | Initial visibility | Errors | Motions / episode "
+          "| Motion families | Perception (segmenter / camera) |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for m, rows in t2.items():
         if m == "initial_visibility":
             continue
@@ -365,6 +393,7 @@ def Markdown(tables: dict, title: str = "lmap-drake eval", notes: str = "") -> s
                      f"{_f(r['visibility_mean'])} ± {_f(r['visibility_std'])} | "
                      f"{_f(r['visibility_initial_mean'])} ± "
                      f"{_f(r['visibility_initial_std'])} | {r['n_errors']} | "
+                     f"{_f(r.get('motions_mean'))} | {_Families(r)} | "
                      f"{r.get('perception', '-')} |")
     iv = t2.get("initial_visibility", {})
     L += ["", f"Initial visibility over {iv.get('scenarios', 0)} scenario(s): "
@@ -391,11 +420,13 @@ def Markdown(tables: dict, title: str = "lmap-drake eval", notes: str = "") -> s
     thr = next(iter(t5.values()), {}).get("threshold", VISIBILITY_SUCCESS)
     L += ["## Table V analogue: energy weight", "",
           "| Method | λ | Success | Leaf damage | Insufficient visibility "
-          f"(< {thr:g}) | Other unsafe | Errors |", "|---|---|---|---|---|---|---|"]
+          f"(< {thr:g}) | Other unsafe | Errors | Motions / episode | Motion families |",
+          "|---|---|---|---|---|---|---|---|---|"]
     for m, r in t5.items():
         L.append(f"| {m} | {r['energy_weight']:g} | {r['success']} / {r['n']} | "
                  f"{r['leaf_damage']} | {r['insufficient_visibility']} | "
-                 f"{r['other_unsafe']} | {r['n_errors']} |")
+                 f"{r['other_unsafe']} | {r['n_errors']} | {_f(r.get('motions_mean'))} | "
+                 f"{_Families(r)} |")
     return "\n".join(L) + "\n"
 
 

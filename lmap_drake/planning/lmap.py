@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
-from lmap_drake.deformation.action import Action, PullDirections
+from lmap_drake.deformation.action import Action, HingeAxes, MakeArcActions, PullDirections
 from lmap_drake.deformation.graph import FREE
 from lmap_drake.deformation.predict import PredictDeformations
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
@@ -39,7 +39,9 @@ class Candidate:
     q_pulled: np.ndarray | None = None
     approach: object = None       # planning.motion.ApproachPlan
     reason: str = ""              # empty = feasible
-    energy: float = float("nan")
+    energy: float = float("nan")  # predicted: ARAP + petiole bending (m^2, weighted)
+    arap_energy: float = float("nan")   # the deformation graph's ARAP energy alone
+    hinge_deg: float = float("nan")     # rotation of the grasp about the estimated hinge
     num_leaf_nodes: int = 0       # deformable nodes of the action's graph
     n_vis: int = -1
     seen: int = -1
@@ -51,7 +53,8 @@ class Candidate:
         return self.reason == ""
 
     def EnergyPerNode(self) -> float | None:
-        """Predicted ARAP energy per deformable (leaf) node, m^2: the energy's
+        """Predicted energy per deformable (leaf) node, m^2 (the ARAP energy
+        plus the petiole's bending, see ``PetioleBendingEnergy``): the energy's
         leaf-size-independent form, compared with ``max_energy_per_node``."""
         if np.isnan(self.energy) or self.num_leaf_nodes <= 0:
             return None
@@ -59,13 +62,18 @@ class Candidate:
 
     def Row(self) -> dict:
         a = self.action
-        return {"grasp_id": a.grasp_id, "direction_id": a.direction_id,
+        return {"grasp_id": a.grasp_id, "direction_id": a.direction_id, "family": a.family,
+                "angle_deg": round(float(np.rad2deg(a.angle)), 3),
+                "pivot_W": None if a.pivot_W is None else a.pivot_W.round(4).tolist(),
+                "axis_W": None if a.axis_W is None else a.axis_W.round(4).tolist(),
                 "distance": round(a.distance, 4), "p_WG": a.p_WG.round(4).tolist(),
                 "dp_W": a.dp_W.round(4).tolist(), "feasible": self.feasible,
                 "reason": self.reason, "energy": None if np.isnan(self.energy) else self.energy,
                 "pregrasp_opening": (None if self.approach is None
                                      else round(self.approach.opening, 4)),
                 "energy_per_node": self.EnergyPerNode(),
+                "arap_energy": None if np.isnan(self.arap_energy) else self.arap_energy,
+                "hinge_deg": None if np.isnan(self.hinge_deg) else round(self.hinge_deg, 2),
                 "n_vis": self.n_vis, "seen": self.seen,
                 "score": None if np.isnan(self.score) else self.score}
 
@@ -83,13 +91,15 @@ class PlanResult:
     seen_max: int = 0
     timings: dict = dc.field(default_factory=dict)
     message: str = ""
+    hinge_W: np.ndarray | None = None   # the arcs' pivot (estimated petiole attachment)
 
     def Summary(self) -> dict:
         out = {"status": self.status, "method": self.method, "message": self.message,
                "seen_init": self.seen_init, "seen_max": self.seen_max,
                "timings": self.timings, "num_candidates": len(self.candidates),
                "num_feasible": sum(c.feasible for c in self.candidates),
-               "dropped_grasps": self.dropped_grasps}
+               "dropped_grasps": self.dropped_grasps,
+               "hinge_W": None if self.hinge_W is None else np.round(self.hinge_W, 4).tolist()}
         if self.chosen is not None:
             out["chosen"] = self.chosen.Row()
         return out
@@ -194,7 +204,7 @@ def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     from lmap_drake.planning.motion import MotionError, PlanApproach
     robot = ctx.robot
     R = RotationMatrix(grasp.R_WG)
-    cands = [Candidate(a, int(round(a.distance / 0.02)) - 1) for a in actions]
+    cands = [Candidate(a, _DistanceId(a, cfg)) for a in actions]
     # The configured opening first; if the open pads hit the fruit close
     # behind the leaf (or the leaf), the narrowest opening that still lets
     # the observed leaf pass between them.
@@ -215,24 +225,91 @@ def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
         for c in cands:
             c.reason = why
         return cands
-    q_grasp = approach.to_grasp[-1]
+    for c in cands:
+        c.approach = approach
+        c.q_pregrasp, c.q_grasp = approach.to_pregrasp[-1], approach.to_grasp[-1]
+    return _MotionChecks(ctx, cfg, cands, approach.to_grasp[-1])
+
+
+def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate],
+                  q_grasp: np.ndarray) -> list[Candidate]:
+    """IK for each action's end pose (and an arc's midway pose), warm-started
+    along each direction's distances from ``q_grasp`` (the joints holding
+    the grasp), and robot-vs-fruit/branch checks there (gripper closed)."""
+    robot = ctx.robot
     seeds: dict[int, np.ndarray] = {}
     for c in sorted(cands, key=lambda c: (c.action.direction_id, c.action.distance)):
-        c.approach = approach
-        c.q_pregrasp, c.q_grasp = approach.to_pregrasp[-1], q_grasp
+        c.q_grasp = q_grasp if c.q_grasp is None else c.q_grasp
         seed = seeds.get(c.action.direction_id, q_grasp)
-        r = robot.Ik(RigidTransform(R, grasp.p_WG + c.action.dp_W), seed, 0.0)
-        if not r.success:
-            c.reason = "IK failed (pulled pose)"
+        a = c.action
+        # An arc also turns the wrist: its midway pose is checked too (the
+        # arcs of one axis come in increasing angles, so consecutive ends
+        # and midpoints sample the whole sweep).
+        poses = [(a.p_WG + a.dp_W, a.R_WG_end)]
+        if a.family == "arc":
+            mid = dc.replace(a, angle=0.5 * a.angle, dp_W=None)
+            poses.insert(0, (mid.p_WG + mid.dp_W, mid.R_WG_end))
+        why = ""
+        for p, R_end in poses:
+            r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
+            if not r.success:
+                why = f"IK failed ({'pulled pose' if a.family == 'pull' else 'along the arc'})"
+                break
+            seed = r.q
+            why = why or RobotCollisionReason(robot.SurfacePoints(r.q, 0.0), ctx.fruit_sdf,
+                                              ctx.branch_distance, cfg.collision_margin,
+                                              ctx.fruit_box, ctx.branch_box)
+        if why.startswith("IK failed"):
+            c.reason = why
             continue
         seeds[c.action.direction_id] = r.q
         c.q_pulled = r.q
-        why = RobotCollisionReason(robot.SurfacePoints(r.q, 0.0), ctx.fruit_sdf,
-                                   ctx.branch_distance, cfg.collision_margin,
-                                   ctx.fruit_box, ctx.branch_box)
         if why:
             c.reason = why
     return cands
+
+
+def _DistanceId(a: Action, cfg: PlannerConfig) -> int:
+    """Index of the action's distance in ``planner.distances`` (pulls) or
+    of its angle in ``planner.arc_angles_deg`` (arcs)."""
+    if a.family == "arc":
+        deg = np.asarray(cfg.arc_angles_deg, float)
+        return int(np.argmin(np.abs(deg - np.rad2deg(abs(a.angle)))))
+    return int(round(a.distance / 0.02)) - 1
+
+
+def HingeRotationDeg(hinge_W, p_from_W, p_to_W) -> float:
+    """Angle (deg) by which the grasp point turned about the hinge, from
+    ``p_from_W`` to ``p_to_W``; NaN without a hinge."""
+    if hinge_W is None:
+        return float("nan")
+    u, v = np.asarray(p_from_W) - hinge_W, np.asarray(p_to_W) - hinge_W
+    c = u @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-12)
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def PetioleBendingEnergy(hinge_deg: float, weight: float) -> float:
+    """Per leaf node (m^2): ``weight`` * theta^2 (theta in rad), the petiole
+    bending where it joins the branch when the leaf turns by theta about
+    it. The deformation graph ties the leaf to the branch by a chain of
+    nodes whose bending ARAP barely resists, so without this term a
+    60-degree swing of the leaf costs ~50x less than an 8 cm pull, while
+    the FEM petiole carries 40-60 % of that pull's force (measured with
+    ``scripts/eval_hazard_prediction.py``). 0 without a hinge."""
+    if not np.isfinite(hinge_deg):
+        return 0.0
+    return float(weight * np.radians(hinge_deg) ** 2)
+
+
+def EstimateHinge(leaf_W: np.ndarray, branch_W: np.ndarray) -> np.ndarray | None:
+    """The point the leaf swings about: the branch point nearest to the
+    observed leaf (where its petiole joins the branch). None without
+    branch or leaf points."""
+    from scipy.spatial import cKDTree
+    if len(branch_W) == 0 or len(leaf_W) == 0:
+        return None
+    d, j = cKDTree(branch_W).query(leaf_W)
+    return np.asarray(branch_W[j[int(np.argmin(d))]], float)
 
 
 def _Normalize(x: np.ndarray) -> np.ndarray:
@@ -291,6 +368,7 @@ class CandidateSet:
     seen_init_mask: np.ndarray | None = None
     timings: dict = dc.field(default_factory=dict)
     message: str = ""
+    hinge_W: np.ndarray | None = None   # the arcs' pivot (estimated petiole attachment)
 
     def LiveActions(self) -> list[Action]:
         """Actions still feasible after IK and robot checks (for deformation)."""
@@ -337,11 +415,22 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
         out.status, out.message = "no_feasible_action", f"no grasp candidates: {err}"
         return out
     all_dirs = PullDirections()[:cfg.num_directions]
+    pivot = EstimateHinge(ctx.leaf_W, ctx.branch_all_W)
+    out.hinge_W = pivot
+    angles = np.deg2rad(np.asarray(cfg.arc_angles_deg, float))
     for g in grasps:
-        dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W, cfg.max_branch_angle_deg,
-                                           all_dirs)
-        actions = [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
-                   for u, j in zip(dirs, dir_ids) for s in cfg.distances]
+        actions = []
+        if "pull" in cfg.action_families:
+            dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
+                                               cfg.max_branch_angle_deg, all_dirs)
+            actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id,
+                               direction_id=int(j))
+                        for u, j in zip(dirs, dir_ids) for s in cfg.distances]
+        if ("arc" in cfg.action_families and pivot is not None
+                and np.linalg.norm(g.p_WG - pivot) > 0.02):
+            actions += MakeArcActions(g.p_WG, g.R_WG, pivot,
+                                      HingeAxes(g.p_WG, pivot, cfg.num_arc_axes), angles,
+                                      grasp_id=g.grasp_id)
         out.candidates += _IkAndRobotChecks(ctx, g, cfg, actions)
     timings["generation_collision_s"] += time.perf_counter() - t0
     out.scene, msg = AttachLeaf(ctx.scene, dcfg)
@@ -363,7 +452,7 @@ def ForcedCandidate(cands: list[Candidate], force_action) -> Candidate | None:
     g, d, dist = _ForcedKey(force_action)
     for c in cands:
         a = c.action
-        if a.grasp_id == g and a.direction_id == d and abs(a.distance - dist) < 1e-6:
+        if a.grasp_id == g and a.direction_id == d and abs(a.distance - dist) < 6e-5:
             return c
     return None
 
@@ -386,7 +475,9 @@ def _ChooseForced(result: PlanResult, forced: Candidate | None, force_action) ->
 
 
 def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions: list,
-                          cfg: PlannerConfig, method: str = "lmap") -> PlanResult:
+                          cfg: PlannerConfig, method: str = "lmap",
+                          energy_offset_per_node: float = 0.0,
+                          hinge_reference_W: np.ndarray | None = None) -> PlanResult:
     """Paper Sec. III-C-2/3: leaf-fruit checks, visibility with early stop
     along the distances, and the score. ``predictions`` are aligned with
     ``cset.LiveActions()`` (``PredictedDeformation``: ``energy``,
@@ -395,7 +486,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     cands = [dc.replace(c) for c in cset.candidates]
     result = PlanResult(cset.status, method, candidates=cands,
                         dropped_grasps=cset.dropped_grasps, timings=dict(cset.timings),
-                        message=cset.message)
+                        message=cset.message, hinge_W=cset.hinge_W)
     if cset.visibility is not None:
         result.seen_init = int(cset.seen_init_mask.sum())
         result.seen_max = int(cset.visibility.max_seen.sum())
@@ -406,8 +497,12 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         raise PlanningError(f"{len(predictions)} predictions for {len(live)} live actions")
     n_leaf = len(ctx.leaf_W)
     for c, p in zip(live, predictions):
-        c.energy = float(p.energy)
+        c.arap_energy = float(p.energy)
         c.num_leaf_nodes = int(np.count_nonzero(np.asarray(p.node_kind) == FREE))
+        ref = c.action.p_WG if hinge_reference_W is None else hinge_reference_W
+        c.hinge_deg = HingeRotationDeg(cset.hinge_W, ref, c.action.p_WG + c.action.dp_W)
+        c.energy = c.arap_energy + c.num_leaf_nodes * PetioleBendingEnergy(
+            c.hinge_deg, cfg.hinge_bending_weight)
         c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
     vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
     t0 = time.perf_counter()
@@ -451,6 +546,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         if cap > 0:
             for c in feasible:
                 e = c.EnergyPerNode()
+                e = None if e is None else e + energy_offset_per_node
                 if e is not None and e > cap:
                     c.reason = (f"predicted energy per leaf node {e:.2e} m^2 above "
                                 f"max_energy_per_node {cap:.2e} (damage risk)")
@@ -505,6 +601,113 @@ def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
     cset.timings["deformation_s"] = time.perf_counter() - t0
     result = SelectFromPredictions(ctx, cset, predictions, cfg)
     result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
+    return result
+
+
+# --- re-planning from the held leaf -------------------------------------
+
+@dc.dataclass
+class HeldGrasp:
+    """The leaf as the gripper holds it after ``motions`` executed motions:
+    the first grasp pose (``p_WG0``, ``R_WG0``), the current TCP pose
+    (``p_WG``, ``R_WG``, the last motion's planned end), the hinge the arcs
+    swing about, and the predicted ARAP energy per leaf node of the motions
+    so far (summed: each continuation's energy is predicted from the leaf
+    as observed before it, so the sum approximates the total; the petiole
+    bending term is computed on the total turn from the first grasp)."""
+    p_WG0: np.ndarray
+    R_WG0: np.ndarray
+    p_WG: np.ndarray
+    R_WG: np.ndarray
+    hinge_W: np.ndarray | None
+    motions: int
+    energy_per_node: float
+
+    @staticmethod
+    def After(plans: list) -> "HeldGrasp":
+        """The held state after executing each plan's chosen action in turn
+        (``plans[0]`` grasped the leaf)."""
+        first, last = plans[0].chosen.action, plans[-1].chosen.action
+        e = sum(p.chosen.arap_energy / max(1, p.chosen.num_leaf_nodes) for p in plans
+                if np.isfinite(p.chosen.arap_energy))
+        return HeldGrasp(first.p_WG, first.R_WG, last.p_WG + last.dp_W, last.R_WG_end,
+                         plans[0].hinge_W, len(plans), e)
+
+
+def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
+                         held: HeldGrasp) -> CandidateSet:
+    """Candidates continuing from the held leaf (``ctx.scene``: the fused
+    re-estimate, its leaf from the newest view; ``ctx.q_current``: the
+    joints holding it): pulls and arcs from the current TCP pose, IK and
+    robot checks from the current joints; the visibility now counts the
+    robot as an occluder (it holds the leaf in front of the camera)."""
+    timings = {"generation_collision_s": 0.0, "visibility_s": 0.0}
+    if ctx.scene.fruit is None or len(ctx.scene.fruit.faces) == 0:
+        return CandidateSet("no_fruit", ctx.scene, timings=timings,
+                            message="no fruit estimate: nothing to reveal")
+    t0 = time.perf_counter()
+    vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel,
+                          ctx.image_tan)
+    seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.branch_obs_W,
+                                    ctx.robot.SurfacePoints(ctx.q_current)]))
+    timings["visibility_s"] += time.perf_counter() - t0
+    out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
+                       timings=timings, hinge_W=held.hinge_W)
+    n_init, n_max = int(seen_init.sum()), int(vis.max_seen.sum())
+    if n_max == 0:
+        out.status, out.message = "no_fruit", "the fruit estimate is outside camera0's view"
+        return out
+    if n_init >= cfg.early_stop_fraction * n_max:
+        out.status = "no_action_needed"
+        out.message = f"fruit already {n_init / n_max:.0%} visible (predicted)"
+        return out
+    if len(ctx.leaf_W) < 10:
+        out.status, out.message = "no_feasible_action", "the held leaf is not seen"
+        return out
+    t0 = time.perf_counter()
+    p, R = held.p_WG, held.R_WG
+    actions = []
+    if "pull" in cfg.action_families:
+        dirs, ids = DirectionsForGrasp(p, ctx.branch_all_W, cfg.max_branch_angle_deg,
+                                       PullDirections()[:cfg.num_directions])
+        actions += [Action(p, R, s * u, grasp_id=0, direction_id=int(j))
+                    for u, j in zip(dirs, ids) for s in cfg.distances]
+    if held.hinge_W is not None and np.linalg.norm(p - held.hinge_W) > 0.02:
+        actions += MakeArcActions(p, R, held.hinge_W, HingeAxes(p, held.hinge_W,
+                                                                cfg.num_arc_axes),
+                                  np.deg2rad(np.asarray(cfg.arc_angles_deg, float)),
+                                  grasp_id=0)
+    cands = [Candidate(a, _DistanceId(a, cfg)) for a in actions]
+    out.candidates = _MotionChecks(ctx, cfg, cands, np.asarray(ctx.q_current, float))
+    timings["generation_collision_s"] += time.perf_counter() - t0
+    out.scene, msg = AttachLeaf(ctx.scene, dcfg)
+    out.message = msg
+    return out
+
+
+def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
+                     held: HeldGrasp, progress=None) -> PlanResult:
+    """A further motion from the held leaf (``GenerateContinuation``), its
+    deformation predicted on the leaf as observed now (the graph continues
+    from the observed deformed leaf, the gripper as its handle), selected
+    as the first motion is, with the energy cap applied to the motions'
+    summed energy per node. Never raises on a bad scene."""
+    progress = progress or (lambda m: None)
+    cset = GenerateContinuation(ctx, cfg, dcfg, held)
+    predictions = []
+    t0 = time.perf_counter()
+    if cset.status == "ok" and cset.LiveActions():
+        leaf = np.vstack([ctx.leaf_W, cset.scene.leaf_attachment_W])
+        try:
+            predictions = PredictDeformations(leaf, ctx.branch_all_W, cset.LiveActions(), dcfg)
+        except ValueError as err:
+            cset.status, cset.message = "no_feasible_action", f"deformation model: {err}"
+    cset.timings["deformation_s"] = time.perf_counter() - t0
+    result = SelectFromPredictions(ctx, cset, predictions, cfg,
+                                   energy_offset_per_node=held.energy_per_node,
+                                   hinge_reference_W=held.p_WG0)
+    result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
+    progress(f"continuation: {result.status}" + (f" ({result.message})" if result.message else ""))
     return result
 
 

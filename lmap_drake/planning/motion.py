@@ -107,6 +107,21 @@ def PlanPull(robot, X_WT_start: RigidTransform, dp_W: np.ndarray, q_start: np.nd
     return out
 
 
+def PlanActionPath(robot, action, q_start: np.ndarray, step: float = 0.01
+                   ) -> list[np.ndarray]:
+    """Joint waypoints for an action's motion from the grasp (gripper
+    closed): the straight pull or the arc about the hinge
+    (``Action.Poses``), each IK warm-started from the previous."""
+    out, seed = [], q_start
+    for p, R in action.Poses(step):
+        r = robot.Ik(RigidTransform(RotationMatrix(R), p), seed, 0.0)
+        if not r.success:
+            raise MotionError(f"IK failed along the {action.family} at {np.round(p, 3)}")
+        out.append(r.q)
+        seed = r.q
+    return out
+
+
 def TimeJointPath(t0: float, q0: np.ndarray, waypoints: list[np.ndarray],
                   speed_fraction: float = 0.5, min_segment: float = 0.25,
                   duration: float | None = None) -> PiecewisePolynomial:

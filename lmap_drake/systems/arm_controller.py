@@ -66,7 +66,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from lmap_drake.planning.lmap import PlanResult
-from lmap_drake.planning.motion import MotionError, PlanApproach, PlanPull, TimeJointPath
+from lmap_drake.planning.motion import MotionError, PlanActionPath, PlanApproach, TimeJointPath
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
 from lmap_drake.scenario import Scenario
@@ -120,6 +120,10 @@ class ControllerStatus:
     released: bool = False              # the gripper was told to let the leaf go
     t_released: float = 0.0
     grip_history: list = dc.field(default_factory=list)   # (t, opening) while closing
+    continuations: list = dc.field(default_factory=list)  # PlanResults of the re-plans
+    motion_paths: list = dc.field(default_factory=list)   # joint waypoints of each motion
+    pending_motion: list | None = None  # a continuation waiting for the operator
+    replan_log: list = dc.field(default_factory=list)     # "status: message" per re-plan
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -130,7 +134,14 @@ class ControllerStatus:
         out.stage_seconds = dict(self.stage_seconds)
         out.mode_log = list(self.mode_log)
         out.grip_history = list(self.grip_history)
+        out.continuations = list(self.continuations)
+        out.motion_paths = list(self.motion_paths)
         return out
+
+    @property
+    def plans(self) -> list:
+        """The plan and the continuations whose actions were executed."""
+        return ([self.plan] if self.plan is not None else []) + list(self.continuations)
 
     @property
     def finished(self) -> bool:
@@ -187,6 +198,9 @@ class ArmController(LeafSystem):
         self._x = self.DeclareVectorInputPort("ur5.state_estimated", 12)
         self._g = self.DeclareVectorInputPort("gripper.state_measured", 3)
         self._views = self.DeclareVectorInputPort("views_fused", 1)
+        self._cont = self.DeclareAbstractInputPort(
+            "continuation", AbstractValue.Make(PlanResult("no_fruit", "lmap")))
+        self._max_replans = int(cfg.max_replans)
         q0 = options.initial_q if options.initial_q is not None else scenario.robot.initial_q
         w0 = (options.initial_gripper if options.initial_gripper is not None
               else scenario.robot.initial_gripper_width)
@@ -297,8 +311,11 @@ class ArmController(LeafSystem):
     def _traj_done(self, st: ControllerStatus, t: float) -> bool:
         return st.trajectory is None or t >= st.trajectory.end_time()
 
-    def _pull_duration(self, st: ControllerStatus) -> float:
-        return max(1.0, st.plan.chosen.action.distance / self._pull_speed)
+    def _pull_duration(self, st: ControllerStatus, all_motions: bool = False) -> float:
+        """Seconds for the current motion (or for all executed motions, to
+        carry the leaf back) at the pull speed."""
+        plans = st.plans if all_motions else st.plans[-1:]
+        return max(1.0, sum(p.chosen.action.path_length for p in plans) / self._pull_speed)
 
     # --- the state machine -------------------------------------------------
     def _update(self, context, state) -> EventStatus:
@@ -335,8 +352,14 @@ class ArmController(LeafSystem):
         elif mode == "plan_requested":
             self._Plan(context, st, t)
         elif mode == "confirm_wait":
-            if st.confirmed is True:
+            if st.confirmed is True and st.pending_motion is not None:
+                path, st.pending_motion = st.pending_motion, None
+                self._StartContinuation(st, t, path, "confirmed by the operator")
+            elif st.confirmed is True:
                 self._StartMotion(st, t, "confirmed by the operator")
+            elif st.confirmed is False and st.pending_motion is not None:
+                st.pending_motion = None
+                self._StartRelease(st, t, "continuation not confirmed by the operator")
             elif st.confirmed is False:
                 self._enter(st, "aborted", t, "not confirmed by the operator"
                             + (f" ({st.confirm_note})" if st.confirm_note else "")
@@ -378,29 +401,23 @@ class ArmController(LeafSystem):
         elif mode == "grasp_wait":
             if st.grasp_acknowledged or not self._options.grasp_ack_required:
                 self._start_path(st, t, st.pull_path, 0.3, self._pull_duration(st))
-                self._enter(st, "pull", t)
+                st.motion_paths = [st.pull_path]
+                self._enter(st, "pull", t, st.plan.chosen.action.Describe())
         elif mode == "pull":
             if self._traj_done(st, t):
                 self._enter(st, "hold", t)
         elif mode == "hold":
             if t - st.t_mode >= self._hold:
-                st.captures = 2
+                st.captures += 1
                 self._enter(st, "observe", t)
         elif mode == "observe":
-            if self._views_fused(context) >= 2:
+            if self._views_fused(context) >= st.captures:
                 t0 = time.perf_counter()
                 st.final_estimate = _Stage("shape_reestimation", self._final.Eval, context)
-                st.stage_seconds["reestimation_s"] = time.perf_counter() - t0
-                if not self._options.release:
-                    self._enter(st, "done", t, "action executed; shape re-estimated on the "
-                                "fused views")
-                    return
-                # Back along the pull, still holding, so the leaf returns to
-                # rest in the gripper instead of springing back when let go.
-                back = st.pull_path[::-1][1:] + [st.grasp_path[-1]]
-                self._start_path(st, t, back, 0.3, self._pull_duration(st))
-                self._enter(st, "release", t, "shape re-estimated on the fused views; "
-                            "returning the leaf, then releasing it")
+                st.stage_seconds["reestimation_s"] = (
+                    st.stage_seconds.get("reestimation_s", 0.0) + time.perf_counter() - t0)
+                if not self._Continue(context, st, t):
+                    self._StartRelease(st, t, "shape re-estimated on the fused views")
         elif mode == "release":
             if not st.released and self._traj_done(st, t):
                 st.trajectory = None
@@ -459,7 +476,7 @@ class ArmController(LeafSystem):
         approach = c.approach or PlanApproach(self._robot, X_WT, st.q_hold, normal,
                                               self._scenario.planner.pregrasp_distance,
                                               self._pregrasp_opening)
-        st.pull_path = PlanPull(self._robot, X_WT, c.action.dp_W, approach.to_grasp[-1])
+        st.pull_path = PlanActionPath(self._robot, c.action, approach.to_grasp[-1])
         st.segments = [approach.to_grasp]
         st.grasp_path = list(approach.to_grasp)
         st.pregrasp_path = [approach.via] + approach.to_ready + approach.to_pregrasp
@@ -471,7 +488,7 @@ class ArmController(LeafSystem):
         self._TimePath(app.end_time(), approach.to_grasp[-1], st.pull_path, 0.3,
                        self._pull_duration(st))
         summary = (f"grasp {c.action.grasp_id}, direction {c.action.direction_id}, "
-                   f"{c.action.distance * 100:.0f} cm")
+                   f"{c.action.Describe()}")
         if self._options.plan_only:
             self._enter(st, "planned", t, f"plan only: {summary}; nothing moved")
         elif self._options.confirm:
@@ -479,6 +496,60 @@ class ArmController(LeafSystem):
             self._enter(st, "confirm_wait", t, summary)
         else:
             self._StartMotion(st, t, summary)
+
+    def _StartRelease(self, st: ControllerStatus, t: float, message: str) -> None:
+        """Back along every executed motion, still holding, so the leaf
+        returns to rest in the gripper instead of springing back when let
+        go (then ``release`` opens the gripper); without ``release`` the
+        episode ends holding the leaf."""
+        n = len(st.motion_paths)
+        if not self._options.release:
+            self._enter(st, "done", t, f"{n} motion(s) executed; {message}")
+            return
+        back = [q for path in st.motion_paths[::-1] for q in path[::-1]][1:]
+        self._start_path(st, t, back + [st.grasp_path[-1]], 0.3,
+                         self._pull_duration(st, all_motions=True))
+        self._enter(st, "release", t, f"{n} motion(s) executed; {message}; "
+                    "returning the leaf, then releasing it")
+
+    def _Continue(self, context, st: ControllerStatus, t: float) -> bool:
+        """After observing: plan a further motion from the held leaf (at most
+        ``planner.max_replans``); start it (or ask the operator) and return
+        True, or return False to release. A continuation that cannot be
+        planned or timed is not an error: the episode releases the leaf."""
+        if len(st.continuations) >= self._max_replans or not self._cont.HasValue(context):
+            return False
+        t0 = time.perf_counter()
+        plan = _Stage("continuation_planning", self._cont.Eval, context)
+        st.stage_seconds["replanning_s"] = (st.stage_seconds.get("replanning_s", 0.0)
+                                            + time.perf_counter() - t0)
+        st.replan_log = st.replan_log + [f"{plan.status}: {plan.message}"]
+        if plan.status != "ok":
+            self.progress(f"no further motion: {plan.status}: {plan.message}")
+            return False
+        try:
+            path = PlanActionPath(self._robot, plan.chosen.action, st.q_hold)
+            st.continuations.append(plan)
+            self._TimePath(t, st.q_hold, path, 0.3, self._pull_duration(st))
+        except (MotionError, _Refused) as err:
+            if st.continuations and st.continuations[-1] is plan:
+                st.continuations.pop()
+            self.progress(f"no further motion: {err}")
+            return False
+        summary = f"continuation {len(st.continuations)}: {plan.chosen.action.Describe()}"
+        if self._options.confirm:
+            st.confirmed, st.pending_motion = None, path
+            self._enter(st, "confirm_wait", t, summary)
+        else:
+            self._StartContinuation(st, t, path, summary)
+        return True
+
+    def _StartContinuation(self, st: ControllerStatus, t: float, path: list,
+                           message: str) -> None:
+        st.pull_path = path
+        st.motion_paths = st.motion_paths + [path]
+        self._start_path(st, t, path, 0.3, self._pull_duration(st))
+        self._enter(st, "pull", t, message)
 
     def _StartMotion(self, st: ControllerStatus, t: float, message: str) -> None:
         st.gripper_cmd = st.pregrasp_opening

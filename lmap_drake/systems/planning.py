@@ -22,6 +22,14 @@ With ``planner.method`` set to a baseline (``random``, ``upward``,
 candidates and ActionSelection runs the baseline at the largest of
 ``planner.distances`` (seed ``random_seed``).
 
+``ContinuationPlanning`` (re-planning from the held leaf)
+  inputs:  ``status`` (abstract ArmController status: the plans executed so
+           far), ``scene_estimate`` (the re-estimate on the fused views, its
+           leaf from the newest view), ``ur5.position`` (6, rad; the joints
+           at the newest view, holding the leaf).
+  output:  ``plan`` (abstract PlanResult): a further motion from the held
+           grasp (``planning.lmap.PlanContinuation``), or why there is none.
+
 All outputs are computed on demand and cached by Drake until an input
 changes. The robot model (a MultibodyPlant for IK) is an attribute.
 """
@@ -31,8 +39,9 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, PlanBaseline,
-                                      PlanningContext, PlanResult, SelectFromPredictions)
+from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, HeldGrasp,
+                                      PlanBaseline, PlanContinuation, PlanningContext,
+                                      PlanResult, SelectFromPredictions)
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
 from lmap_drake.types import SceneEstimate, SemanticScene
@@ -154,3 +163,36 @@ class ActionSelection(LeafSystem):
         result.timings["deformation_s"] = deformation_s
         result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
         output.set_value(result)
+
+
+class ContinuationPlanning(LeafSystem):
+    """See the module docstring."""
+
+    def __init__(self, scenario: Scenario, candidates: ActionCandidates):
+        super().__init__()
+        self._scenario = scenario
+        self._candidates = candidates
+        self.DeclareAbstractInputPort("status", AbstractValue.Make(object()))
+        self.DeclareAbstractInputPort(
+            "scene_estimate", AbstractValue.Make(SceneEstimate(semantic=SemanticScene())))
+        self.DeclareVectorInputPort("ur5.position", 6)
+        self.DeclareAbstractOutputPort(
+            "plan", lambda: AbstractValue.Make(PlanResult("no_fruit", "lmap")), self._calc)
+
+    def _calc(self, context, output) -> None:
+        status = self.get_input_port(0).Eval(context)
+        plans = [p for p in getattr(status, "plans", []) if p is not None and p.chosen]
+        cfg = self._scenario.planner
+        if not plans:
+            output.set_value(PlanResult("no_feasible_action", cfg.method,
+                                        message="no executed action: nothing is held"))
+            return
+        scene = self.get_input_port(1).Eval(context)
+        q = self.get_input_port(2).Eval(context)
+        try:
+            plan = PlanContinuation(self._candidates.Context(scene, q), cfg,
+                                    self._scenario.deformation, HeldGrasp.After(plans))
+        except Exception as err:  # noqa: BLE001 - a stage failure becomes a status
+            plan = PlanResult("stage_error", cfg.method,
+                              message=_StageError("continuation_planning", err))
+        output.set_value(plan)

@@ -1,0 +1,257 @@
+#!/usr/bin/env python
+"""Does the planner's prediction rank petiole loading and strain as the FEM
+plant world does, for straight pulls and hinge arcs?
+
+    python scripts/eval_hazard_prediction.py --out out/hazard.json
+    python scripts/eval_hazard_prediction.py --out h.json \
+        --scenarios small_leaf_thin_branch_round_red_heavy --pull_distances 0.04 0.08
+
+Per scenario (default: two small-leaf and two large-leaf scenes of
+diagrams/suite.yaml):
+
+1. ``PlantWorldSim`` settles 0.3 s; camera0 is segmented
+   (``--segmenter``, default ``perception.segmenter`` of the scenario, the
+   realistic one) into a ``SemanticScene``; ``OracleSceneEstimate`` adds the
+   exact branch (a deformation/hazard study, not a perception study);
+   ``AttachLeaf`` adds the virtual petiole when the petiole is unseen.
+2. The scripted tip grasp (``ApproachAndGrasp``) as in
+   ``scripts/eval_deformation_vs_fem.py``.
+3. From that grasp: pulls along the 6 axial and 8 diagonal directions that
+   pass the branch-angle rule, by ``--pull_distances``, and arcs about the
+   estimated hinge (``planning.lmap.EstimateHinge``) around
+   ``--num_axes`` axes by ``--arc_angles``. All are predicted in one
+   ``PredictDeformations`` call; each is executed on its own fork of the
+   grasped world (``PlanActionPath``, the controller's pull speed, then a
+   0.3 s hold) and scored by the plant world: maximum petiole force and
+   strain percentile over the motion, final fruit visibility.
+4. Predicted measures per action: the ARAP energy per leaf node (the
+   planner's damage measure) and ``planning.hazard`` measures of petiole
+   loading. Spearman rank correlations between each predicted measure and
+   each FEM measure, per scenario and pooled, per family and over both.
+
+Writes JSON after every scenario (partial results survive an interruption).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+DEFAULT_SCENARIOS = ["small_leaf_thin_branch_round_red_heavy",
+                     "small_leaf_thin_branch_striped_red_partial",
+                     "large_leaf_thick_branch_round_red_heavy",
+                     "large_leaf_thick_branch_striped_red_partial"]
+PREDICTED = ("energy_per_node", "planner_energy_per_node", "petiole_stretch",
+             "tether_elongation_m")
+MEASURED = ("petiole_force_max_N", "strain_percentile_max")
+
+
+def Spearman(x, y) -> float | None:
+    from scipy.stats import spearmanr
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < 4 or np.ptp(x[ok]) == 0 or np.ptp(y[ok]) == 0:
+        return None
+    return float(spearmanr(x[ok], y[ok]).statistic)
+
+
+def PlannerEnergy(a, p, hinge, weight: float) -> dict:
+    """The ARAP energy per leaf node and the planner's predicted energy per
+    node (ARAP plus the petiole bending term)."""
+    from lmap_drake.planning.lmap import HingeRotationDeg, PetioleBendingEnergy
+    e = p.energy / max(1, int((p.node_kind == 0).sum()))
+    deg = HingeRotationDeg(hinge, a.p_WG, a.p_WG + a.dp_W)
+    return {"energy_per_node": e, "hinge_deg": deg,
+            "planner_energy_per_node": e + PetioleBendingEnergy(deg, weight)}
+
+
+def _Execute(grasped, action, speed: float, hold: float) -> dict:
+    from lmap_drake.planning.motion import PlanActionPath, TimeJointPath
+    world = grasped.Fork()
+    n0 = len(world.samples)
+    q_path = PlanActionPath(world.robot, action, world.q_cmd)
+    traj = TimeJointPath(world.time, world.q_cmd, q_path, 0.3, 0.01,
+                         max(1.0, action.path_length / speed))
+    world.AdvanceTo(traj.end_time(), traj)
+    world.Hold(hold)
+    s = world.samples[n0:] + [world.Sample()]
+    return {"petiole_force_max_N": max(x.petiole_force for x in s),
+            "strain_percentile_max": max(x.strain_percentile for x in s),
+            "fruit_penetration_max_m": max(x.fruit_penetration for x in s),
+            "visibility_final": world.Visibility()}
+
+
+def EvaluateScenario(scenario, args, log) -> dict:
+    import dataclasses as dc
+
+    from eval_deformation_vs_fem import LeafMeshWorkaround
+    from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions,
+                                               PullDirections)
+    from lmap_drake.deformation.predict import PredictDeformations
+    from lmap_drake.perception.observe import SemanticSceneFromImages
+    from lmap_drake.planning.candidates import DirectionsForGrasp
+    from lmap_drake.planning.hazard import HazardMeasures
+    from lmap_drake.planning.lmap import AttachLeaf, EstimateHinge
+    from lmap_drake.planning.motion import MotionError
+    from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
+
+    scenario, mesh_note = LeafMeshWorkaround(scenario)
+    world = PlantWorldSim(scenario, progress=lambda m: None)
+    world.Hold(0.3)
+    vis0 = world.Visibility()
+    im = world.Images()
+    pcfg = scenario.perception if not args.segmenter else dc.replace(
+        scenario.perception, segmenter=args.segmenter)
+    sem = SemanticSceneFromImages(im["rgb_image"], im["depth_image"], im["label_image"],
+                                  scenario.cameras["camera0"], pcfg)
+    scene = OracleSceneEstimate(world, sem)
+    scene, _ = AttachLeaf(scene, scenario.deformation)
+    leaf = np.asarray(sem.leaf_points_W, float).reshape(-1, 3)
+    branch = np.vstack([np.asarray(sem.branch_points_W, float).reshape(-1, 3),
+                        scene.branch.samples_W])
+    leaf_in = np.vstack([leaf, scene.leaf_attachment_W])
+    pull = scenario.plant_scene.pull
+    for extra in (0.0, 0.015, 0.03):
+        try:
+            ApproachAndGrasp(world, dc.replace(pull, grasp_from_tip=pull.grasp_from_tip + extra))
+            break
+        except MotionError:
+            if extra == 0.03:
+                raise
+    X_WT = world.X_WT()
+    p_WG, R_WG = X_WT.translation(), X_WT.rotation().matrix()
+    hinge = EstimateHinge(leaf, branch)
+    dirs, ids = DirectionsForGrasp(p_WG, branch, 120.0, PullDirections())
+    actions = [Action(p_WG, R_WG, d * u, direction_id=int(j))
+               for u, j in zip(dirs, ids) for d in args.pull_distances]
+    actions += MakeArcActions(p_WG, R_WG, hinge, HingeAxes(p_WG, hinge, args.num_axes),
+                              np.deg2rad(args.arc_angles))
+    np.savez(Path(args.out).with_suffix(f".{scenario_name_of(scenario)}.npz"),
+             leaf_in=leaf_in, branch=branch, p_WG=p_WG, R_WG=R_WG, hinge=hinge)
+    preds = PredictDeformations(leaf_in, branch, actions, scenario.deformation)
+    measures = HazardMeasures(actions, preds, hinge)
+    rows = []
+    from tqdm import tqdm
+    for a, p, m in tqdm(list(zip(actions, preds, measures)), desc=scenario_name_of(scenario),
+                        unit="action", file=sys.stderr):
+        r = {"family": a.family, "direction_id": a.direction_id,
+             "distance_m": round(a.distance, 4), "angle_deg": round(np.rad2deg(a.angle), 1)}
+        r.update(PlannerEnergy(a, p, hinge, scenario.planner.hinge_bending_weight))
+        r.update(m)
+        try:
+            r.update(_Execute(world, a, args.speed, args.hold))
+        except MotionError as err:
+            r["error"] = str(err)
+        rows.append(r)
+    return {"rows": rows, "visibility_initial": vis0, "hinge_W": hinge.tolist(),
+            "true_attach_W": np.asarray(world.model.leaf_attach_W).tolist(),
+            "mesh_note": mesh_note}
+
+
+def scenario_name_of(s) -> str:
+    return getattr(s, "_name", "scenario")
+
+
+def Correlations(rows: list[dict]) -> dict:
+    out = {}
+    for fam in ("all", "pull", "arc"):
+        sel = [r for r in rows if "error" not in r and (fam == "all" or r["family"] == fam)]
+        out[fam] = {"n": len(sel)}
+        for pk in PREDICTED:
+            for mk in MEASURED:
+                out[fam][f"{pk}~{mk}"] = Spearman([r[pk] for r in sel], [r[mk] for r in sel])
+    return out
+
+
+def Repredict(path: str, deformation_text: str, hinge_bending_weight: float) -> dict:
+    """Predictions again for the actions of an earlier run (its JSON and
+    the inputs saved next to it), with ``deformation`` overrides; the FEM
+    side is reused. Returns the correlations."""
+    import dataclasses as dc
+
+    import yaml
+
+    from lmap_drake.deformation.action import Action, HingeAxes, MakeArcActions
+    from lmap_drake.deformation.predict import PredictDeformations
+    from lmap_drake.planning.hazard import HazardMeasures
+    from lmap_drake.scenario import DeformationConfig
+    d = json.loads(Path(path).read_text())
+    cfg = dc.replace(DeformationConfig(), **(yaml.safe_load(deformation_text) or {}))
+    pooled, out = [], {}
+    for name, sc in d["scenarios"].items():
+        z = np.load(Path(path).with_suffix(f".{name}.npz"))
+        acts = []
+        for r in sc["rows"]:
+            if r["family"] == "arc":
+                axes = HingeAxes(z["p_WG"], z["hinge"], d["config"]["num_axes"])
+                acts += MakeArcActions(z["p_WG"], z["R_WG"], z["hinge"],
+                                       axes[[r["direction_id"] - 100]],
+                                       [np.deg2rad(r["angle_deg"])],
+                                       axis_ids=[r["direction_id"] - 100])
+            else:
+                from lmap_drake.deformation.action import PullDirections
+                acts.append(Action(z["p_WG"], z["R_WG"],
+                                   r["distance_m"] * PullDirections()[r["direction_id"]]))
+        preds = PredictDeformations(z["leaf_in"], z["branch"], acts, cfg)
+        for r, a, p, m in zip(sc["rows"], acts, preds, HazardMeasures(acts, preds, z["hinge"])):
+            r.update(PlannerEnergy(a, p, z["hinge"], hinge_bending_weight))
+            r.update(m)
+        out[name] = Correlations(sc["rows"])
+        pooled += sc["rows"]
+    out["pooled"] = Correlations(pooled)
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", required=True)
+    p.add_argument("--scenario_file", type=Path, default=REPO / "diagrams" / "suite.yaml")
+    p.add_argument("--scenarios", nargs="*", default=DEFAULT_SCENARIOS)
+    p.add_argument("--pull_distances", nargs="+", type=float, default=[0.04, 0.08])
+    p.add_argument("--arc_angles", nargs="+", type=float, default=[30.0, 60.0])
+    p.add_argument("--num_axes", type=int, default=8)
+    p.add_argument("--speed", type=float, default=0.03, help="TCP speed (m/s)")
+    p.add_argument("--hold", type=float, default=0.3)
+    p.add_argument("--segmenter", default="", help="default: the scenario's")
+    p.add_argument("--repredict", action="store_true",
+                   help="re-run only the predictions of --out (with --deformation_text)")
+    p.add_argument("--deformation_text", default="{}")
+    p.add_argument("--hinge_bending_weight", type=float, default=None,
+                   help="with --repredict (default: the planner's)")
+    a = p.parse_args(argv)
+    if a.repredict:
+        from lmap_drake.scenario import PlannerConfig
+        w = (PlannerConfig().hinge_bending_weight if a.hinge_bending_weight is None
+             else a.hinge_bending_weight)
+        print(json.dumps(Repredict(a.out, a.deformation_text, w)["pooled"], indent=1))
+        return 0
+    from lmap_drake.scenario import LoadScenario
+    out = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()},
+           "scenarios": {}}
+    pooled = []
+    for name in a.scenarios:
+        t0 = time.perf_counter()
+        s = LoadScenario(filename=str(a.scenario_file), scenario_name=name)
+        s._name = name
+        res = EvaluateScenario(s, a, lambda m: print(m, file=sys.stderr))
+        res["correlation"] = Correlations(res["rows"])
+        res["seconds"] = round(time.perf_counter() - t0, 1)
+        out["scenarios"][name] = res
+        pooled += res["rows"]
+        out["pooled"] = Correlations(pooled)
+        Path(a.out).write_text(json.dumps(out, indent=1))
+        print(f"{name}: {len(res['rows'])} actions in {res['seconds']} s; "
+              f"{json.dumps(res['correlation']['all'])}", file=sys.stderr)
+    print(json.dumps(out["pooled"], indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
