@@ -517,9 +517,11 @@ class ArmController(LeafSystem):
         ``planner.max_replans``); start it (or ask the operator) and return
         True, or return False to release. A continuation that cannot be
         planned or timed is not an error: the episode releases the leaf."""
-        if len(st.continuations) >= self._max_replans or not self._cont.HasValue(context):
+        if len(st.continuations) >= self._max_replans:
             return False
         t0 = time.perf_counter()
+        if not self._cont.HasValue(context):      # (this evaluates the port when connected)
+            return False
         plan = _Stage("continuation_planning", self._cont.Eval, context)
         st.stage_seconds["replanning_s"] = (st.stage_seconds.get("replanning_s", 0.0)
                                             + time.perf_counter() - t0)

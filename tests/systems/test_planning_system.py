@@ -138,3 +138,73 @@ def test_no_fruit():
     scene.fruit = None
     plan = _plan(scene)
     assert plan.status == "no_fruit" and plan.chosen is None
+
+
+def test_plan_offers_hinge_arcs_with_the_petiole_term():
+    plan = _plan(_scene(), max_energy=0.0)
+    assert plan.status == "ok", plan.message
+    # The hinge: where the petiole meets the branch.
+    assert np.linalg.norm(plan.hinge_W - [0.5, -0.006, 0.37]) < 0.01
+    arcs = [c for c in plan.candidates if c.action.family == "arc"]
+    pulls = [c for c in plan.candidates if c.action.family == "pull"]
+    assert arcs and pulls and all(c.action.direction_id >= 100 for c in arcs)
+    k = Scenario().planner.hinge_bending_weight
+    for c in (x for x in plan.candidates if x.feasible):
+        bend = k * np.radians(c.hinge_deg) ** 2
+        assert np.isclose(c.EnergyPerNode(), c.arap_energy / c.num_leaf_nodes + bend)
+        row = c.Row()
+        assert row["family"] == c.action.family and row["hinge_deg"] is not None
+    # An arc keeps the grasp's distance to the hinge; its turn is its angle.
+    a = next(c for c in arcs if c.feasible)
+    assert np.isclose(a.hinge_deg, np.rad2deg(a.action.angle), atol=0.5)
+
+
+def test_continuation_from_the_held_leaf():
+    """After a short pull the planner continues from where the gripper
+    holds the leaf: every candidate starts at the held pose, the IK starts
+    from the held joints, the energy cap sees the motions' summed energy,
+    and a leaf already out of the way needs nothing more."""
+    import dataclasses as dc
+
+    from lmap_drake.planning.lmap import HeldGrasp, PlanContinuation, PlanningContext
+    from lmap_drake.planning.robot_model import RobotModel
+    first = _plan(_scene(), max_energy=0.0)
+    short = min((c for c in first.candidates if c.feasible and c.action.family == "pull"
+                 and np.isclose(c.action.distance, 0.04)), key=lambda c: c.seen)
+    key = [short.action.grasp_id, short.action.direction_id, short.action.distance]
+    first = _plan(_scene(), max_energy=0.0, force_action=key)
+    held = HeldGrasp.After([first])
+    a = first.chosen.action
+    assert np.allclose(held.p_WG, a.p_WG + a.dp_W) and held.motions == 1
+    s = Scenario()
+    s.planner.distances = [0.04, 0.08]
+    s.planner.max_energy_per_node = 0.0
+    scene = _scene()
+    moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
+    ctx = PlanningContext(dc.replace(scene, semantic=moved), _X_WC(),
+                          RobotModel(s.robot.X_WB.GetDeterministicValue()),
+                          first.chosen.q_pulled)
+    cont = PlanContinuation(ctx, s.planner, s.deformation, held)
+    assert cont.status in ("ok", "no_action_needed"), cont.message
+    assert cont.candidates or cont.status == "no_action_needed"
+    for c in cont.candidates:
+        assert np.allclose(c.action.p_WG, held.p_WG) and np.allclose(c.action.R_WG, held.R_WG)
+        assert c.approach is None
+    if cont.status == "ok":
+        assert cont.chosen.feasible and cont.chosen.seen >= 0
+        # A cap below the energy already spent leaves nothing to do.
+        s.planner.max_energy_per_node = 0.99 * held.energy_per_node
+        capped = PlanContinuation(ctx, s.planner, s.deformation, held)
+        assert capped.status == "no_feasible_action", capped.message
+    # The robot holding the leaf occludes too: moving the leaf aside shows
+    # more of the fruit, but not all of it.
+    aside = dc.replace(scene.semantic, leaf_points_W=scene.semantic.leaf_points_W
+                       + [-0.2, 0.0, 0.0])
+    done = PlanContinuation(PlanningContext(dc.replace(scene, semantic=aside), ctx.X_WC,
+                                            ctx.robot, ctx.q_current),
+                            s.planner, s.deformation, held)
+    assert done.seen_init > cont.seen_init
+    robot_free = PlanContinuation(PlanningContext(dc.replace(scene, semantic=aside), ctx.X_WC,
+                                                  ctx.robot, s.robot.initial_q),
+                                  s.planner, s.deformation, held)
+    assert robot_free.seen_init > done.seen_init

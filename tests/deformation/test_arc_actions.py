@@ -1,0 +1,96 @@
+"""Hinge arcs: the action's geometry, the rigid handle motion in the
+deformation graph, and the petiole terms of the planner."""
+import numpy as np
+import pytest
+
+from lmap_drake.deformation.action import (ARC_DIRECTION_BASE, Action, AxisAngleMatrix,
+                                           HingeAxes, MakeArcActions)
+from lmap_drake.deformation.predict import HandleDisplacements, PredictDeformations
+from lmap_drake.deformation.synthetic import OvateLeaf
+from lmap_drake.planning.hazard import HazardMeasures
+from lmap_drake.planning.lmap import EstimateHinge, HingeRotationDeg, PetioleBendingEnergy
+from tests.deformation.leaf_fixtures import TEST_CONFIG
+
+# Gripper at the leaf tip: approach along +x (toward the branch), pads
+# closing along z (the leaf normal).
+R_GRASP = np.column_stack([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+
+
+def test_arc_geometry():
+    pivot, p = np.array([0.0, 0.0, 0.0]), np.array([0.1, 0.0, 0.0])
+    a = Action(p, R_GRASP, family="arc", pivot_W=pivot, axis_W=[0, -2.0, 0],
+               angle=np.deg2rad(90), direction_id=ARC_DIRECTION_BASE)
+    # A quarter turn about -y lifts the tip from +x to +z, the gripper turning with it.
+    assert np.allclose(a.dp_W, [-0.1, 0.0, 0.1], atol=1e-12)
+    assert np.allclose(a.R_WG_end, AxisAngleMatrix([0, -1, 0], np.pi / 2) @ R_GRASP)
+    assert np.isclose(a.path_length, 0.1 * np.pi / 2)
+    poses = a.Poses(0.01)
+    assert np.allclose(poses[-1][0], p + a.dp_W) and np.allclose(poses[-1][1], a.R_WG_end)
+    # Every pose keeps the distance to the pivot, and they are <= 1 cm apart.
+    pts = np.array([q for q, _ in poses])
+    assert np.allclose(np.linalg.norm(pts - pivot, axis=1), 0.1)
+    assert np.linalg.norm(np.diff(np.vstack([p, pts]), axis=0), axis=1).max() <= 0.0100001
+    assert "arc 90 deg" in a.Describe()
+    # A pull is unchanged: straight, no rotation.
+    b = Action(p, R_GRASP, [0.0, 0.0, 0.04])
+    assert np.allclose(b.R_delta, np.eye(3)) and np.isclose(b.path_length, 0.04)
+    assert np.allclose(b.Poses(0.01)[-1][0], p + [0, 0, 0.04])
+    with pytest.raises(ValueError, match="pivot_W"):
+        Action(p, R_GRASP, family="arc", axis_W=[0, 0, 1], angle=0.1)
+    with pytest.raises(ValueError, match="family"):
+        Action(p, R_GRASP, [0, 0, 0.01], family="twist")
+
+
+def test_hinge_axes_are_perpendicular_and_spread():
+    pivot, p = np.array([0.5, 0.0, 0.4]), np.array([0.58, 0.05, 0.35])
+    axes = HingeAxes(p, pivot, 8)
+    r = (p - pivot) / np.linalg.norm(p - pivot)
+    assert np.allclose(axes @ r, 0.0) and np.allclose(np.linalg.norm(axes, axis=1), 1.0)
+    assert abs(axes[0, 2]) < 1e-12                    # axis 0 horizontal: lifts / lowers
+    assert np.allclose(axes[4], -axes[0])             # both senses
+    acts = MakeArcActions(p, R_GRASP, pivot, axes, [0.3, 0.6], grasp_id=4)
+    assert len(acts) == 16 and acts[3].direction_id == ARC_DIRECTION_BASE + 1
+    assert acts[3].grasp_id == 4 and np.isclose(acts[3].angle, 0.6)
+
+
+def test_handle_moves_rigidly_with_the_gripper():
+    p = np.array([0.1, 0.0, 0.0])
+    a = Action(p, R_GRASP, family="arc", pivot_W=np.zeros(3), axis_W=[0, 0, 1], angle=0.7)
+    handle = p + np.random.default_rng(0).normal(scale=0.01, size=(9, 3))
+    moved = handle + HandleDisplacements(handle, [a])[0]
+    # Distances within the handle and to the pivot are kept (a rotation about it).
+    d0 = np.linalg.norm(handle[:, None] - handle[None], axis=2)
+    d1 = np.linalg.norm(moved[:, None] - moved[None], axis=2)
+    assert np.allclose(d0, d1)
+    assert np.allclose(np.linalg.norm(moved, axis=1), np.linalg.norm(handle, axis=1))
+    pull = Action(p, R_GRASP, [0.0, 0.02, 0.0])
+    assert np.allclose(HandleDisplacements(handle, [pull])[0], [0.0, 0.02, 0.0])
+
+
+def test_an_arc_about_the_attachment_deforms_the_leaf_less_than_a_pull():
+    """Swinging the leaf about where it joins the branch is nearly rigid
+    for the graph (low ARAP energy, the grasp's distance to the hinge kept),
+    while a pull of the same chord away from the branch stretches it."""
+    leaf, branch = OvateLeaf()
+    hinge = EstimateHinge(leaf, branch)
+    assert np.linalg.norm(hinge[:2]) < 0.01          # on the branch axis, at the petiole
+    p = leaf[np.argmax(leaf[:, 0])] - [0.01, 0, 0]
+    arc = MakeArcActions(p, R_GRASP, hinge, HingeAxes(p, hinge, 4)[:1], [np.deg2rad(30)])[0]
+    away = Action(p, R_GRASP, arc.distance * (p - hinge) / np.linalg.norm(p - hinge))
+    side = Action(p, R_GRASP, arc.dp_W)               # the arc's chord as a straight pull
+    preds = PredictDeformations(leaf, branch, [arc, away, side], TEST_CONFIG)
+    e_arc, e_away, e_side = (x.energy for x in preds)
+    assert e_arc < 0.2 * e_side < e_away
+    haz = HazardMeasures([arc, away, side], preds, hinge)
+    assert abs(haz[0]["tether_elongation_m"]) < 1e-9
+    assert haz[1]["tether_elongation_m"] > 0.9 * arc.distance
+    assert haz[1]["petiole_stretch"] > haz[0]["petiole_stretch"]
+
+
+def test_petiole_bending_term():
+    h = np.zeros(3)
+    assert np.isclose(HingeRotationDeg(h, [0.1, 0, 0], [0, 0.1, 0]), 90.0)
+    assert np.isnan(HingeRotationDeg(None, [0.1, 0, 0], [0, 0.1, 0]))
+    assert PetioleBendingEnergy(float("nan"), 1e-7) == 0.0
+    assert np.isclose(PetioleBendingEnergy(60.0, 3e-7), 3e-7 * (np.pi / 3) ** 2)
+    assert PetioleBendingEnergy(60.0, 0.0) == 0.0
