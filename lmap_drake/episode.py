@@ -361,6 +361,10 @@ def DescribePlan(plan) -> str:
     """The chosen action, its predicted energy and visibility, in one line."""
     c = plan.chosen
     a = c.action
+    if c.approach is None:        # a continuation: the leaf is already held
+        where = f"holding the leaf at {np.round(a.p_WG, 3).tolist()} m, "
+    else:
+        where = f"grasp {a.grasp_id} at {np.round(a.p_WG, 3).tolist()} m, "
     vis = (f"{c.seen / plan.seen_max:.2f} (from {plan.seen_init / plan.seen_max:.2f})"
            if plan.seen_max and c.seen >= 0 else "n/a")
     e = c.EnergyPerNode()
@@ -368,7 +372,7 @@ def DescribePlan(plan) -> str:
            f"{np.round(a.dp_W / max(a.distance, 1e-9), 2).tolist()}" if a.family == "pull" else
            f"{a.Describe()} about {np.round(a.axis_W, 2).tolist()} through the estimated "
            f"petiole attachment {np.round(a.pivot_W, 3).tolist()} m")
-    return (f"grasp {a.grasp_id} at {np.round(a.p_WG, 3).tolist()} m, {how}"
+    return (f"{where}{how}"
             f"; predicted visibility {vis}; predicted energy per node "
             + (f"{e:.2e} m^2" if e is not None else "n/a"))
 

@@ -2,12 +2,19 @@
 Drake LeafSystem, the same on the simulated and the hardware station.
 
     idle -> capture -> plan_requested [-> confirm_wait] -> pregrasp ->
-    approach -> close_gripper -> grasp_wait -> pull -> hold -> observe ->
-    release -> retreat -> done            (or planned, or aborted)
+    approach -> close_gripper -> grasp_wait -> pull -> hold -> observe
+    [-> [confirm_wait ->] pull -> hold -> observe, up to planner.max_replans]
+    -> release -> retreat -> done            (or planned, or aborted)
 
-Release: the arm carries the held leaf back along the pull to where it was
-grasped, then the gripper opens (no spring-back); retreat: the approach in
-reverse (grasp -> pre-grasp -> ready -> via), then the start pose.
+``pull`` executes the chosen motion, a straight pull or a hinge arc
+(``planning.motion.PlanActionPath``). After ``observe`` (re-estimation on the
+fused views) the ``continuation`` input (``ContinuationPlanning``: a further
+motion from the held leaf, planned on the newest view) is evaluated while
+re-plans are left; when it has an action, that motion runs from the held
+pose (after the operator's yes with ``confirm``; a no releases the leaf).
+Release: the arm carries the held leaf back along every executed motion to
+where it was grasped, then the gripper opens (no spring-back); retreat: the
+approach in reverse (grasp -> pre-grasp -> ready -> via), then the start pose.
 
 Input ports:
 
@@ -18,6 +25,8 @@ Input ports:
   the plan, only to time those stages (Table IV).
 - ``final_estimate`` (abstract ``SceneEstimate``): evaluated in ``observe``
   (re-estimation on the fused views).
+- ``continuation`` (abstract ``PlanResult``, optional): evaluated in
+  ``observe`` while ``planner.max_replans`` allows another motion.
 - ``ur5.state_estimated`` (12: q rad, v rad/s), ``gripper.state_measured``
   (3: opening m, rate m/s, object flag: 1 the gripper stopped on an object,
   NaN unknown), ``views_fused`` (1: views Perception has fused).
@@ -335,7 +344,7 @@ class ArmController(LeafSystem):
         except Exception as err:  # noqa: BLE001 - never an exception out of the Diagram
             self._Fail(context, st, t, f"arm_controller ({st.mode})", err)
         state.get_mutable_abstract_state(self._state).set_value(st)
-        return EventStatus.Succeeded() if st.mode != before else EventStatus.DidNothing()
+        return EventStatus.Succeeded()
 
     def _views_fused(self, context) -> int:
         return int(self._views.Eval(context)[0]) if self._views.HasValue(context) else 1 << 30

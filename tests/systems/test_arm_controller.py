@@ -1,0 +1,100 @@
+"""The ArmController alone in a Diagram, its inputs fixed: a plan from the
+synthetic planning scene and a continuation planned from the held leaf.
+Checks the re-planning branch of the state machine: a further motion runs
+from the held pose, asks the operator again with ``confirm``, and a refused
+continuation releases the leaf along the motions already made."""
+import dataclasses as dc
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from lmap_drake.planning.lmap import HeldGrasp, PlanContinuation, PlanningContext
+from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.scenario import Scenario
+from lmap_drake.systems.arm_controller import ArmController, ControllerOptions
+from tests.systems.test_planning_system import _X_WC, _plan, _scene
+
+
+@pytest.fixture(scope="module")
+def plans():
+    first = _plan(_scene(), max_energy=0.0)
+    short = min((c for c in first.candidates if c.feasible and c.action.family == "pull"),
+                key=lambda c: c.seen)
+    key = [short.action.grasp_id, short.action.direction_id, short.action.distance]
+    first = _plan(_scene(), max_energy=0.0, force_action=key)
+    s = Scenario()
+    s.planner.max_energy_per_node = 0.0
+    scene = _scene()
+    moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
+    ctx = PlanningContext(dc.replace(scene, semantic=moved), _X_WC(),
+                          RobotModel(s.robot.X_WB.GetDeterministicValue()),
+                          first.chosen.q_pulled)
+    cont = PlanContinuation(ctx, s.planner, s.deformation, HeldGrasp.After([first]))
+    assert cont.status == "ok", cont.message
+    return first, cont
+
+
+def _Run(plans, answers, max_replans=1):
+    first, cont = plans
+    s = Scenario()
+    s.planner.max_replans = max_replans
+    b = DiagramBuilder()
+    log = []
+    c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
+        grasp_ack_required=False, confirm=True), progress=log.append))
+    d = b.Build()
+    sim = Simulator(d)
+    ctx = sim.get_mutable_context()
+    cc = c.GetMyMutableContextFromRoot(ctx)
+    c.GetInputPort("plan").FixValue(cc, first)
+    c.GetInputPort("continuation").FixValue(cc, cont)
+    for name in ("semantic_scene", "scene_estimate", "final_estimate"):
+        c.GetInputPort(name).FixValue(cc, AbstractValue.Make(first.candidates and _scene()))
+    c.GetInputPort("ur5.state_estimated").FixValue(cc, np.r_[s.robot.initial_q, np.zeros(6)])
+    c.GetInputPort("gripper.state_measured").FixValue(cc, [0.003, 0.0, 1.0])  # on the leaf
+    c.GetInputPort("views_fused").FixValue(cc, [10.0])
+    asked, traj_ends = [], []
+    answers = list(answers)
+    while sim.get_context().get_time() < 60.0:
+        sim.AdvanceTo(sim.get_context().get_time() + 0.1)
+        st = c.Status(cc)
+        if st.trajectory is not None:
+            traj_ends.append(np.asarray(st.q_hold, float).copy())
+        if st.finished:
+            break
+        if st.mode == "confirm_wait" and st.confirmed is None:
+            asked.append(st.pending_motion is not None)
+            c.Confirm(cc, answers.pop(0))
+    return c.Status(cc), asked, log
+
+
+def test_a_continuation_runs_from_the_held_pose_after_a_second_yes(plans):
+    st, asked, _ = _Run(plans, [True, True])
+    modes = [m for _, m in st.mode_log]
+    assert asked == [False, True]               # the plan, then the continuation
+    assert modes.count("pull") == 2 and modes.count("confirm_wait") == 2
+    assert modes[-3:] == ["release", "retreat", "done"]
+    assert len(st.motion_paths) == 2 and len(st.continuations) == 1
+    # the continuation starts where the first motion ended
+    assert np.allclose(st.motion_paths[1][0], st.motion_paths[0][-1], atol=0.1)
+    assert st.stage_seconds["replanning_s"] >= 0.0
+    assert len(st.replan_log) == 1 and st.replan_log[0].startswith("ok")
+
+
+def test_a_refused_continuation_releases_the_leaf(plans):
+    st, asked, log = _Run(plans, [True, False])
+    modes = [m for _, m in st.mode_log]
+    assert asked == [False, True]
+    assert modes.count("pull") == 1 and modes[-3:] == ["release", "retreat", "done"]
+    assert len(st.motion_paths) == 1 and st.mode == "done"
+    assert any(m.startswith("release: 1 motion(s) executed; continuation not confirmed")
+               for m in log), log
+
+
+def test_no_replans_means_one_motion(plans):
+    st, asked, _ = _Run(plans, [True], max_replans=0)
+    assert asked == [False] and [m for _, m in st.mode_log].count("pull") == 1
+    assert st.replan_log == [] and st.mode == "done"
