@@ -38,6 +38,15 @@ class PredictedDeformation:
 
 
 @dc.dataclass
+class UnmodelledGrasp:
+    """In place of a prediction: the graph cannot model this action's grasp
+    (``message`` says why, e.g. the grasped part of the leaf is not
+    connected to the branch); the planner rejects the action with it."""
+    action: Action
+    message: str
+
+
+@dc.dataclass
 class GraspSolution:
     """Everything built once per grasp pose (a heavy object: keep it as a
     system attribute, never in a Context)."""
@@ -108,13 +117,19 @@ def DefaultWorkers() -> int:
 
 def PrepareAndSolveGrasps(leaf_graph: LeafGraph, groups: list[list[Action]],
                           config: DeformationConfig, factorization: str = "inverse",
-                          workers: int | None = None) -> list:
+                          workers: int | None = None, skip_unmodelled: bool = False) -> list:
     """(GraspSolution, ArapResult) per group of actions sharing a grasp
     (``PrepareGrasp`` then ``SolveActions``), groups spread over ``workers``
     threads (default ``DefaultWorkers()``); results in the order of
-    ``groups``."""
+    ``groups``. With ``skip_unmodelled`` a grasp the graph cannot model
+    gives (None, DeformationError) instead of raising."""
     def Run(acts):
-        prep = PrepareGrasp(leaf_graph, acts[0].p_WG, acts[0].R_WG, config, factorization)
+        try:
+            prep = PrepareGrasp(leaf_graph, acts[0].p_WG, acts[0].R_WG, config, factorization)
+        except DeformationError as err:
+            if not skip_unmodelled:
+                raise
+            return None, err
         return prep, SolveActions(prep, acts, config)
 
     workers = min(len(groups), workers or DefaultWorkers())
@@ -126,19 +141,26 @@ def PrepareAndSolveGrasps(leaf_graph: LeafGraph, groups: list[list[Action]],
 
 def PredictDeformations(leaf_points_W: np.ndarray, branch_points_W: np.ndarray,
                         actions: list[Action], config: DeformationConfig,
-                        dense: bool = True, workers: int | None = None
-                        ) -> list[PredictedDeformation]:
+                        dense: bool = True, workers: int | None = None,
+                        skip_unmodelled: bool = False) -> list:
     """Predictions for ``actions`` (any order, any number of grasps), in
     the order given; grasps in ``workers`` threads (``PrepareAndSolveGrasps``).
-    Raises DeformationError on unusable input."""
+    Raises DeformationError on unusable input; with ``skip_unmodelled`` an
+    action whose grasp alone cannot be modelled gets an ``UnmodelledGrasp``
+    (it still raises when no grasp can be)."""
     if not actions:
         return []
     leaf_graph = BuildLeafGraph(leaf_points_W, branch_points_W, config)
     out: list[PredictedDeformation | None] = [None] * len(actions)
     idxs = GroupActionsByGrasp(actions)
     groups = [[actions[i] for i in idx] for idx in idxs]
-    solved = PrepareAndSolveGrasps(leaf_graph, groups, config, workers=workers)
+    solved = PrepareAndSolveGrasps(leaf_graph, groups, config, workers=workers,
+                                   skip_unmodelled=skip_unmodelled)
+    if all(prep is None for prep, _ in solved):
+        raise solved[0][1]
     for idx, acts, (prep, res) in zip(idxs, groups, solved):
-        for i, p in zip(idx, _Predictions(prep, acts, res, dense)):
+        preds = ([UnmodelledGrasp(a, str(res)) for a in acts] if prep is None
+                 else _Predictions(prep, acts, res, dense))
+        for i, p in zip(idx, preds):
             out[i] = p
     return out

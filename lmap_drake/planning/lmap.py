@@ -15,7 +15,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.deformation.action import Action, HingeAxes, MakeArcActions, PullDirections
 from lmap_drake.deformation.graph import FREE
-from lmap_drake.deformation.predict import PredictDeformations
+from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
 from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
                                            RobotCollisionReason)
@@ -497,6 +497,9 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         raise PlanningError(f"{len(predictions)} predictions for {len(live)} live actions")
     n_leaf = len(ctx.leaf_W)
     for c, p in zip(live, predictions):
+        if isinstance(p, UnmodelledGrasp):
+            c.reason = f"deformation model: {p.message}"
+            continue
         c.arap_energy = float(p.energy)
         c.num_leaf_nodes = int(np.count_nonzero(np.asarray(p.node_kind) == FREE))
         ref = c.action.p_WG if hinge_reference_W is None else hinge_reference_W
@@ -595,7 +598,8 @@ def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
     if cset.status == "ok" and cset.LiveActions():
         leaf = np.vstack([ctx.leaf_W, cset.scene.leaf_attachment_W])
         try:
-            predictions = PredictDeformations(leaf, ctx.branch_all_W, cset.LiveActions(), dcfg)
+            predictions = PredictDeformations(leaf, ctx.branch_all_W, cset.LiveActions(), dcfg,
+                                              skip_unmodelled=True)
         except ValueError as err:
             cset.status, cset.message = "no_feasible_action", f"deformation model: {err}"
     cset.timings["deformation_s"] = time.perf_counter() - t0
@@ -605,6 +609,11 @@ def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
 
 
 # --- re-planning from the held leaf -------------------------------------
+
+# How far (m) the observed leaf can end from the held grasp point because the
+# gripper's pads (2.2 x 3.8 cm) hide it from the camera.
+HELD_LEAF_HIDDEN = 0.02
+
 
 @dc.dataclass
 class HeldGrasp:
@@ -693,13 +702,17 @@ def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformation
     as the first motion is, with the energy cap applied to the motions'
     summed energy per node. Never raises on a bad scene."""
     progress = progress or (lambda m: None)
+    # The pads hide the held leaf around the grasp from the camera: the
+    # nearest observed leaf point can be up to about half a pad away.
+    dcfg = dc.replace(dcfg, max_grasp_distance=dcfg.max_grasp_distance + HELD_LEAF_HIDDEN)
     cset = GenerateContinuation(ctx, cfg, dcfg, held)
     predictions = []
     t0 = time.perf_counter()
     if cset.status == "ok" and cset.LiveActions():
         leaf = np.vstack([ctx.leaf_W, cset.scene.leaf_attachment_W])
         try:
-            predictions = PredictDeformations(leaf, ctx.branch_all_W, cset.LiveActions(), dcfg)
+            predictions = PredictDeformations(leaf, ctx.branch_all_W, cset.LiveActions(), dcfg,
+                                              skip_unmodelled=True)
         except ValueError as err:
             cset.status, cset.message = "no_feasible_action", f"deformation model: {err}"
     cset.timings["deformation_s"] = time.perf_counter() - t0

@@ -17,8 +17,10 @@ Output port:
   point deformed (W, m), the minimised ARAP energy, iteration count.
   Computed on demand and cached by Drake until an input changes. An action
   whose grasp cannot be modelled (off the leaf, leaf part not attached to
-  the branch) raises ``DeformationError``, as does an unusable scene (no
-  leaf, no branch), rather than returning a silent guess.
+  the branch) gets an ``UnmodelledGrasp`` naming why (the planner rejects
+  it with that reason; ``skip_unmodelled=False`` raises instead); an
+  unusable scene (no leaf, no branch, no grasp modelled) raises
+  ``DeformationError``, rather than returning a silent guess.
 
 Parameters come from ``DeformationConfig``. The per-grasp factorisations are
 heavy objects: the most recent scene's ones are kept as an attribute of the
@@ -34,8 +36,9 @@ from pydrake.systems.framework import LeafSystem
 
 from lmap_drake.deformation.action import Action, GroupActionsByGrasp
 from lmap_drake.deformation.graph import BuildLeafGraph, LeafGraph
+from lmap_drake.deformation.action import DeformationError
 from lmap_drake.deformation.predict import (
-    PredictedDeformation, GraspSolution, PrepareGrasp, SolveGrasp)
+    PredictedDeformation, GraspSolution, PrepareGrasp, SolveGrasp, UnmodelledGrasp)
 from lmap_drake.scenario import DeformationConfig
 from lmap_drake.types import SceneEstimate, SemanticScene
 
@@ -57,8 +60,10 @@ class DeformationPrediction(LeafSystem):
     """SceneEstimate + list[Action] -> list[PredictedDeformation]; see the
     module docstring for ports, frames and units."""
 
-    def __init__(self, config: DeformationConfig | None = None, dense: bool = True):
+    def __init__(self, config: DeformationConfig | None = None, dense: bool = True,
+                 skip_unmodelled: bool = True):
         super().__init__()
+        self._skip_unmodelled = skip_unmodelled
         self._config = config if config is not None else DeformationConfig()
         self._dense = dense
         self._scene_key: bytes | None = None
@@ -92,15 +97,27 @@ class DeformationPrediction(LeafSystem):
             return []
         leaf_graph = self._leaf_graph_for(scene)
         out: list = [None] * len(actions)
+        errors = []
         for idx in GroupActionsByGrasp(actions):
             a0 = actions[idx[0]]
             key = a0.grasp_key()
             if key not in self._grasps:
-                self._grasps[key] = PrepareGrasp(leaf_graph, a0.p_WG, a0.R_WG, self._config)
+                try:
+                    self._grasps[key] = PrepareGrasp(leaf_graph, a0.p_WG, a0.R_WG,
+                                                     self._config)
+                except DeformationError as err:
+                    if not self._skip_unmodelled:
+                        raise
+                    errors.append(err)
+                    for i in idx:
+                        out[i] = UnmodelledGrasp(actions[i], str(err))
+                    continue
             preds = SolveGrasp(self._grasps[key], [actions[i] for i in idx], self._config,
                                self._dense)
             for i, p in zip(idx, preds):
                 out[i] = p
+        if errors and all(isinstance(p, UnmodelledGrasp) for p in out):
+            raise errors[0]
         return out
 
     def _calc_predictions(self, context, output):

@@ -94,3 +94,31 @@ def test_petiole_bending_term():
     assert PetioleBendingEnergy(float("nan"), 1e-7) == 0.0
     assert np.isclose(PetioleBendingEnergy(60.0, 3e-7), 3e-7 * (np.pi / 3) ** 2)
     assert PetioleBendingEnergy(60.0, 0.0) == 0.0
+
+
+def test_a_grasp_the_graph_cannot_model_is_reported_not_fatal():
+    """A leaf piece seen apart from the rest (not connected to the branch):
+    with ``skip_unmodelled`` its actions get an UnmodelledGrasp naming why,
+    the other grasps are predicted; without it, or when no grasp can be
+    modelled, it raises."""
+    from lmap_drake.deformation.action import DeformationError
+    from lmap_drake.deformation.predict import UnmodelledGrasp
+    from lmap_drake.systems.deformation import DeformationPrediction
+    from lmap_drake.types import SceneEstimate, SemanticScene
+    leaf, branch = OvateLeaf()
+    g = np.arange(0.0, 0.02, 0.0015)
+    island = np.c_[0.3 + np.repeat(g, len(g)), 0.2 + np.tile(g, len(g)), np.zeros(len(g) ** 2)]
+    pts = np.vstack([leaf, island])
+    ok = Action(leaf[np.argmax(leaf[:, 0])] - [0.01, 0, 0], R_GRASP, [0, 0, 0.02])
+    bad = Action(island.mean(0), R_GRASP, [0, 0, 0.02])
+    preds = PredictDeformations(pts, branch, [ok, bad], TEST_CONFIG, skip_unmodelled=True)
+    assert np.isfinite(preds[0].energy)
+    assert isinstance(preds[1], UnmodelledGrasp) and "no path to a fixed" in preds[1].message
+    with pytest.raises(DeformationError):
+        PredictDeformations(pts, branch, [ok, bad], TEST_CONFIG)
+    with pytest.raises(DeformationError):
+        PredictDeformations(pts, branch, [bad], TEST_CONFIG, skip_unmodelled=True)
+    system = DeformationPrediction(TEST_CONFIG, dense=False)
+    scene = SceneEstimate(semantic=SemanticScene(leaf_points_W=pts, branch_points_W=branch))
+    out = system.Predict(scene, [ok, bad])
+    assert np.isfinite(out[0].energy) and isinstance(out[1], UnmodelledGrasp)
