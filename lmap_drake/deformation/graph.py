@@ -57,6 +57,24 @@ def HandleGrid(p_WG: np.ndarray, R_WG: np.ndarray, grid: int, size: float) -> np
     return np.asarray(p_WG, float) + p_GH @ np.asarray(R_WG, float).T
 
 
+def MainLeafComponent(leaf_points_W: np.ndarray, config: DeformationConfig) -> np.ndarray:
+    """Mask (N,) of the leaf points in the largest connected part of the leaf
+    as the graph would connect it (voxels of ``voxel_size``, edges within
+    ``edge_radius``): the blade, without specks the segmenter labelled
+    leaf elsewhere (near the branch, they would take the virtual petiole
+    and leave the blade unattached)."""
+    leaf = np.asarray(leaf_points_W, float).reshape(-1, 3)
+    if len(leaf) < 2:
+        return np.ones(len(leaf), bool)
+    nodes, point_node = Voxelize(leaf, config.voxel_size)
+    pairs = cKDTree(nodes).query_pairs(config.edge_radius, output_type="ndarray")
+    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                     shape=(len(nodes), len(nodes)))
+    _, label = connected_components(adj, directed=False)
+    main = np.argmax(np.bincount(label, minlength=label.max() + 1))
+    return label[point_node] == main
+
+
 @dc.dataclass
 class LeafGraph:
     """The grasp-independent part of the graph. ``nodes_W`` holds the

@@ -14,7 +14,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.deformation.action import Action, HingeAxes, MakeArcActions, PullDirections
-from lmap_drake.deformation.graph import FREE
+from lmap_drake.deformation.graph import FREE, MainLeafComponent
 from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
 from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
@@ -238,6 +238,7 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
     the grasp), and robot-vs-fruit/branch checks there (gripper closed)."""
     robot = ctx.robot
     seeds: dict[int, np.ndarray] = {}
+    solved: dict[tuple, tuple] = {}
     for c in sorted(cands, key=lambda c: (c.action.direction_id, c.action.distance)):
         c.q_grasp = q_grasp if c.q_grasp is None else c.q_grasp
         seed = seeds.get(c.action.direction_id, q_grasp)
@@ -245,20 +246,29 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
         # An arc also turns the wrist: its midway pose is checked too (the
         # arcs of one axis come in increasing angles, so consecutive ends
         # and midpoints sample the whole sweep).
-        poses = [(a.p_WG + a.dp_W, a.R_WG_end)]
+        # (Arc poses already solved for this axis, e.g. the 30-degree end as
+        # the 60-degree arc's midway pose, are reused.)
+        poses = [(a.angle, a.p_WG + a.dp_W, a.R_WG_end)]
         if a.family == "arc":
             mid = dc.replace(a, angle=0.5 * a.angle, dp_W=None)
-            poses.insert(0, (mid.p_WG + mid.dp_W, mid.R_WG_end))
+            poses.insert(0, (mid.angle, mid.p_WG + mid.dp_W, mid.R_WG_end))
         why = ""
-        for p, R_end in poses:
-            r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
+        for angle, p, R_end in poses:
+            key = (a.direction_id, round(angle, 9)) if a.family == "arc" else None
+            if key in solved:
+                r, pose_why = solved[key]
+            else:
+                r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
+                pose_why = "" if not r.success else RobotCollisionReason(
+                    robot.SurfacePoints(r.q, 0.0), ctx.fruit_sdf, ctx.branch_distance,
+                    cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+                if key is not None:
+                    solved[key] = (r, pose_why)
             if not r.success:
                 why = f"IK failed ({'pulled pose' if a.family == 'pull' else 'along the arc'})"
                 break
             seed = r.q
-            why = why or RobotCollisionReason(robot.SurfacePoints(r.q, 0.0), ctx.fruit_sdf,
-                                              ctx.branch_distance, cfg.collision_margin,
-                                              ctx.fruit_box, ctx.branch_box)
+            why = why or pose_why
         if why.startswith("IK failed"):
             c.reason = why
             continue
@@ -301,13 +311,16 @@ def PetioleBendingEnergy(hinge_deg: float, weight: float) -> float:
     return float(weight * np.radians(hinge_deg) ** 2)
 
 
-def EstimateHinge(leaf_W: np.ndarray, branch_W: np.ndarray) -> np.ndarray | None:
+def EstimateHinge(leaf_W: np.ndarray, branch_W: np.ndarray,
+                  dcfg: DeformationConfig | None = None) -> np.ndarray | None:
     """The point the leaf swings about: the branch point nearest to the
-    observed leaf (where its petiole joins the branch). None without
-    branch or leaf points."""
+    observed leaf's main part (``MainLeafComponent``; where its petiole
+    joins the branch). None without branch or leaf points."""
     from scipy.spatial import cKDTree
     if len(branch_W) == 0 or len(leaf_W) == 0:
         return None
+    leaf_W = np.asarray(leaf_W, float)
+    leaf_W = leaf_W[MainLeafComponent(leaf_W, dcfg or DeformationConfig())]
     d, j = cKDTree(branch_W).query(leaf_W)
     return np.asarray(branch_W[j[int(np.argmin(d))]], float)
 
@@ -330,13 +343,16 @@ def SelectAction(feasible: list[Candidate], energy_weight: float) -> Candidate:
 
 
 def AttachLeaf(scene: SceneEstimate, dcfg: DeformationConfig) -> tuple[SceneEstimate, str]:
-    """The scene with ``leaf_attachment_W`` set: if the observed leaf is
-    farther from the branch than the leaf-branch edge radius (its petiole
-    unseen), a virtual petiole (points one voxel apart from the nearest leaf
-    point to the nearest branch point) ties it to the branch. Returns the
-    scene and a message ('' if nothing was added)."""
+    """The scene with ``leaf_attachment_W`` set: if the observed leaf's
+    main part (``MainLeafComponent``: the blade, not specks labelled leaf
+    elsewhere) is farther from the branch than the leaf-branch edge radius
+    (its petiole unseen), a virtual petiole (points one voxel apart from
+    its nearest point to the nearest branch point) ties it to the branch.
+    Returns the scene and a message ('' if nothing was added)."""
     from scipy.spatial import cKDTree
     leaf = np.asarray(scene.semantic.leaf_points_W, float).reshape(-1, 3)
+    leaf = leaf[np.isfinite(leaf).all(axis=1)]
+    leaf = leaf[MainLeafComponent(leaf, dcfg)]
     branch = [np.asarray(scene.semantic.branch_points_W, float).reshape(-1, 3)]
     if scene.branch is not None:
         branch.append(scene.branch.samples_W)
@@ -415,7 +431,7 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
         out.status, out.message = "no_feasible_action", f"no grasp candidates: {err}"
         return out
     all_dirs = PullDirections()[:cfg.num_directions]
-    pivot = EstimateHinge(ctx.leaf_W, ctx.branch_all_W)
+    pivot = EstimateHinge(ctx.leaf_W, ctx.branch_all_W, dcfg)
     out.hinge_W = pivot
     angles = np.deg2rad(np.asarray(cfg.arc_angles_deg, float))
     for g in grasps:

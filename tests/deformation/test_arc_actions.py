@@ -122,3 +122,27 @@ def test_a_grasp_the_graph_cannot_model_is_reported_not_fatal():
     scene = SceneEstimate(semantic=SemanticScene(leaf_points_W=pts, branch_points_W=branch))
     out = system.Predict(scene, [ok, bad])
     assert np.isfinite(out[0].energy) and isinstance(out[1], UnmodelledGrasp)
+
+
+def test_a_speck_labelled_leaf_near_the_branch_does_not_take_the_petiole():
+    """Petiole unseen, and a few points labelled leaf near the branch away
+    from the blade: the virtual petiole and the hinge go to the blade."""
+    from lmap_drake.deformation.graph import MainLeafComponent
+    from lmap_drake.planning.lmap import AttachLeaf
+    from lmap_drake.scenario import DeformationConfig
+    from lmap_drake.types import SceneEstimate, SemanticScene
+    leaf, branch = OvateLeaf()
+    blade = leaf[leaf[:, 0] > 0.035]                 # petiole unseen: blade from 3.5 cm
+    g = np.arange(0.0, 0.006, 0.0015)
+    speck = np.c_[0.02 + np.repeat(g, len(g)), np.zeros(len(g) ** 2), -0.06 + np.tile(g, len(g))]
+    pts = np.vstack([blade, speck])
+    cfg = DeformationConfig()
+    mask = MainLeafComponent(pts, cfg)
+    assert mask[:len(blade)].all() and not mask[len(blade):].any()
+    scene = SceneEstimate(semantic=SemanticScene(leaf_points_W=pts, branch_points_W=branch))
+    attached, msg = AttachLeaf(scene, cfg)
+    assert "virtual petiole" in msg
+    line = attached.leaf_attachment_W
+    assert abs(line[:, 2]).max() < 0.01              # from the blade's base, not from the speck
+    hinge = EstimateHinge(pts, branch, cfg)
+    assert abs(hinge[2]) < 0.01 and np.linalg.norm(hinge[:2]) < 0.01
