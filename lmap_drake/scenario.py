@@ -466,7 +466,9 @@ class PlannerConfig:
     further motion from the held leaf (its deformation predicted from the
     leaf as now observed) up to this many times; each is executed, held and
     observed like the first. The leaf is carried back along all of them
-    before it is released.
+    before it is released. A further motion must raise the predicted
+    visibility by at least ``min_replan_gain`` (fraction of the fruit's
+    voxels) over the leaf held where it is.
 
     ``hinge_bending_weight`` (m^2 per rad^2 per leaf node): the petiole's
     bending at its attachment, added to every action's predicted energy as
@@ -500,6 +502,7 @@ class PlannerConfig:
     arc_angles_deg: list[float] = dc.field(default_factory=lambda: [15.0, 30.0, 45.0, 60.0])
     num_arc_axes: int = 8
     max_replans: int = 1
+    min_replan_gain: float = 0.05
     hinge_bending_weight: float = 3.0e-7
 
 
@@ -850,6 +853,7 @@ _RULES = {
     "planner.arc_angles_deg": "+x>0",
     "planner.num_arc_axes": ">=1",
     "planner.max_replans": ">=0",
+    "planner.min_replan_gain": "[0,1]",
     "planner.hinge_bending_weight": ">=0",
 }
 _ENUMS = {

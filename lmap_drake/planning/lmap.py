@@ -493,7 +493,8 @@ def _ChooseForced(result: PlanResult, forced: Candidate | None, force_action) ->
 def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions: list,
                           cfg: PlannerConfig, method: str = "lmap",
                           energy_offset_per_node: float = 0.0,
-                          hinge_reference_W: np.ndarray | None = None) -> PlanResult:
+                          hinge_reference_W: np.ndarray | None = None,
+                          min_gain: float = 0.0) -> PlanResult:
     """Paper Sec. III-C-2/3: leaf-fruit checks, visibility with early stop
     along the distances, and the score. ``predictions`` are aligned with
     ``cset.LiveActions()`` (``PredictedDeformation``: ``energy``,
@@ -555,6 +556,14 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
                 reached = True
     result.timings["visibility_s"] = result.timings.get("visibility_s", 0.0) + \
         time.perf_counter() - t0
+    if min_gain > 0 and n_max:
+        # (re-planning) a further motion must show clearly more of the
+        # fruit than the leaf held where it is: the normalised score alone
+        # would pick some action even if every one reveals less.
+        for c in cands:
+            if c.feasible and c.seen < result.seen_init + min_gain * n_max:
+                c.reason = (f"predicted visibility {c.seen / n_max:.2f} not above the "
+                            f"current {result.seen_init / n_max:.2f} + {min_gain:g}")
     feasible = [c for c in cands if c.feasible]
     if feasible:
         # The paper's score, normalised over every action that passed the
@@ -734,7 +743,8 @@ def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformation
     cset.timings["deformation_s"] = time.perf_counter() - t0
     result = SelectFromPredictions(ctx, cset, predictions, cfg,
                                    energy_offset_per_node=held.energy_per_node,
-                                   hinge_reference_W=held.p_WG0)
+                                   hinge_reference_W=held.p_WG0,
+                                   min_gain=cfg.min_replan_gain)
     result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
     progress(f"continuation: {result.status}" + (f" ({result.message})" if result.message else ""))
     return result

@@ -190,6 +190,9 @@ def test_continuation_from_the_held_leaf():
     for c in cont.candidates:
         assert np.allclose(c.action.p_WG, held.p_WG) and np.allclose(c.action.R_WG, held.R_WG)
         assert c.approach is None
+    gain = s.planner.min_replan_gain * cont.seen_max
+    assert all(c.seen >= cont.seen_init + gain for c in cont.candidates if c.feasible)
+    assert any("not above the current" in c.reason for c in cont.candidates)
     if cont.status == "ok":
         assert cont.chosen.feasible and cont.chosen.seen >= 0
         # A cap below the energy already spent leaves nothing to do.
