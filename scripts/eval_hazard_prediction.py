@@ -206,6 +206,9 @@ def Repredict(path: str, deformation_text: str, hinge_bending_weight: float) -> 
         out[name] = Correlations(sc["rows"])
         pooled += sc["rows"]
     out["pooled"] = Correlations(pooled)
+    d["repredicted"] = {"deformation_text": deformation_text,
+                        "hinge_bending_weight": hinge_bending_weight, "correlation": out}
+    Path(path).with_suffix(".repredicted.json").write_text(json.dumps(d, indent=1))
     return out
 
 
@@ -221,7 +224,8 @@ def main(argv=None) -> int:
     p.add_argument("--hold", type=float, default=0.3)
     p.add_argument("--segmenter", default="", help="default: the scenario's")
     p.add_argument("--repredict", action="store_true",
-                   help="re-run only the predictions of --out (with --deformation_text)")
+                   help="re-run only the predictions of --out (with --deformation_text); "
+                        "writes OUT.repredicted.json")
     p.add_argument("--deformation_text", default="{}")
     p.add_argument("--hinge_bending_weight", type=float, default=None,
                    help="with --repredict (default: the planner's)")
