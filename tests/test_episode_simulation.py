@@ -66,7 +66,7 @@ def short_arcs_episode():
     controller re-plans from the held leaf."""
     s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults",
                      scenario_text="{planner: {action_families: [arc], "
-                                   "arc_angles_deg: [20.0], max_replans: 2}}")
+                                   "arc_angles_deg: [20.0], max_replans: 1}}")
     return RunSimEpisode(s)
 
 
@@ -78,8 +78,7 @@ def test_replanning_from_the_held_leaf(short_arcs_episode):
     r = short_arcs_episode.record
     assert r["status"] == "done", r["message"]
     motions = r["motions"]
-    assert 2 <= len(motions) <= 3 and _MotionBlocks([m for _, m in r["mode_log"]]) == len(
-        motions)
+    assert len(motions) == 2 and _MotionBlocks([m for _, m in r["mode_log"]]) == 2
     assert all(m["family"] == "arc" and np.isclose(m["angle_deg"], 20.0) for m in motions)
     for a, b in zip(motions, motions[1:]):
         assert np.allclose(np.add(a["p_WG"], a["dp_W"]), b["p_WG"], atol=2e-4)
@@ -91,7 +90,8 @@ def test_replanning_from_the_held_leaf(short_arcs_episode):
     out, rel = r["outcome"], r["release_outcome"]
     assert not (out["leaf_damage"] or out["plant_hazard"] or out["fruit_collision"])
     assert not (rel["plant_hazard"] or rel["fruit_collision"])
-    assert out["visibility_final"] > 0.9 and motions[0]["predicted_visibility"] < 0.9
+    assert motions[0]["predicted_visibility"] < 0.9
+    assert out["visibility_final"] > out["visibility_initial"] + 0.3
 
 
 def test_recorded_episode_replays_to_the_identical_action(episode, tmp_path):

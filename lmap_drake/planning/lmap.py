@@ -523,6 +523,9 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         c.hinge_deg = HingeRotationDeg(cset.hinge_W, ref, c.action.p_WG + c.action.dp_W)
         c.energy = c.arap_energy + c.num_leaf_nodes * PetioleBendingEnergy(
             c.hinge_deg, cfg.hinge_bending_weight)
+        if np.isfinite(c.hinge_deg) and c.hinge_deg > cfg.max_hinge_deg:
+            c.reason = (f"turns the leaf {c.hinge_deg:.0f} deg about its petiole attachment "
+                        f"(max_hinge_deg {cfg.max_hinge_deg:g})")
         c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
     vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
     t0 = time.perf_counter()

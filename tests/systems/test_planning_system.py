@@ -41,8 +41,10 @@ def _X_WC():
     return s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
 
 
-def _plan(scene, energy_weight=1.0, max_energy=None, force_action=None):
+def _plan(scene, energy_weight=1.0, max_energy=None, force_action=None, planner=None):
     s = Scenario()
+    for k, v in (planner or {}).items():
+        setattr(s.planner, k, v)
     if force_action is not None:
         s.planner.force_action = force_action
     if max_energy is not None:
@@ -154,6 +156,11 @@ def test_plan_offers_hinge_arcs_with_the_petiole_term():
         assert np.isclose(c.EnergyPerNode(), c.arap_energy / c.num_leaf_nodes + bend)
         row = c.Row()
         assert row["family"] == c.action.family and row["hinge_deg"] is not None
+    # No action may turn the leaf more than max_hinge_deg about the hinge.
+    limited = _plan(_scene(), max_energy=0.0, planner={"max_hinge_deg": 20.0})
+    turned = [c for c in limited.candidates if np.isfinite(c.hinge_deg) and c.hinge_deg > 20]
+    assert turned and all("max_hinge_deg 20" in c.reason for c in turned)
+    assert limited.status != "ok" or limited.chosen.hinge_deg <= 20.0
     # An arc keeps the grasp's distance to the hinge; its turn is its angle.
     a = next(c for c in arcs if c.feasible)
     assert np.isclose(a.hinge_deg, np.rad2deg(a.action.angle), atol=0.5)
