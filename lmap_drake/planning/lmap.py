@@ -615,12 +615,10 @@ def NoActionReason(cands: list[Candidate], dropped_grasps: list[dict],
     return ", ".join(f"{k}: {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
 
 
-def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
-             progress=None) -> PlanResult:
-    """The LMAP planner, all three stages (the Diagram wires the same
-    stages as ActionCandidates -> DeformationPrediction -> ActionSelection).
-    Never raises on a bad scene: returns a status."""
-    cset = GenerateCandidates(ctx, cfg, dcfg, progress)
+def _PredictLive(ctx: PlanningContext, cset: CandidateSet, dcfg: DeformationConfig) -> list:
+    """Deformation predictions of the set's live actions (the observed leaf
+    plus its virtual petiole), timed into ``cset.timings``; an unusable
+    scene turns the set's status to 'no_feasible_action'."""
     predictions = []
     t0 = time.perf_counter()
     if cset.status == "ok" and cset.LiveActions():
@@ -631,6 +629,16 @@ def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
         except ValueError as err:
             cset.status, cset.message = "no_feasible_action", f"deformation model: {err}"
     cset.timings["deformation_s"] = time.perf_counter() - t0
+    return predictions
+
+
+def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
+             progress=None) -> PlanResult:
+    """The LMAP planner, all three stages (the Diagram wires the same
+    stages as ActionCandidates -> DeformationPrediction -> ActionSelection).
+    Never raises on a bad scene: returns a status."""
+    cset = GenerateCandidates(ctx, cfg, dcfg, progress)
+    predictions = _PredictLive(ctx, cset, dcfg)
     result = SelectFromPredictions(ctx, cset, predictions, cfg)
     result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
     return result
@@ -734,16 +742,7 @@ def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformation
     # nearest observed leaf point can be up to about half a pad away.
     dcfg = dc.replace(dcfg, max_grasp_distance=dcfg.max_grasp_distance + HELD_LEAF_HIDDEN)
     cset = GenerateContinuation(ctx, cfg, dcfg, held)
-    predictions = []
-    t0 = time.perf_counter()
-    if cset.status == "ok" and cset.LiveActions():
-        leaf = np.vstack([ctx.leaf_W, cset.scene.leaf_attachment_W])
-        try:
-            predictions = PredictDeformations(leaf, ctx.branch_all_W, cset.LiveActions(), dcfg,
-                                              skip_unmodelled=True)
-        except ValueError as err:
-            cset.status, cset.message = "no_feasible_action", f"deformation model: {err}"
-    cset.timings["deformation_s"] = time.perf_counter() - t0
+    predictions = _PredictLive(ctx, cset, dcfg)
     result = SelectFromPredictions(ctx, cset, predictions, cfg,
                                    energy_offset_per_node=held.energy_per_node,
                                    hinge_reference_W=held.p_WG0,

@@ -3,36 +3,23 @@ synthetic planning scene and a continuation planned from the held leaf.
 Checks the re-planning branch of the state machine: a further motion runs
 from the held pose, asks the operator again with ``confirm``, and a refused
 continuation releases the leaf along the motions already made."""
-import dataclasses as dc
-
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lmap_drake.planning.lmap import HeldGrasp, PlanContinuation, PlanningContext
-from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.planning.lmap import PlanContinuation
 from lmap_drake.scenario import Scenario
 from lmap_drake.systems.arm_controller import ArmController, ControllerOptions
-from tests.systems.test_planning_system import _X_WC, _plan, _scene
+from lmap_drake.types import SemanticScene
+from tests.systems.test_planning_system import HeldAfterShortPull, _scene
 
 
 @pytest.fixture(scope="module")
 def plans():
-    first = _plan(_scene(), max_energy=0.0)
-    short = min((c for c in first.candidates if c.feasible and c.action.family == "pull"),
-                key=lambda c: c.seen)
-    key = [short.action.grasp_id, short.action.direction_id, short.action.distance]
-    first = _plan(_scene(), max_energy=0.0, force_action=key)
-    s = Scenario()
-    s.planner.max_energy_per_node = 0.0
-    scene = _scene()
-    moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
-    ctx = PlanningContext(dc.replace(scene, semantic=moved), _X_WC(),
-                          RobotModel(s.robot.X_WB.GetDeterministicValue()),
-                          first.chosen.q_pulled)
-    cont = PlanContinuation(ctx, s.planner, s.deformation, HeldGrasp.After([first]))
+    first, ctx, s, held = HeldAfterShortPull()
+    cont = PlanContinuation(ctx, s.planner, s.deformation, held)
     assert cont.status == "ok", cont.message
     return first, cont
 
@@ -51,8 +38,9 @@ def _Run(plans, answers, max_replans=1):
     cc = c.GetMyMutableContextFromRoot(ctx)
     c.GetInputPort("plan").FixValue(cc, first)
     c.GetInputPort("continuation").FixValue(cc, cont)
-    for name in ("semantic_scene", "scene_estimate", "final_estimate"):
-        c.GetInputPort(name).FixValue(cc, AbstractValue.Make(first.candidates and _scene()))
+    c.GetInputPort("semantic_scene").FixValue(cc, AbstractValue.Make(SemanticScene()))
+    for name in ("scene_estimate", "final_estimate"):
+        c.GetInputPort(name).FixValue(cc, AbstractValue.Make(_scene()))
     c.GetInputPort("ur5.state_estimated").FixValue(cc, np.r_[s.robot.initial_q, np.zeros(6)])
     c.GetInputPort("gripper.state_measured").FixValue(cc, [0.003, 0.0, 1.0])  # on the leaf
     c.GetInputPort("views_fused").FixValue(cc, [10.0])

@@ -166,23 +166,19 @@ def test_plan_offers_hinge_arcs_with_the_petiole_term():
     assert np.isclose(a.hinge_deg, np.rad2deg(a.action.angle), atol=0.5)
 
 
-def test_continuation_from_the_held_leaf():
-    """After a short pull the planner continues from where the gripper
-    holds the leaf: every candidate starts at the held pose, the IK starts
-    from the held joints, the energy cap sees the motions' summed energy,
-    and a leaf already out of the way needs nothing more."""
+def HeldAfterShortPull():
+    """(first plan: the least revealing 4 cm pull, forced; a PlanningContext
+    whose leaf is that pull's predicted leaf, at its joints; the scenario;
+    the HeldGrasp) for continuation tests."""
     import dataclasses as dc
 
-    from lmap_drake.planning.lmap import HeldGrasp, PlanContinuation, PlanningContext
+    from lmap_drake.planning.lmap import HeldGrasp, PlanningContext
     from lmap_drake.planning.robot_model import RobotModel
     first = _plan(_scene(), max_energy=0.0)
     short = min((c for c in first.candidates if c.feasible and c.action.family == "pull"
                  and np.isclose(c.action.distance, 0.04)), key=lambda c: c.seen)
     key = [short.action.grasp_id, short.action.direction_id, short.action.distance]
     first = _plan(_scene(), max_energy=0.0, force_action=key)
-    held = HeldGrasp.After([first])
-    a = first.chosen.action
-    assert np.allclose(held.p_WG, a.p_WG + a.dp_W) and held.motions == 1
     s = Scenario()
     s.planner.distances = [0.04, 0.08]
     s.planner.max_energy_per_node = 0.0
@@ -191,6 +187,21 @@ def test_continuation_from_the_held_leaf():
     ctx = PlanningContext(dc.replace(scene, semantic=moved), _X_WC(),
                           RobotModel(s.robot.X_WB.GetDeterministicValue()),
                           first.chosen.q_pulled)
+    return first, ctx, s, HeldGrasp.After([first])
+
+
+def test_continuation_from_the_held_leaf():
+    """After a short pull the planner continues from where the gripper
+    holds the leaf: every candidate starts at the held pose, the IK starts
+    from the held joints, the energy cap sees the motions' summed energy,
+    and a leaf already out of the way needs nothing more."""
+    import dataclasses as dc
+
+    from lmap_drake.planning.lmap import PlanContinuation, PlanningContext
+    first, ctx, s, held = HeldAfterShortPull()
+    a = first.chosen.action
+    assert np.allclose(held.p_WG, a.p_WG + a.dp_W) and held.motions == 1
+    scene = _scene()
     cont = PlanContinuation(ctx, s.planner, s.deformation, held)
     assert cont.status in ("ok", "no_action_needed"), cont.message
     assert cont.candidates or cont.status == "no_action_needed"
