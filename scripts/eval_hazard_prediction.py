@@ -43,6 +43,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from eval_deformation_vs_fem import Spearman  # noqa: E402  (scripts/ is on the path)
 
 DEFAULT_SCENARIOS = ["small_leaf_thin_branch_round_red_heavy",
                      "small_leaf_thin_branch_striped_red_partial",
@@ -51,15 +52,6 @@ DEFAULT_SCENARIOS = ["small_leaf_thin_branch_round_red_heavy",
 PREDICTED = ("energy_per_node", "planner_energy_per_node", "petiole_stretch",
              "tether_elongation_m")
 MEASURED = ("petiole_force_max_N", "strain_percentile_max")
-
-
-def Spearman(x, y) -> float | None:
-    from scipy.stats import spearmanr
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    ok = np.isfinite(x) & np.isfinite(y)
-    if ok.sum() < 4 or np.ptp(x[ok]) == 0 or np.ptp(y[ok]) == 0:
-        return None
-    return float(spearmanr(x[ok], y[ok]).statistic)
 
 
 def PlannerEnergy(a, p, hinge, weight: float) -> dict:
