@@ -373,7 +373,11 @@ class ShapeConfig:
     ``scripts/train_deepsdf.py``); ``mean_latent_file`` is only needed for a
     HortiMapping-style checkpoint. ``method``: ssc | homa | supeps. SSC
     losses measure lengths in ``loss_length_unit`` (m; 0.01 = cm); see
-    ``lmap_drake/shape/ssc.py``. ``branch_*``: branch completion (slab
+    ``lmap_drake/shape/ssc.py`` (also for ``peduncle_huber`` (m),
+    ``peduncle_moves_scale``, ``peduncle_follow_axis``, ``peduncle_slide``:
+    the robust peduncle term, and ``init_from_observation`` /
+    ``init_scale_bounds``: the start scale and centre from the observed
+    points). ``branch_*``: branch completion (slab
     thickness, radius factor, cylinder mesh resolution, ARAP match distance;
     metres)."""
     weights_file: str = "models/deepsdf/pepper_decoder.pt"
@@ -401,7 +405,8 @@ class ShapeConfig:
     peduncle_cone_deg: float = 30.0
     peduncle_huber: float = 0.005
     peduncle_moves_scale: bool = False
-    peduncle_follow_axis: bool = True
+    peduncle_follow_axis: bool = False
+    peduncle_slide: bool = True
     init_from_observation: bool = True
     init_scale_bounds: list[float] = dc.field(default_factory=lambda: [0.5, 2.0])
     refresh_every: int = 25

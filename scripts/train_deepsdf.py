@@ -96,6 +96,17 @@ def LoadScans(files, scale: float = 1.0) -> list:
     return out
 
 
+def Normalized(mesh, radius: float):
+    """``mesh`` (centred on its centroid) scaled to equal-volume ``radius``
+    (m); unchanged when radius is 0."""
+    if radius <= 0:
+        return mesh
+    r = (3 * abs(mesh.volume) / (4 * np.pi)) ** (1 / 3)
+    out = mesh.copy()
+    out.apply_scale(radius / r)
+    return out
+
+
 def HeldOutChamferCm(dec, mean, mesh, rng, samples: int = 8192, iterations: int = 300) -> float:
     """Fits the latent of ``mesh`` (frame O) with the decoder frozen and
     returns the Chamfer distance (cm) of the fitted surface to it."""
@@ -131,7 +142,13 @@ def main(argv=None):
                          "(default: 20 %% of them, at least 1 when there are 2 or more)")
     ap.add_argument("--holdout_family", type=int, default=8,
                     help="unseen procedural shapes for the held-out error")
+    ap.add_argument("--holdout_iterations", type=int, default=300,
+                    help="Adam iterations when fitting a held-out shape's latent")
     ap.add_argument("--init", default=None, help="fine-tune from these weights")
+    ap.add_argument("--normalize_radius", type=float, default=0.033,
+                    help="scale every training shape about its centroid to this equal-volume "
+                         "radius (m; 0 = keep sizes): the size is then left to SSC's scale and "
+                         "the latent codes shape only")
     ap.add_argument("--samples_per_shape", type=int, default=16384)
     ap.add_argument("--steps", type=int, default=4000)
     ap.add_argument("--shapes_per_batch", type=int, default=32)
@@ -182,6 +199,12 @@ def main(argv=None):
             shape = sample(rng)
             mesh = MakePepper(shape, subdivisions=4).mesh
             shapes.append(shape)
+        mesh = Normalized(mesh, a.normalize_radius)
+        reach = float(np.abs(mesh.vertices).max())
+        if reach > deepsdf.CUBE_RADIUS - CUBE_MARGIN:
+            raise InputError(f"{name}: reaches {reach * 100:.1f} cm from its centroid after "
+                             f"--normalize_radius {a.normalize_radius}; the template's cube holds "
+                             f"{(deepsdf.CUBE_RADIUS - CUBE_MARGIN) * 100:.1f} cm")
         p, d = deepsdf.MeshSdfSamples(mesh.vertices, mesh.faces, a.samples_per_shape, rng)
         pts.append(p)
         sdf.append(d)
@@ -215,11 +238,14 @@ def main(argv=None):
     hrng = np.random.default_rng(a.seed + 1000)
     held_family = [(f"{a.family}_heldout_{i}", MakePepper(sample(hrng), 4).mesh)
                    for i in range(a.holdout_family)]
+    held = [(n, Normalized(m, a.normalize_radius)) for n, m in held]
+    held_family = [(n, Normalized(m, a.normalize_radius)) for n, m in held_family]
     heldout = {}
     for kind, items in (("scans", held), ("family", held_family)):
         errs = {}
         for name, mesh in tqdm(items, desc=f"held-out {kind}", unit="shape", file=sys.stderr):
-            errs[name] = HeldOutChamferCm(dec, mean, mesh, hrng)
+            errs[name] = HeldOutChamferCm(dec, mean, mesh, hrng,
+                                          iterations=a.holdout_iterations)
         if errs:
             heldout[kind] = dict(mean_chamfer_cm=float(np.nanmean(list(errs.values()))),
                                  per_shape_chamfer_cm=errs)

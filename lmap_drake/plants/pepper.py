@@ -12,7 +12,7 @@ scenarios, DeepSDF training, shape-completion benchmarks):
 * ``SampleWidePepperShape(rng)``: the wider family the shipped DeepSDF
   template is trained on (``FAMILY_VERSION`` "wide-1"): largest extent
   4-11 cm, near-round to elongated (height / width 0.75-2.1), stem
-  cavities 0-45 % deep and up to ~20 deg off the axis, mild bends, and a
+  cavities 0-45 % deep and up to ~11 deg off the axis, mild bends, and a
   curved peduncle of 1-8 cm leaving 0-60 deg off the axis.
 * ``MakePeduncle(...)``: the curved, capped tube of a peduncle.
 * ``MakePepper(shape)``: the mesh in the canonical frame plus the peduncle
@@ -337,14 +337,15 @@ def PepperShapeOf(fr) -> PepperShape:
 
 
 FAMILY_VERSION = "wide-1"
+CUBE_FIT = 0.075    # m: every body of the wide family lies within this of its centroid
 
 
 def SampleWidePepperShape(rng: np.random.Generator) -> PepperShape:
     """A random member of the wider family (``FAMILY_VERSION``; seeded
     through ``rng``): largest body extent 4-11 cm, height / width 0.75-2.1
     (near-round to elongated), squareness 2-3.2, 0-4 lobes, tapers and
-    cones, stem cavities 0-45 % deep, 0.2-0.45 rad wide and up to 0.35 rad
-    off the axis, bends up to 3 1/m (1 cm over +-6 cm), and a curved
+    cones, stem cavities 0-45 % deep, 0.2-0.45 rad wide and up to 0.2 rad
+    off the axis, bends up to 2 1/m (7 mm over +-6 cm), and a curved
     peduncle of 1-8 cm whose end leaves 0-60 deg off the axis. The variant
     label is the nearest old one (for bookkeeping only)."""
     u = rng.uniform
@@ -359,11 +360,11 @@ def SampleWidePepperShape(rng: np.random.Generator) -> PepperShape:
         size=tuple(float(x) for x in size), lobes=lobes,
         lobe_depth=float(u(0.0, 0.18)), variant=variant, squareness=float(u(2.0, 3.2)),
         shoulder=float(u(0.0, 0.15)), taper=float(u(0.0, 0.15)), cone=cone,
-        lobe_phase=float(u(0, 2 * np.pi)), asymmetry=float(u(0.0, 0.08)),
+        lobe_phase=float(u(0, 2 * np.pi)), asymmetry=float(u(0.0, 0.05)),
         asymmetry_phase=float(u(0, 2 * np.pi)), dimple=float(u(0.0, 0.45)),
         lobe_bottom=float(u(0.0, 1.0)), cavity_width=float(u(0.2, 0.45)),
-        cavity_offset=float(u(0.0, 0.35)), cavity_phase=float(u(0, 2 * np.pi)),
-        bend=float(u(-3.0, 3.0)), bend_phase=float(u(0, 2 * np.pi)),
+        cavity_offset=float(u(0.0, 0.2)), cavity_phase=float(u(0, 2 * np.pi)),
+        bend=float(u(-2.0, 2.0)), bend_phase=float(u(0, 2 * np.pi)),
         peduncle_length=float(u(0.01, 0.08)), peduncle_angle=float(np.radians(u(0, 60))),
         peduncle_azimuth=float(u(0, 2 * np.pi)), peduncle_radius=float(u(0.003, 0.005)))
     # Lobes, shoulders, tapers and the cavity shrink the body: rescale so

@@ -8,9 +8,20 @@ rotation block and ``t`` in its translation. The decoder is queried at
 ``p_O``; the world-frame signed distance is ``s * D(p_O, z)`` (m).
 
 Optimised with Adam (lr ``learning_rate``): the latent ``z`` (init: mean
-training latent), ``log s`` (init 0, s = 1), a rotation vector ``w`` with
-``R = exp([w]_x)`` (init 0, R = I) and ``t`` (init: centroid of the fruit
-points pushed ``push_from_camera`` m away from the camera).
+training latent), ``log s``, a rotation vector ``w`` with ``R = exp([w]_x)``
+(init 0, R = I) and ``t``. Start (``InitialPose``; with
+``init_from_observation`` False: s = 1 and t = the centroid of the fruit
+points pushed ``push_from_camera`` m away from the camera, as before):
+s0 = 1 unless the fruit points spread further than the template's largest
+extent (then s0 = spread / extent), within ``init_scale_bounds``; t0 = the
+centroid pushed away from the camera by 0.8 s0 r (r: the template's
+equal-volume radius), where the centre of a fruit whose visible cap the
+points sample lies. The shipped template is trained on size-normalised
+shapes (equal-volume radius 3.3 cm, ~150 cm^3, the middle of real peppers'
+40-300 cm^3; ``scripts/train_deepsdf.py --normalize_radius``), so s = 1
+starts at a typical size and the latent codes shape, not size (the old
+template's mean carried its family's ~250 cm^3 and small fruits stayed
+50-150 cm^3 too large).
 
 Losses (lengths measured in ``loss_length_unit`` m, default 0.01 = cm, so
 the paper's weights 1 / 2 / 0.1 / 1 balance):
@@ -25,14 +36,31 @@ the paper's weights 1 / 2 / 0.1 / 1 balance):
   ped  mean over the ``num_peduncle_points`` peduncle points of the
        template (canonical frame: the highest surface points within 6 mm of
        the +z axis, see ``PeduncleTemplatePoints``; refreshed every
-       ``refresh_every`` iterations) of |(T_WO p_ped - p_cor) / u|^2, p_cor
-       the nearest completed-branch sample; pairs farther apart than
+       ``refresh_every`` iterations) of rho(|r| / u), r = T_WO p_ped - p_cor,
+       p_cor the nearest completed-branch sample; pairs farther apart than
        ``peduncle_max_distance``, or whose branch sample is not within
-       ``peduncle_cone_deg`` of the initial axis R0 e_z seen from the centre
-       t, are left out (a deviation from the paper:
-       when the peduncle stalk is hidden, the nearest branch surface is
-       the main stem several cm to the side, and pulling the fruit top
-       there tilts the fruit)
+       ``peduncle_cone_deg`` of the axis seen from the centre t (the
+       initial axis R0 e_z; the current one, detached, with
+       ``peduncle_follow_axis``), are left out.
+       Departures from the paper's |r / u|^2 (measured on pepper meshes
+       not of the procedural family with real, curved peduncles, where
+       the paper's term inflated fruits 1.5-2.7x):
+       - ``peduncle_slide``: only the part of r across the current axis
+         (detached) counts. Under occlusion the lowest *visible* piece of
+         the stalk is often 1-2 cm above its hidden base; pulling the
+         template's top onto it stretched the fruit between its visible
+         bottom and the stalk. The stalk tells where the axis passes, not
+         where the top is (the stalk samples are negatives too, so the top
+         cannot pass them).
+       - ``peduncle_moves_scale`` False: the term acts on R and t only.
+       - rho = Huber with knee ``peduncle_huber`` (m; 0 = the paper's
+         square): a stalk that bends away cannot pull hard.
+       - the cone gate (as before this change): when the peduncle stalk is
+         hidden, the nearest branch surface is the main stem several cm to
+         the side, and pulling the fruit top there tilts the fruit. Gating
+         by the current axis instead lets the fruit roll toward the stem
+         (one suite scene flipped 88 deg), so the initial axis stays the
+         default.
   reg  |z|^2
 Outside the decoder's training cube (half-side 0.08 m in O) the SDF is
 bounded below by the distance to the cube, so far negative points never
@@ -80,6 +108,7 @@ class SscParams:
     peduncle_huber: float = _SHAPE_DEFAULTS.peduncle_huber
     peduncle_moves_scale: bool = _SHAPE_DEFAULTS.peduncle_moves_scale
     peduncle_follow_axis: bool = _SHAPE_DEFAULTS.peduncle_follow_axis
+    peduncle_slide: bool = _SHAPE_DEFAULTS.peduncle_slide
     init_from_observation: bool = _SHAPE_DEFAULTS.init_from_observation
     init_scale_bounds: list = dc.field(
         default_factory=lambda: list(_SHAPE_DEFAULTS.init_scale_bounds))
@@ -342,7 +371,11 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
             cone = up >= np.cos(np.radians(P.peduncle_cone_deg)) * np.linalg.norm(off, axis=1)
             near = torch.as_tensor((dist < P.peduncle_max_distance) & cone)
             if bool(near.any()):
-                e2 = (((pW[near] - cor[near]) / u) ** 2).sum(1)
+                res = (pW[near] - cor[near]) / u
+                if P.peduncle_slide:     # only the part across the current axis
+                    a_t = torch.as_tensor(ax, dtype=torch.float32)
+                    res = res - (res @ a_t)[:, None] * a_t[None]
+                e2 = (res ** 2).sum(1)
                 h = P.peduncle_huber / u
                 if h > 0:      # Huber: quadratic within h, linear beyond
                     e = torch.sqrt(e2 + 1e-12)
