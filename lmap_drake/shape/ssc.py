@@ -16,12 +16,10 @@ s0 = 1 unless the fruit points spread further than the template's largest
 extent (then s0 = spread / extent), within ``init_scale_bounds``; t0 = the
 centroid pushed away from the camera by 0.8 s0 r (r: the template's
 equal-volume radius), where the centre of a fruit whose visible cap the
-points sample lies. The shipped template is trained on size-normalised
-shapes (equal-volume radius 3.3 cm, ~150 cm^3, the middle of real peppers'
-40-300 cm^3; ``scripts/train_deepsdf.py --normalize_radius``), so s = 1
-starts at a typical size and the latent codes shape, not size (the old
-template's mean carried its family's ~250 cm^3 and small fruits stayed
-50-150 cm^3 too large).
+points sample lies. (Under heavy occlusion the visible cap rarely bounds the
+size: on the external test meshes the total loss was *lowest* at the wrong
+scale, so no scale search over the loss is done; the size prior is the
+template's mean.)
 
 Losses (lengths measured in ``loss_length_unit`` m, default 0.01 = cm, so
 the paper's weights 1 / 2 / 0.1 / 1 balance):

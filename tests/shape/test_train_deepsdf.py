@@ -42,7 +42,7 @@ def test_train_on_scans_mixed_with_family(tmp_path):
     assert len(s["scans_trained"]) == 2 and len(s["scans_held_out"]) == 1
     assert not set(s["scans_trained"]) & set(s["scans_held_out"])
     assert all(n.startswith("scan") for n in s["scans_trained"] + s["scans_held_out"])
-    assert s["steps_done"] == 12 and s["family"] == "wide-1"
+    assert s["steps_done"] == 12 and "wide-1" in s["family"]
     for kind in ("scans", "family"):
         cd = s["heldout"][kind]["mean_chamfer_cm"]
         assert np.isfinite(cd) and 0 < cd < 5, (kind, cd)
