@@ -407,7 +407,8 @@ class ShapeConfig:
     peduncle_moves_scale: bool = False
     peduncle_follow_axis: bool = False
     peduncle_slide: bool = True
-    init_from_observation: bool = True
+    init_from_observation: bool = False
+    w_rot: float = 0.0
     init_scale_bounds: list[float] = dc.field(default_factory=lambda: [0.5, 2.0])
     refresh_every: int = 25
     mesh_spacing: float = 0.003
@@ -788,6 +789,7 @@ _RULES = {
     "shape.peduncle_max_distance": ">0",
     "shape.peduncle_cone_deg": "(0,180]",
     "shape.peduncle_huber": ">=0",
+    "shape.w_rot": ">=0",
     "shape.init_scale_bounds": "2x>0",
     "shape.refresh_every": ">=1",
     "shape.mesh_spacing": ">0",

@@ -128,10 +128,11 @@ def _arc_stalk(top, axis, length=0.06, angle_deg=50.0, radius=0.004, n=1500, see
 
 
 def test_visible_curved_peduncle_does_not_inflate_the_fruit(template):
-    """A long curved stalk in view above the fruit: the peduncle term (Huber,
-    no pull on the scale, gated by the current axis) aligns the axis but
-    does not drag the surface up toward the stalk (the old quadratic term
-    on all of T_WO grew such fruits 1.5-2.7x)."""
+    """A long curved stalk in view above the fruit, its base hidden (as
+    behind a leaf): the peduncle term (only across the axis, Huber, no pull
+    on the scale) aligns the axis but does not drag the fruit's top up to
+    the lowest visible piece of the stalk (the paper's term on all of T_WO
+    stretched such fruits toward it)."""
     dec, mean, lat = template
     s_true = 0.85
     gt, R = _gt(dec, lat[5], s=s_true)
@@ -142,6 +143,7 @@ def test_visible_curved_peduncle_does_not_inflate_the_fruit(template):
     top_O = PeduncleTemplatePoints(dec, torch.as_tensor(lat[5]), 10).mean(0)
     top_W = s_true * R @ top_O + gt.X_WO[:3, 3]
     stalk = _arc_stalk(top_W - 0.004 * axis, axis)
+    stalk = stalk[np.linalg.norm(stalk - top_W, axis=1) > 0.015]    # its base is hidden
     est = OptimizeShape(dec, mean, obs, CAM, [(stalk, 1.0)], stalk, SscParams())
     tr = [r for r in est.loss_trace if r["it"] >= 0]
     assert sum(r["ped"] > 0 for r in tr) > 100        # the peduncle term was active
@@ -153,9 +155,9 @@ def test_visible_curved_peduncle_does_not_inflate_the_fruit(template):
 
 
 def test_initial_pose_from_observation(template):
-    """The start: scale 1 unless the observed spread needs a larger fruit,
-    within init_scale_bounds; centre behind the points by the template's
-    size; the old start with init_from_observation False."""
+    """With init_from_observation: scale 1 unless the observed spread needs
+    a larger fruit, within init_scale_bounds; centre behind the points by
+    the template's size. Without (the default): the old start."""
     from lmap_drake.shape.ssc import InitialPose, TemplateStats
     dec, mean, _ = template
     st = TemplateStats(dec, mean)
@@ -164,16 +166,18 @@ def test_initial_pose_from_observation(template):
     c = np.array([0.5, -0.03, 0.33])
     away = (c - CAM) / np.linalg.norm(c - CAM)
     small = c + rng.normal(scale=0.004, size=(200, 3))
-    s0, t0 = InitialPose(dec, mean, small, CAM, SscParams())
+    on = SscParams(init_from_observation=True)
+    s0, t0 = InitialPose(dec, mean, small, CAM, on)
     assert s0 == 1.0
     np.testing.assert_allclose((t0 - small.mean(0)) @ away, 0.8 * st["radius"], rtol=1e-6)
     wide = small.copy()
     wide[:, 0] += np.linspace(-1, 1, 200) * 0.75 * st["extent"]      # spread 1.5 x extent
-    s1, _ = InitialPose(dec, mean, wide, CAM, SscParams())
-    assert 1.4 < s1 < 1.6
-    s2, _ = InitialPose(dec, mean, wide, CAM, SscParams(init_scale_bounds=[0.5, 1.2]))
+    s1, _ = InitialPose(dec, mean, wide, CAM, on)
+    assert 1.45 < s1 < 1.75        # spread 1.5 x extent plus the noise
+    s2, _ = InitialPose(dec, mean, wide, CAM, dc.replace(on, init_scale_bounds=[0.5, 1.2]))
     assert s2 == 1.2
-    s3, t3 = InitialPose(dec, mean, small, CAM, SscParams(init_from_observation=False))
+    s3, t3 = InitialPose(dec, mean, wide, CAM, SscParams())
+    small = wide
     assert s3 == 1.0
     np.testing.assert_allclose(t3, small.mean(0) + 0.01 * (small.mean(0) - CAM) /
                                np.linalg.norm(small.mean(0) - CAM))

@@ -36,13 +36,13 @@ def test_train_on_scans_mixed_with_family(tmp_path):
     scans = _scans(tmp_path / "scans")
     out = tmp_path / "w"
     _main()(["--meshes", str(scans), "--num_shapes", "2", "--samples_per_shape", "1024",
-             "--steps", "12", "--checkpoint_every", "5", "--holdout_scans", "1",
+             "--steps", "80", "--checkpoint_every", "30", "--holdout_scans", "1",
              "--holdout_family", "1", "--holdout_iterations", "20", "--out_dir", str(out)])
     s = json.loads((out / "train_summary.json").read_text())
     assert len(s["scans_trained"]) == 2 and len(s["scans_held_out"]) == 1
     assert not set(s["scans_trained"]) & set(s["scans_held_out"])
     assert all(n.startswith("scan") for n in s["scans_trained"] + s["scans_held_out"])
-    assert s["steps_done"] == 12 and "wide-1" in s["family"]
+    assert s["steps_done"] == 80 and "wide-1" in s["family"]
     for kind in ("scans", "family"):
         cd = s["heldout"][kind]["mean_chamfer_cm"]
         assert np.isfinite(cd) and 0 < cd < 5, (kind, cd)
@@ -80,7 +80,7 @@ def test_checkpoints_and_an_interrupted_run_leave_no_finished_weights(tmp_path):
     sdf = (np.linalg.norm(pts, axis=2) - 0.03).astype(np.float32)
     from lmap_drake.shape import deepsdf
     deepsdf.TrainDecoder(pts, sdf, steps=12, shapes_per_batch=2, points_per_shape=16,
-                         width=16, depth=8, log=lambda s: None,
+                         width=48, depth=8, log=lambda s: None,
                          checkpoint=lambda k, d, z: seen.append((k, z.shape)),
                          checkpoint_every=5)
     assert seen == [(5, (3, 32)), (10, (3, 32))]
