@@ -35,7 +35,8 @@ def _main():
 def test_train_on_scans_mixed_with_family(tmp_path):
     scans = _scans(tmp_path / "scans")
     out = tmp_path / "w"
-    _main()(["--meshes", str(scans), "--num_shapes", "2", "--samples_per_shape", "1024",
+    _main()(["--meshes", str(scans), "--family", "mixed", "--num_shapes", "2",
+             "--samples_per_shape", "1024",
              "--steps", "80", "--checkpoint_every", "30", "--holdout_scans", "1",
              "--holdout_family", "1", "--holdout_iterations", "20", "--out_dir", str(out)])
     s = json.loads((out / "train_summary.json").read_text())
