@@ -145,7 +145,16 @@ class FruitConfig:
     leaves the fruit; default: nearest the peduncle mesh, else where the +z
     axis through the centroid leaves the surface. The shape keys (``size``
     ... ``lobe_phase_deg``, ``stripes``) are ignored for a file fruit. See
-    ``lmap_drake/plants/fruit_mesh.py`` for the checks and repairs."""
+    ``lmap_drake/plants/fruit_mesh.py`` for the checks and repairs.
+
+    Wider procedural family (defaults keep the old shapes and stalk):
+    ``dimple`` (relative stem-cavity depth, 0-0.45) whose centre is tilted
+    ``cavity_offset_deg`` off the axis toward ``cavity_phase_deg``;
+    ``bend`` (1/m) bends the body sideways toward ``bend_phase_deg``;
+    ``peduncle_curved: true`` makes the peduncle a curved tube of
+    ``peduncle_length`` whose end leaves the axis by ``peduncle_angle_deg``
+    toward ``peduncle_azimuth_deg`` (labelled branch, joined to the branch
+    from its end), instead of the straight stalk."""
     variant: str = "blocky"
     size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
     lobes: int = 4
@@ -155,6 +164,14 @@ class FruitConfig:
     taper: float = 0.06
     cone: float = 0.0
     lobe_phase_deg: float = 0.0
+    dimple: float = 0.0
+    cavity_offset_deg: float = 0.0
+    cavity_phase_deg: float = 0.0
+    bend: float = 0.0
+    bend_phase_deg: float = 0.0
+    peduncle_curved: bool = False
+    peduncle_angle_deg: float = 0.0
+    peduncle_azimuth_deg: float = 0.0
     color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
     stripe_color: Rgba = dc.field(default_factory=lambda: Rgba(0.55, 0.02, 0.02, 1.0))
     stripes: int = 0
@@ -356,7 +373,11 @@ class ShapeConfig:
     ``scripts/train_deepsdf.py``); ``mean_latent_file`` is only needed for a
     HortiMapping-style checkpoint. ``method``: ssc | homa | supeps. SSC
     losses measure lengths in ``loss_length_unit`` (m; 0.01 = cm); see
-    ``lmap_drake/shape/ssc.py``. ``branch_*``: branch completion (slab
+    ``lmap_drake/shape/ssc.py`` (also for ``peduncle_huber`` (m),
+    ``peduncle_moves_scale``, ``peduncle_follow_axis``, ``peduncle_slide``:
+    the robust peduncle term, and ``init_from_observation`` /
+    ``init_scale_bounds``: the start scale and centre from the observed
+    points). ``branch_*``: branch completion (slab
     thickness, radius factor, cylinder mesh resolution, ARAP match distance;
     metres)."""
     weights_file: str = "models/deepsdf/pepper_decoder.pt"
@@ -382,6 +403,13 @@ class ShapeConfig:
     max_negative_candidates: int = 4000
     peduncle_max_distance: float = 0.02
     peduncle_cone_deg: float = 30.0
+    peduncle_huber: float = 0.005
+    peduncle_moves_scale: bool = False
+    peduncle_follow_axis: bool = False
+    peduncle_slide: bool = True
+    init_from_observation: bool = False
+    w_rot: float = 0.0
+    init_scale_bounds: list[float] = dc.field(default_factory=lambda: [0.5, 2.0])
     refresh_every: int = 25
     mesh_spacing: float = 0.003
     branch_slab: float = 0.01
@@ -799,6 +827,9 @@ _RULES = {
     "shape.max_negative_candidates": ">=1",
     "shape.peduncle_max_distance": ">0",
     "shape.peduncle_cone_deg": "(0,180]",
+    "shape.peduncle_huber": ">=0",
+    "shape.w_rot": ">=0",
+    "shape.init_scale_bounds": "2x>0",
     "shape.refresh_every": ">=1",
     "shape.mesh_spacing": ">0",
     "shape.branch_slab": ">0",
@@ -1020,9 +1051,8 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
     from lmap_drake.plants.pepper import PepperShape
     fr = ps.fruit
     try:
-        PepperShape(size=tuple(fr.size), lobes=fr.lobes, lobe_depth=fr.lobe_depth,
-                    variant=fr.variant, squareness=fr.squareness, shoulder=fr.shoulder,
-                    taper=fr.taper, cone=fr.cone).validate()
+        from lmap_drake.plants.pepper import PepperShapeOf
+        PepperShapeOf(fr).validate()
     except ValueError as err:
         fail("plant_scene.fruit", f"is not a valid pepper shape: {err}")
     need(len(fr.peduncle_point) in (0, 3), "plant_scene.fruit.peduncle_point",
@@ -1044,6 +1074,9 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
          "planner.action_families", f"must be a non-empty list of 'pull' and/or 'arc', got {fams}")
     need(all(0 < a < 180 for a in s.planner.arc_angles_deg), "planner.arc_angles_deg",
          f"must be angles in (0, 180) degrees, got {list(s.planner.arc_angles_deg)}")
+    isb = s.shape.init_scale_bounds
+    need(len(isb) != 2 or isb[0] <= isb[1], "shape.init_scale_bounds",
+         f"must be [lower, upper] with lower <= upper, got {list(isb)}")
     fa = s.planner.force_action
     need(len(fa) in (0, 3) and (not fa or (float(fa[0]).is_integer() and
                                            float(fa[1]).is_integer() and fa[2] > 0)),

@@ -18,7 +18,7 @@ import trimesh
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape,
                                     OrientTets, TriangulateLeaf, HalfWidth)
 from lmap_drake.errors import InputError
-from lmap_drake.plants.pepper import MakePepper, Pepper, PepperShape
+from lmap_drake.plants.pepper import MakePepper, Pepper, PepperShapeOf
 
 # A generated plant's occlusion (ray cast from camera0) may differ from the
 # requested ``plant_scene.occlusion`` by at most OCCLUSION_TOLERANCE. When
@@ -244,11 +244,7 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
         file_fruit = LoadFruitMeshOf(fr)
         pepper = Pepper(mesh=file_fruit.mesh, p_O_peduncle=file_fruit.p_O_peduncle, shape=None)
     else:
-        shape = PepperShape(size=tuple(fr.size), lobes=fr.lobes, lobe_depth=fr.lobe_depth,
-                            variant=fr.variant, squareness=fr.squareness,
-                            shoulder=fr.shoulder, taper=fr.taper, cone=fr.cone,
-                            lobe_phase=np.deg2rad(fr.lobe_phase_deg))
-        pepper = MakePepper(shape)
+        pepper = MakePepper(PepperShapeOf(fr))
     tilt_axis = _rot_about([0, 0, 1], np.deg2rad(fr.tilt_azimuth_deg)) @ d_fwd
     R_WO = _rot_about(tilt_axis, np.deg2rad(fr.tilt_deg)) @ _rot_about(
         [0, 0, 1], np.arctan2(d_fwd[1], d_fwd[0]))
@@ -270,6 +266,9 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     if file_fruit is not None and file_fruit.peduncle is not None:
         peduncle_W = file_fruit.peduncle.copy().apply_transform(X_WO)
         tip = center + R_WO @ file_fruit.p_O_peduncle_tip
+    elif pepper.peduncle is not None:       # a procedural curved peduncle
+        peduncle_W = pepper.peduncle.copy().apply_transform(X_WO)
+        tip = center + R_WO @ pepper.p_O_peduncle_tip
     top_W = float(branch[-1, 2])
     if tip[2] + 0.005 > top_W:
         raise PlantGenerationError(

@@ -6,15 +6,26 @@ scenarios, DeepSDF training, shape-completion benchmarks):
 
 * ``PepperShape``: the parameters of one pepper (metres / dimensionless).
 * ``SamplePepperShape(rng)``: a seeded random member of the family (three
-  variants: ``blocky``, ``elongated``, ``conical``).
+  variants: ``blocky``, ``elongated``, ``conical``). Frozen: the suite's
+  random scenes (``plants/suite.py``) and the synthetic shape benchmark draw
+  from it, so its draws must not change.
+* ``SampleWidePepperShape(rng)``: the wider family the shipped DeepSDF
+  template is trained on (``FAMILY_VERSION`` "wide-1"): largest extent
+  4-11 cm, near-round to elongated (height / width 0.75-2.1), stem
+  cavities 0-45 % deep and up to ~11 deg off the axis, mild bends, and a
+  curved peduncle of 1-8 cm leaving 0-60 deg off the axis.
+* ``MakePeduncle(...)``: the curved, capped tube of a peduncle.
 * ``MakePepper(shape)``: the mesh in the canonical frame plus the peduncle
   attachment point ``p_O_peduncle`` (on the surface, on the +z axis).
 * ``MakePepperMesh(size, lobes, lobe_depth, subdivisions)``: the original
   call used by the station (unchanged output).
 
 Every mesh is an icosphere displaced radially (star-shaped about the origin)
-followed by an x-y scaling that depends only on z (a bijection of R^3), so
-it is watertight and free of self-intersections by construction.
+followed by an x-y scaling that depends only on z and a sideways bend
+x += k z^2 (both bijections of R^3), so it is watertight and free of
+self-intersections by construction. The new parameters (``cavity_*``,
+``bend*``, ``peduncle_*``) default to values that reproduce the old
+shapes exactly.
 """
 from __future__ import annotations
 
@@ -41,6 +52,17 @@ class PepperShape:
     cavity the peduncle sits in); ``lobe_bottom`` (0-1) carries the lobes
     down to the blossom end (bumps at the bottom). The last two default to
     0, which keeps ``MakePepperMesh``'s original shapes.
+
+    Wider family (all default to the old shapes): the stem cavity
+    (``dimple``) has angular half-width ``cavity_width`` (rad) and its
+    centre is tilted ``cavity_offset`` (rad) off +z toward azimuth
+    ``cavity_phase``; the peduncle then leaves from the cavity's bottom,
+    off the axis. ``bend`` (1/m) bends the body sideways (x' = x + k z^2
+    along azimuth ``bend_phase``). ``peduncle_length`` > 0 (m) adds a curved
+    peduncle tube (``Pepper.peduncle``) of radius ``peduncle_radius`` whose
+    end leaves the axis by ``peduncle_angle`` (rad) toward
+    ``peduncle_azimuth``; it is not part of the fruit body (the DeepSDF
+    template is of the body).
     """
     size: tuple[float, float, float] = (0.075, 0.075, 0.085)
     lobes: int = 4
@@ -55,6 +77,15 @@ class PepperShape:
     asymmetry_phase: float = 0.0
     dimple: float = 0.0
     lobe_bottom: float = 0.0
+    cavity_width: float = 0.3
+    cavity_offset: float = 0.0
+    cavity_phase: float = 0.0
+    bend: float = 0.0
+    bend_phase: float = 0.0
+    peduncle_length: float = 0.0
+    peduncle_angle: float = 0.0
+    peduncle_azimuth: float = 0.0
+    peduncle_radius: float = 0.004
 
     def validate(self) -> None:
         if self.lobes < 0 or not 0.0 <= self.lobe_depth < 0.5:
@@ -67,8 +98,16 @@ class PepperShape:
                 and 0 <= self.cone < 0.8 and 0 <= self.asymmetry < 0.3):
             raise ValueError("shoulder/taper in [0, 0.5), cone in [0, 0.8), "
                              "asymmetry in [0, 0.3)")
-        if not (0 <= self.dimple <= 0.3 and 0 <= self.lobe_bottom <= 1):
-            raise ValueError("dimple in [0, 0.3], lobe_bottom in [0, 1]")
+        if not (0 <= self.dimple <= 0.45 and 0 <= self.lobe_bottom <= 1):
+            raise ValueError("dimple in [0, 0.45], lobe_bottom in [0, 1]")
+        if not (0.1 <= self.cavity_width <= 0.8 and 0 <= self.cavity_offset <= 0.6):
+            raise ValueError("cavity_width in [0.1, 0.8] rad, cavity_offset in [0, 0.6] rad")
+        if not abs(self.bend) <= 8.0:
+            raise ValueError("|bend| must be <= 8 1/m")
+        if not (0 <= self.peduncle_length <= 0.1 and 0 <= self.peduncle_angle <= 1.2
+                and 0.001 <= self.peduncle_radius <= 0.01):
+            raise ValueError("peduncle_length in [0, 0.1] m, peduncle_angle in [0, 1.2] rad, "
+                             "peduncle_radius in [0.001, 0.01] m")
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {VARIANTS}")
 
@@ -80,6 +119,8 @@ class Pepper:
     mesh: trimesh.Trimesh
     p_O_peduncle: np.ndarray
     shape: PepperShape
+    peduncle: trimesh.Trimesh | None = None      # curved stalk in O (peduncle_length > 0)
+    p_O_peduncle_tip: np.ndarray | None = None   # its far end
 
 
 def _radius(d: np.ndarray, s: PepperShape) -> np.ndarray:
@@ -102,9 +143,25 @@ def _radius(d: np.ndarray, s: PepperShape) -> np.ndarray:
     if s.asymmetry > 0:
         r = r * (1.0 + s.asymmetry * np.cos(phi - s.asymmetry_phase) * equator)
     if s.dimple > 0:  # cavity around the peduncle (polar angle < ~25 deg)
-        polar = np.arccos(np.clip(d[:, 2], -1, 1))
-        r = r * (1.0 - s.dimple * np.exp(-(polar / 0.3) ** 2))
+        polar = np.arccos(np.clip(d @ _cavity_dir(s), -1, 1))
+        r = r * (1.0 - s.dimple * np.exp(-(polar / s.cavity_width) ** 2))
     return r
+
+
+def _cavity_dir(s: PepperShape) -> np.ndarray:
+    """Unit direction of the stem cavity's centre (+z unless offset)."""
+    o, a = s.cavity_offset, s.cavity_phase
+    return np.array([np.sin(o) * np.cos(a), np.sin(o) * np.sin(a), np.cos(o)])
+
+
+def _bend(v: np.ndarray, s: PepperShape) -> np.ndarray:
+    """x-y shift k z^2 along azimuth ``bend_phase`` (a bijection)."""
+    if s.bend == 0:
+        return v
+    out = v.copy()
+    h = np.array([np.cos(s.bend_phase), np.sin(s.bend_phase)])
+    out[:, :2] += s.bend * out[:, 2:3] ** 2 * h
+    return out
 
 
 def _cone(v: np.ndarray, s: PepperShape) -> np.ndarray:
@@ -140,10 +197,15 @@ def MakePepper(shape: PepperShape, subdivisions: int = 4) -> Pepper:
     shape.validate()
     sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
     d = sphere.vertices / np.linalg.norm(sphere.vertices, axis=1, keepdims=True)
-    v = _cone(d * _radius(d, shape)[:, None], shape)
+    v = _bend(_cone(d * _radius(d, shape)[:, None], shape), shape)
     mesh = trimesh.Trimesh(vertices=v, faces=sphere.faces, process=True)
     com = mesh.center_mass.copy()
     mesh.apply_translation(-com)
+    if shape.cavity_offset > 0 or shape.bend != 0:
+        # The peduncle leaves from the bottom of the (off-axis) cavity.
+        c = _cavity_dir(shape)[None]
+        p = _bend(_cone(c * _radius(c, shape)[:, None], shape), shape)[0] - com
+        return _WithPeduncle(Pepper(mesh=mesh, p_O_peduncle=p, shape=shape))
     top = _cone(np.array([[0.0, 0.0, 1.0]]) * _radius(np.array([[0.0, 0.0, 1.0]]), shape),
                 shape)[0]
     # The attachment point is where the +z axis through the centroid leaves
@@ -152,7 +214,66 @@ def MakePepper(shape: PepperShape, subdivisions: int = 4) -> Pepper:
     t_hit = _RayHitDistance(mesh, np.zeros(3), np.array([0.0, 0.0, 1.0]))
     if np.isfinite(t_hit):
         p = np.array([0.0, 0.0, t_hit])
-    return Pepper(mesh=mesh, p_O_peduncle=np.asarray(p, float), shape=shape)
+    return _WithPeduncle(Pepper(mesh=mesh, p_O_peduncle=np.asarray(p, float), shape=shape))
+
+
+def _WithPeduncle(pep: Pepper) -> Pepper:
+    s = pep.shape
+    if s.peduncle_length <= 0:
+        return pep
+    base = pep.p_O_peduncle - np.array([0.0, 0.0, 0.004])    # 4 mm inside the fruit
+    pep.peduncle = MakePeduncle(base, s.peduncle_angle, s.peduncle_azimuth,
+                                s.peduncle_length + 0.004, s.peduncle_radius)
+    pep.p_O_peduncle_tip = _ArcPoint(base, s.peduncle_angle, s.peduncle_azimuth,
+                                     s.peduncle_length + 0.004)
+    return pep
+
+
+def _ArcPoint(p0, angle: float, azimuth: float, length: float) -> np.ndarray:
+    return _Arc(np.asarray(p0, float), angle, azimuth, np.array([length]))[0][0]
+
+
+def _Arc(p0, angle, azimuth, s):
+    """Centre line and unit tangents of a circular arc from ``p0`` starting
+    along +z and turning by ``angle`` toward ``azimuth`` over length s[-1]."""
+    h = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+    ez = np.array([0.0, 0.0, 1.0])
+    if angle < 1e-6:
+        return p0 + np.outer(s, ez), np.tile(ez, (len(s), 1))
+    rc = s[-1] / angle
+    th = s / rc
+    c = p0 + np.outer(rc * np.sin(th), ez) + np.outer(rc * (1 - np.cos(th)), h)
+    t = np.outer(np.cos(th), ez) + np.outer(np.sin(th), h)
+    return c, t
+
+
+def MakePeduncle(p0, angle: float, azimuth: float, length: float, radius: float,
+                 ring: int = 12, segments: int = 24) -> trimesh.Trimesh:
+    """A capped tube (m) from ``p0`` starting along +z and bending, as a
+    circular arc of ``length``, to ``angle`` (rad) off +z toward ``azimuth``
+    at its end. Watertight."""
+    s = np.linspace(0.0, length, segments + 1)
+    c, t = _Arc(np.asarray(p0, float), angle, azimuth, s)
+    verts, faces = [], []
+    ang = np.linspace(0, 2 * np.pi, ring, endpoint=False)
+    for ci, ti in zip(c, t):
+        u = np.cross(ti, [0.0, 1.0, 0.0]) if abs(ti[1]) < 0.9 else np.cross(ti, [1.0, 0, 0])
+        u = u / np.linalg.norm(u)
+        w = np.cross(ti, u)
+        verts.append(ci + radius * (np.outer(np.cos(ang), u) + np.outer(np.sin(ang), w)))
+    V = np.vstack(verts + [c[:1], c[-1:]])
+    nb, nt = len(V) - 2, len(V) - 1
+    for i in range(segments):
+        for j in range(ring):
+            a, b = i * ring + j, i * ring + (j + 1) % ring
+            faces += [[a, b, b + ring], [a, b + ring, a + ring]]
+    for j in range(ring):
+        faces.append([nb, (j + 1) % ring, j])
+        a = segments * ring
+        faces.append([nt, a + j, a + (j + 1) % ring])
+    m = trimesh.Trimesh(V, np.array(faces), process=True)
+    trimesh.repair.fix_normals(m)
+    return m
 
 
 def MakePepperMesh(size=(0.075, 0.075, 0.085), lobes: int = 4,
@@ -197,6 +318,61 @@ def SamplePepperShape(rng: np.random.Generator, variant: str | None = None) -> P
         lobe_phase=float(u(0, 2 * np.pi)), asymmetry=float(u(0.0, 0.05)),
         asymmetry_phase=float(u(0, 2 * np.pi)), dimple=float(dimple),
         lobe_bottom=float(lobe_bottom))
+
+
+def PepperShapeOf(fr) -> PepperShape:
+    """The ``PepperShape`` of a ``scenario.FruitConfig`` (angles in degrees
+    there, radians here)."""
+    r = np.deg2rad
+    return PepperShape(
+        size=tuple(fr.size), lobes=fr.lobes, lobe_depth=fr.lobe_depth, variant=fr.variant,
+        squareness=fr.squareness, shoulder=fr.shoulder, taper=fr.taper, cone=fr.cone,
+        lobe_phase=float(r(fr.lobe_phase_deg)), dimple=fr.dimple,
+        cavity_offset=float(r(fr.cavity_offset_deg)), cavity_phase=float(r(fr.cavity_phase_deg)),
+        bend=fr.bend, bend_phase=float(r(fr.bend_phase_deg)),
+        peduncle_length=fr.peduncle_length if fr.peduncle_curved else 0.0,
+        peduncle_angle=float(r(fr.peduncle_angle_deg)),
+        peduncle_azimuth=float(r(fr.peduncle_azimuth_deg)),
+        peduncle_radius=fr.peduncle_radius)
+
+
+FAMILY_VERSION = "wide-1"
+CUBE_FIT = 0.075    # m: every body of the wide family lies within this of its centroid
+
+
+def SampleWidePepperShape(rng: np.random.Generator) -> PepperShape:
+    """A random member of the wider family (``FAMILY_VERSION``; seeded
+    through ``rng``): largest body extent 4-11 cm, height / width 0.75-2.1
+    (near-round to elongated), squareness 2-3.2, 0-4 lobes, tapers and
+    cones, stem cavities 0-45 % deep, 0.2-0.45 rad wide and up to 0.2 rad
+    off the axis, bends up to 2 1/m (7 mm over +-6 cm), and a curved
+    peduncle of 1-8 cm whose end leaves 0-60 deg off the axis. The variant
+    label is the nearest old one (for bookkeeping only)."""
+    u = rng.uniform
+    aspect = float(np.exp(u(np.log(0.75), np.log(2.1))))     # height / width
+    L = u(0.04, 0.11)                                         # largest extent
+    w = L / max(aspect, 1.0)
+    size = (w, w * u(0.85, 1.15), w * aspect)
+    cone = float(u(0.0, 0.45) if u() < 0.5 else u(0.0, 0.1))
+    variant = "elongated" if aspect > 1.3 else ("conical" if cone > 0.2 else "blocky")
+    lobes = int(rng.integers(3, 5))
+    shape = PepperShape(
+        size=tuple(float(x) for x in size), lobes=lobes,
+        lobe_depth=float(u(0.0, 0.18)), variant=variant, squareness=float(u(2.0, 3.2)),
+        shoulder=float(u(0.0, 0.15)), taper=float(u(0.0, 0.15)), cone=cone,
+        lobe_phase=float(u(0, 2 * np.pi)), asymmetry=float(u(0.0, 0.05)),
+        asymmetry_phase=float(u(0, 2 * np.pi)), dimple=float(u(0.0, 0.45)),
+        lobe_bottom=float(u(0.0, 1.0)), cavity_width=float(u(0.2, 0.45)),
+        cavity_offset=float(u(0.0, 0.2)), cavity_phase=float(u(0, 2 * np.pi)),
+        bend=float(u(-2.0, 2.0)), bend_phase=float(u(0, 2 * np.pi)),
+        peduncle_length=float(u(0.01, 0.08)), peduncle_angle=float(np.radians(u(0, 60))),
+        peduncle_azimuth=float(u(0, 2 * np.pi)), peduncle_radius=float(u(0.003, 0.005)))
+    # Lobes, shoulders, tapers and the cavity shrink the body: rescale so
+    # that its largest extent is L (measured on a coarse mesh).
+    f = L / float(MakePepper(dc.replace(shape, peduncle_length=0.0), 2).mesh.extents.max())
+    shape.size = tuple(float(x * f) for x in shape.size)
+    shape.bend = float(shape.bend / f)
+    return shape
 
 
 def MeshToObjText(mesh: trimesh.Trimesh) -> str:

@@ -226,16 +226,41 @@ def MeshSdfSamples(vertices: np.ndarray, faces: np.ndarray, n: int,
 def TrainDecoder(points: np.ndarray, sdf: np.ndarray, *, latent_size=32, width=128, depth=8,
                  steps=3000, shapes_per_batch=32, points_per_shape=256, lr=1e-3,
                  lr_latent=1e-3, code_reg=1e-4, code_init_std=0.01, seed=0, log=print,
-                 log_every=100, time_limit_s: float | None = None):
+                 log_every=100, time_limit_s: float | None = None,
+                 init_decoder: "DeepSDFDecoder | None" = None,
+                 shape_weights: np.ndarray | None = None, on_step=None,
+                 checkpoint=None, checkpoint_every: int = 500):
     """Auto-decoder training (DeepSDF): per-shape latents optimised jointly
     with the decoder. ``points`` (S, P, 3), ``sdf`` (S, P) in metres. Loss:
     L1 between clamped (``CLAMP``) predicted and true SDF divided by
     ``CLAMP``, plus ``code_reg * ||z||^2`` (mean over the batch).
+
+    ``init_decoder``: start from a copy of these weights (fine-tuning; its
+    architecture wins over ``latent_size``/``width``/``depth``).
+    ``shape_weights`` (S,): relative probability of drawing each shape into
+    a batch (e.g. scans drawn more often than the many procedural shapes);
+    uniform when None. ``on_step(step)`` is called after every step (a
+    progress bar); ``checkpoint(step, decoder, latents)`` every
+    ``checkpoint_every`` steps.
     Returns ``(decoder, latents (S, C), history list)``."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     S, P = sdf.shape
-    dec = DeepSDFDecoder(latent_size, width, depth)
+    if init_decoder is not None:
+        import copy
+        dec = copy.deepcopy(init_decoder)
+        for prm in dec.parameters():
+            prm.requires_grad_(True)
+        dec.train()
+        latent_size = dec.latent_size
+    else:
+        dec = DeepSDFDecoder(latent_size, width, depth)
+    prob = None
+    if shape_weights is not None:
+        prob = np.asarray(shape_weights, float)
+        if prob.shape != (S,) or np.any(prob < 0) or prob.sum() <= 0:
+            raise ValueError(f"shape_weights must be {S} non-negative numbers, not all zero")
+        prob = prob / prob.sum()
     codes = nn.Embedding(S, latent_size)
     nn.init.normal_(codes.weight, 0.0, code_init_std)
     opt = torch.optim.Adam([{"params": dec.parameters(), "lr": lr},
@@ -245,7 +270,10 @@ def TrainDecoder(points: np.ndarray, sdf: np.ndarray, *, latent_size=32, width=1
     sdf_t = torch.as_tensor(sdf, dtype=torch.float32).clamp(-CLAMP, CLAMP)
     hist, t0, run = [], time.time(), []
     for step in range(steps):
-        ids = torch.as_tensor(rng.choice(S, min(shapes_per_batch, S), replace=False))
+        ids = torch.as_tensor(rng.choice(S, min(shapes_per_batch, S), replace=False)
+                              if prob is None else
+                              rng.choice(S, min(shapes_per_batch, int((prob > 0).sum())),
+                                         replace=False, p=prob))
         pidx = torch.as_tensor(rng.integers(0, P, size=(len(ids), points_per_shape)))
         x = pts_t[ids[:, None], pidx].reshape(-1, 3)
         y = sdf_t[ids[:, None], pidx].reshape(-1)
@@ -260,6 +288,10 @@ def TrainDecoder(points: np.ndarray, sdf: np.ndarray, *, latent_size=32, width=1
         opt.step()
         sched.step()
         run.append(l_sdf.item())
+        if on_step is not None:
+            on_step(step + 1)
+        if checkpoint is not None and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
+            checkpoint(step + 1, dec, codes.weight.detach().numpy().copy())
         if (step + 1) % log_every == 0 or step == steps - 1:
             rec = dict(step=step + 1, l1_over_clamp=float(np.mean(run)),
                        l1_mm=float(np.mean(run)) * CLAMP * 1000,
@@ -273,7 +305,30 @@ def TrainDecoder(points: np.ndarray, sdf: np.ndarray, *, latent_size=32, width=1
             log(f"time limit {time_limit_s} s reached at step {step + 1}")
             break
     dec.eval()
+    for prm in dec.parameters():
+        prm.requires_grad_(False)
     return dec, codes.weight.detach().numpy().copy(), hist
+
+
+def FitLatent(decoder: DeepSDFDecoder, points: np.ndarray, sdf: np.ndarray,
+              z0: np.ndarray, iterations: int = 400, lr: float = 5e-3,
+              code_reg: float = 1e-4, batch: int = 4096, seed: int = 0) -> np.ndarray:
+    """The latent (C,) whose decoder surface best fits SDF samples of one
+    shape in frame O (the DeepSDF inference: the decoder frozen, Adam on z
+    from ``z0``, clamped L1 plus ``code_reg * ||z||^2``)."""
+    rng = np.random.default_rng(seed)
+    z = torch.tensor(np.asarray(z0, np.float32), requires_grad=True)
+    opt = torch.optim.Adam([z], lr=lr)
+    pts = torch.as_tensor(points, dtype=torch.float32)
+    y = torch.as_tensor(sdf, dtype=torch.float32).clamp(-CLAMP, CLAMP)
+    for _ in range(iterations):
+        i = torch.as_tensor(rng.integers(0, len(pts), min(batch, len(pts))))
+        pred = decoder(z, pts[i]).clamp(-CLAMP, CLAMP)
+        loss = (pred - y[i]).abs().mean() / CLAMP + code_reg * (z ** 2).sum()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return z.detach().numpy().copy()
 
 
 def LoadTrainingSummary(weights_file: str | Path) -> dict:

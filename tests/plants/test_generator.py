@@ -102,3 +102,30 @@ def test_lean_turns_the_fruit_top_toward_the_branch():
     assert tops[35.0][0] < tops[0.0][0] - 0.01          # top > 1 cm closer to the stem
     tilt = np.degrees(np.arccos(tops[35.0][1][2]))
     assert 25.0 < tilt < 45.0                            # 35 deg lean (+-10 deg own tilt)
+
+
+def test_curved_procedural_peduncle_joins_fruit_and_branch():
+    """``fruit.peduncle_curved``: the wide family's curved stalk is in the
+    plant (labelled branch, like a file fruit's) from the cavity to the
+    branch; the default keeps the straight stalk and no peduncle mesh."""
+    plain = GeneratePlant(_cfg(), P_WC)
+    assert plain.peduncle_mesh_W is None
+    cfg = _cfg()
+    f = cfg.fruit
+    f.peduncle_curved, f.peduncle_length, f.peduncle_angle_deg = True, 0.05, 45.0
+    f.dimple, f.cavity_offset_deg = 0.3, 12.0
+    m = GeneratePlant(cfg, P_WC)
+    ped = m.peduncle_mesh_W
+    assert ped is not None and ped.is_watertight
+    # It starts at the fruit and its far end is where the stalk to the branch starts.
+    d_fruit = MeshSignedDistance(m.fruit_mesh_W, ped.vertices)
+    assert np.abs(d_fruit).min() < 0.006
+    np.testing.assert_allclose(m.stalk_W[0], m.peduncle_tip_W)
+    assert np.linalg.norm(ped.vertices - m.peduncle_tip_W, axis=1).min() < 0.006
+    # The tube rises along the fruit axis and bends sideways: its far end is
+    # above the fruit top and off the axis line through the fruit centre.
+    rel = m.peduncle_tip_W - m.fruit_center_W
+    along = rel @ m.peduncle_axis_W
+    side = np.linalg.norm(rel - along * m.peduncle_axis_W)
+    top = (m.fruit_mesh_W.vertices - m.fruit_center_W) @ m.peduncle_axis_W
+    assert along > top.max() + 0.01 and side > 0.015, (along, top.max(), side)

@@ -31,6 +31,9 @@ def test_decoder_reproduces_a_training_shape(k):
     params = dict(summary["shapes"][k])
     params["size"] = tuple(params["size"])
     gt = MakePepper(PepperShape(**params), subdivisions=4).mesh
+    r_norm = summary["args"].get("normalize_radius", 0.0)
+    if r_norm > 0:     # trained on size-normalised shapes (equal-volume radius)
+        gt.apply_scale(r_norm / (3 * gt.volume / (4 * np.pi)) ** (1 / 3))
     z = extra["train_latents"][k]
     est = MakeFruitEstimate(dec, z, 1.0, np.eye(3), np.zeros(3), 0.002)
     cd = MeshChamferCm(est.vertices_W, est.faces, gt.vertices, gt.faces, 10000)
