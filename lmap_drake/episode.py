@@ -405,7 +405,7 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
             if st.finished:
                 break
             if st.mode == "confirm_wait" and st.confirmed is None:
-                asked = st.continuations[-1] if st.pending_motion is not None else st.plan
+                asked = st.pending_motion[0] if st.pending_motion is not None else st.plan
                 accepted, note = confirm(asked) if confirm is not None else (
                     False, "no operator to confirm")
                 c.Confirm(cctx, accepted, note)

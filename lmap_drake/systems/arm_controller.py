@@ -131,7 +131,7 @@ class ControllerStatus:
     grip_history: list = dc.field(default_factory=list)   # (t, opening) while closing
     continuations: list = dc.field(default_factory=list)  # PlanResults of the re-plans
     motion_paths: list = dc.field(default_factory=list)   # joint waypoints of each motion
-    pending_motion: list | None = None  # a continuation waiting for the operator
+    pending_motion: tuple | None = None  # (plan, joint path) waiting for the operator
     replan_log: list = dc.field(default_factory=list)     # "status: message" per re-plan
 
     def __deepcopy__(self, memo):
@@ -324,7 +324,11 @@ class ArmController(LeafSystem):
         """Seconds for the current motion (or for all executed motions, to
         carry the leaf back) at the pull speed."""
         plans = st.plans if all_motions else st.plans[-1:]
-        return max(1.0, sum(p.chosen.action.path_length for p in plans) / self._pull_speed)
+        return self._MotionDuration([p.chosen.action for p in plans])
+
+    def _MotionDuration(self, actions: list) -> float:
+        """Seconds to move the TCP along ``actions`` at the pull speed (>= 1 s)."""
+        return max(1.0, sum(a.path_length for a in actions) / self._pull_speed)
 
     # --- the state machine -------------------------------------------------
     def _update(self, context, state) -> EventStatus:
@@ -362,8 +366,8 @@ class ArmController(LeafSystem):
             self._Plan(context, st, t)
         elif mode == "confirm_wait":
             if st.confirmed is True and st.pending_motion is not None:
-                path, st.pending_motion = st.pending_motion, None
-                self._StartContinuation(st, t, path, "confirmed by the operator")
+                (plan, path), st.pending_motion = st.pending_motion, None
+                self._StartContinuation(st, t, plan, path, "confirmed by the operator")
             elif st.confirmed is True:
                 self._StartMotion(st, t, "confirmed by the operator")
             elif st.confirmed is False and st.pending_motion is not None:
@@ -538,25 +542,24 @@ class ArmController(LeafSystem):
         if plan.status != "ok":
             self.progress(f"no further motion: {plan.status}: {plan.message}")
             return False
+        a = plan.chosen.action
         try:
-            path = PlanActionPath(self._robot, plan.chosen.action, st.q_hold)
-            st.continuations.append(plan)
-            self._TimePath(t, st.q_hold, path, 0.3, self._pull_duration(st))
+            path = PlanActionPath(self._robot, a, st.q_hold)
+            self._TimePath(t, st.q_hold, path, 0.3, self._MotionDuration([a]))
         except (MotionError, _Refused) as err:
-            if st.continuations and st.continuations[-1] is plan:
-                st.continuations.pop()
             self.progress(f"no further motion: {err}")
             return False
-        summary = f"continuation {len(st.continuations)}: {plan.chosen.action.Describe()}"
+        summary = f"continuation {len(st.continuations) + 1}: {a.Describe()}"
         if self._options.confirm:
-            st.confirmed, st.pending_motion = None, path
+            st.confirmed, st.pending_motion = None, (plan, path)
             self._enter(st, "confirm_wait", t, summary)
         else:
-            self._StartContinuation(st, t, path, summary)
+            self._StartContinuation(st, t, plan, path, summary)
         return True
 
-    def _StartContinuation(self, st: ControllerStatus, t: float, path: list,
-                           message: str) -> None:
+    def _StartContinuation(self, st: ControllerStatus, t: float, plan: PlanResult,
+                           path: list, message: str) -> None:
+        st.continuations = st.continuations + [plan]
         st.pull_path = path
         st.motion_paths = st.motion_paths + [path]
         self._start_path(st, t, path, 0.3, self._pull_duration(st))
