@@ -202,36 +202,11 @@ def Scan(rng) -> tuple[trimesh.Trimesh, np.ndarray]:
 def CurvedTube(p0, angle: float, azimuth: float, length: float, radius: float,
                ring: int = 12, segments: int = 24) -> trimesh.Trimesh:
     """A capped tube from ``p0`` starting along +z and bending, as a circular
-    arc, to ``angle`` (rad) off +z toward ``azimuth`` at its end."""
-    s = np.linspace(0.0, length, segments + 1)
-    h = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
-    if angle < 1e-6:
-        c = p0 + np.outer(s, [0, 0, 1.0])
-        t = np.tile([0, 0, 1.0], (len(s), 1))
-    else:
-        rc = length / angle
-        th = s / rc
-        c = p0 + np.outer(rc * np.sin(th), [0, 0, 1.0]) + np.outer(rc * (1 - np.cos(th)), h)
-        t = np.outer(np.cos(th), [0, 0, 1.0]) + np.outer(np.sin(th), h)
-    verts, faces = [], []
-    ang = np.linspace(0, 2 * np.pi, ring, endpoint=False)
-    for ci, ti in zip(c, t):
-        u = _unit(np.cross(ti, [0.0, 1.0, 0.0]) if abs(ti[1]) < 0.9 else np.cross(ti, [1.0, 0, 0]))
-        w = np.cross(ti, u)
-        verts.append(ci + radius * (np.outer(np.cos(ang), u) + np.outer(np.sin(ang), w)))
-    V = np.vstack(verts + [c[:1], c[-1:]])
-    nb, nt = len(V) - 2, len(V) - 1
-    for i in range(segments):
-        for j in range(ring):
-            a, b = i * ring + j, i * ring + (j + 1) % ring
-            faces += [[a, b, b + ring], [a, b + ring, a + ring]]
-    for j in range(ring):
-        faces.append([nb, (j + 1) % ring, j])
-        a = segments * ring
-        faces.append([nt, a + j, a + (j + 1) % ring])
-    m = trimesh.Trimesh(V, np.array(faces), process=True)
-    trimesh.repair.fix_normals(m)
-    return m
+    arc, to ``angle`` (rad) off +z toward ``azimuth`` at its end (the
+    plant world's peduncle tube; only the fruit bodies here are made by
+    other means than the procedural family)."""
+    from lmap_drake.plants.pepper import MakePeduncle
+    return MakePeduncle(np.asarray(p0, float), angle, azimuth, length, radius, ring, segments)
 
 
 def MakeTestPepper(kind: str, rng, peduncle: bool = True):
