@@ -1069,7 +1069,7 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
          "needs plant_scene.kind: procedural")
     need(s.shape.weights_file or s.shape.method == "supeps", "shape.weights_file",
          "is empty; the ssc and homa methods need the DeepSDF weights")
-    fams = list(s.planner.action_families)
+    fams = list(s.planner.action_families)   # deformation.action.FAMILIES
     need(bool(fams) and all(f in ("pull", "arc") for f in fams) and len(set(fams)) == len(fams),
          "planner.action_families", f"must be a non-empty list of 'pull' and/or 'arc', got {fams}")
     need(all(0 < a < 180 for a in s.planner.arc_angles_deg), "planner.arc_angles_deg",
