@@ -534,6 +534,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         by_dir.setdefault((c.action.grasp_id, c.action.direction_id), []).append(c)
     forced = ForcedCandidate(cands, cfg.force_action)
     rest_sdf = None       # the fruit SDF at the observed leaf, evaluated once
+    static_zbuf = None
     for dir_cands in by_dir.values():
         reached = False
         for c in sorted(dir_cands, key=lambda c: c.action.distance):
@@ -551,8 +552,10 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
                 c.reason = c.reason or why
                 if not is_forced:
                     continue
-            seen = vis.Seen(np.vstack([c.deformed_leaf_W, ctx.branch_obs_W,
-                                       ctx.robot.SurfacePoints(c.q_pulled)]))
+            if static_zbuf is None:     # the branch occludes the same for every action
+                static_zbuf = vis.ZBuffer(ctx.branch_obs_W)
+            seen = vis.Seen(np.vstack([c.deformed_leaf_W,
+                                       ctx.robot.SurfacePoints(c.q_pulled)]), static_zbuf)
             c.seen = int(seen.sum())
             c.n_vis = CountNewlySeen(seen, seen_init)
             if c.seen >= cfg.early_stop_fraction * n_max:

@@ -8,7 +8,8 @@ from pydrake.geometry import Box, Capsule, Cylinder, Role, SceneGraph
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 
-from lmap_drake.planning.ik import IkResult, SolveTcpIk, SolveTcpIkMultiStart
+from lmap_drake.planning.ik import (IkResult, NewtonTcpIk, SolveTcpIk,
+                                   SolveTcpIkMultiStart)
 from lmap_drake.station.robot import AddUr5AndGripper
 
 
@@ -73,6 +74,7 @@ class RobotModel:
         self.ur5, self.gripper = AddUr5AndGripper(self.plant, X_WB)
         self.plant.Finalize()
         self.context = self.plant.CreateDefaultContext()
+        self._ik_context = self.plant.CreateDefaultContext()
         self.tcp = self.plant.GetFrameByName("tcp")
         inspector = self.scene_graph.model_inspector()
         self._bodies, self._points = [], []
@@ -109,6 +111,13 @@ class RobotModel:
 
     def Ik(self, X_WT: RigidTransform, q_seed: np.ndarray, half_opening: float = 0.0,
            multistart: bool = False) -> IkResult:
-        """Drake IK (joint limits) for the TCP at ``X_WT``, warm-started."""
+        """IK (joint limits) for the TCP at ``X_WT``, warm-started: Newton
+        steps on the plant's kinematics from ``q_seed`` first (the planner's
+        targets are a few cm from a solved pose), Drake's
+        ``InverseKinematics`` program (with random restarts if
+        ``multistart``) when they do not converge."""
+        r = NewtonTcpIk(self.plant, self._ik_context, X_WT, q_seed, half_opening)
+        if r.success:
+            return r
         solve = SolveTcpIkMultiStart if multistart else SolveTcpIk
         return solve(self.plant, X_WT, q_seed, gripper_half_opening=half_opening)

@@ -110,11 +110,14 @@ class VisibilityModel:
         inside = (rc[:, 0] >= 0) & (rc[:, 0] < w) & (rc[:, 1] >= 0) & (rc[:, 1] < h)
         return np.where(inside, rc[:, 1] * w + rc[:, 0], -1)
 
-    def Seen(self, occluders_W: np.ndarray) -> np.ndarray:
-        """Boolean mask over the fruit voxels: seen from the camera with
-        ``occluders_W`` (points, any density) in the scene."""
+    def ZBuffer(self, occluders_W: np.ndarray, base: np.ndarray | None = None) -> np.ndarray:
+        """The occluders' depth buffer over the grid (flat, camera z in m,
+        inf where none), min-combined with ``base`` (e.g. the buffer of the
+        occluders every action shares, computed once). The grid is global
+        (voxels at multiples of ``voxel``), so the buffer of a union of point
+        sets equals the min of their buffers."""
         h, w = self.shape
-        zbuf = np.full(h * w, np.inf)
+        zbuf = np.full(h * w, np.inf) if base is None else np.array(base, float)
         occ = np.asarray(occluders_W, float).reshape(-1, 3)
         if len(occ):
             # only what lies in front of the fruit's far side and projects
@@ -122,7 +125,6 @@ class VisibilityModel:
             p_C = self._to_camera(occ)
             keep = (p_C[:, 2] > NEAR) & (p_C[:, 2] < self._z_far)
             uv = self.f * p_C[keep, :2] / p_C[keep, 2:3] - self.lo
-            h, w = self.shape
             inwin = (uv[:, 0] > -3) & (uv[:, 0] < w + 3) & (uv[:, 1] > -3) & (uv[:, 1] < h + 3)
             occ = VoxelCenters(occ[keep][inwin], self.voxel)
         if len(occ):
@@ -133,16 +135,48 @@ class VisibilityModel:
             # splat radius: the voxel's pixel footprint at its depth
             rad = np.ceil(0.5 * self.f * self.voxel * np.sqrt(2) / p_C[:, 2]).astype(int)
             rad = np.minimum(rad, 64)          # bounded work for an occluder at the lens
-            all_pix, all_z = [], []
+            # Each voxel covers the (2r+1)^2 pixels around its projection:
+            # a min-filter of the point buffer of each radius group (the same
+            # result as splatting every point, at image-filter cost).
+            from scipy.ndimage import minimum_filter
             for r in np.unique(rad):
                 sel = rad == r
-                for du in range(-r, r + 1):
-                    for dv in range(-r, r + 1):
-                        pix = self._pixels(uv[sel] + [du, dv])
-                        ok = pix >= 0
-                        all_pix.append(pix[ok])
-                        all_z.append(p_C[sel, 2][ok])
-            _MinInto(zbuf, np.concatenate(all_pix), np.concatenate(all_z))
+                pix = self._pixels(uv[sel])
+                ok = pix >= 0
+                # points projecting just outside the window still cover it
+                if r > 0:
+                    near = ~ok & np.all(np.abs(uv[sel] - np.clip(
+                        uv[sel], self.lo, self.lo + [w - 1, h - 1])) <= r, axis=1)
+                else:
+                    near = np.zeros_like(ok)
+                pts = np.full(h * w, np.inf)
+                _MinInto(pts, pix[ok], p_C[sel, 2][ok])
+                if near.any():
+                    pts_out = self._SplatOutside(uv[sel][near], p_C[sel, 2][near], r)
+                    _MinInto(zbuf, *pts_out)
+                if r > 0:
+                    pts = minimum_filter(pts.reshape(h, w), size=2 * r + 1, mode="constant",
+                                         cval=np.inf).ravel()
+                np.minimum(zbuf, pts, out=zbuf)
+        return zbuf
+
+    def _SplatOutside(self, uv: np.ndarray, z: np.ndarray, r: int) -> tuple:
+        """Pixels and depths of voxels projecting outside the window whose
+        (2r+1)^2 footprint reaches into it (explicit splat: few points)."""
+        all_pix, all_z = [], []
+        for du in range(-r, r + 1):
+            for dv in range(-r, r + 1):
+                pix = self._pixels(uv + [du, dv])
+                ok = pix >= 0
+                all_pix.append(pix[ok])
+                all_z.append(z[ok])
+        return np.concatenate(all_pix), np.concatenate(all_z)
+
+    def Seen(self, occluders_W: np.ndarray, base_zbuf: np.ndarray | None = None) -> np.ndarray:
+        """Boolean mask over the fruit voxels: seen from the camera with
+        ``occluders_W`` (points, any density) in the scene, plus the
+        occluders already in ``base_zbuf`` (from ``ZBuffer``)."""
+        zbuf = self.ZBuffer(occluders_W, base_zbuf)
         fz = self._fruit_zbuf
         ok = self._fruit_pix >= 0
         tol = 0.75 * self.voxel

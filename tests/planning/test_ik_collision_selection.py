@@ -71,3 +71,35 @@ def test_energy_weight_changes_the_choice():
     hard, gentle, useless = _cand(500, 0.05), _cand(430, 0.005), _cand(50, 0.001)
     assert SelectAction([hard, gentle, useless], 0.0) is hard
     assert SelectAction([hard, gentle, useless], 1.0) is gentle
+
+
+def test_newton_ik_agrees_with_drake_ik_and_respects_limits(robot):
+    from lmap_drake.planning.ik import NewtonTcpIk, SolveTcpIk
+    from pydrake.math import RollPitchYaw
+    rng = np.random.default_rng(7)
+    q0 = np.array(RobotConfig().initial_q)
+    context = robot.plant.CreateDefaultContext()
+    agree = 0
+    for _ in range(20):
+        q_seed = q0 + rng.uniform(-0.4, 0.4, 6)
+        X = robot.TcpPose(q_seed)
+        X_target = RigidTransform(
+            RollPitchYaw(rng.uniform(-0.2, 0.2, 3)).ToRotationMatrix().multiply(X.rotation()),
+            X.translation() + rng.uniform(-0.05, 0.05, 3))
+        a = NewtonTcpIk(robot.plant, context, X_target, q_seed)
+        b = SolveTcpIk(robot.plant, X_target, q_seed, gripper_half_opening=0.0)
+        assert a.success == b.success
+        if a.success:
+            X_got = robot.TcpPose(a.q)
+            assert np.linalg.norm(X_got.translation() - X_target.translation()) < 1e-4
+            agree += np.abs(a.q - b.q).max() < 1e-2   # the seed's solution branch
+    assert agree >= 18
+    # out of reach (2 m away): Newton reports failure, it does not return junk
+    far = RigidTransform(X.rotation(), X.translation() + [2.0, 0, 0])
+    assert not NewtonTcpIk(robot.plant, context, far, q0).success
+    # a target whose only nearby solution needs the shoulder past its limit
+    lo = robot.plant.GetPositionLowerLimits()[:6]
+    q_out = q0.copy()
+    q_out[0] = lo[0] - 0.2
+    r = NewtonTcpIk(robot.plant, context, robot.TcpPose(q_out), np.r_[lo[0] + 0.01, q0[1:]])
+    assert not r.success or np.all(r.q >= lo)

@@ -30,3 +30,45 @@ def test_plate_moved_aside_reveals_the_fruit():
     assert CountNewlySeen(aside, blocked) > 0.9 * n_max
     # an occluder behind the fruit hides nothing
     assert vis.Seen(_plate([0.5, 0.08, 0.3])).sum() == n_max
+
+
+def _ReferenceSeen(vis: VisibilityModel, occ: np.ndarray) -> np.ndarray:
+    """Every occluder voxel splatted explicitly over its (2r+1)^2 pixels (the
+    definition ``ZBuffer``'s min-filter implements)."""
+    from lmap_drake.planning.visibility import NEAR, VoxelCenters
+    h, w = vis.shape
+    zbuf = np.full(h * w, np.inf)
+    p_C = vis._to_camera(VoxelCenters(occ, vis.voxel))
+    p_C = p_C[p_C[:, 2] > NEAR]
+    uv = vis._project(p_C)
+    rad = np.minimum(np.ceil(0.5 * vis.f * vis.voxel * np.sqrt(2) / p_C[:, 2]).astype(int), 64)
+    for k in range(len(p_C)):
+        r = rad[k]
+        for du in range(-r, r + 1):
+            for dv in range(-r, r + 1):
+                pix = vis._pixels((uv[k] + [du, dv])[None])[0]
+                if pix >= 0:
+                    zbuf[pix] = min(zbuf[pix], p_C[k, 2])
+    ok = vis._fruit_pix >= 0
+    seen = np.zeros(len(vis.fruit_W), bool)
+    pix, z, tol = vis._fruit_pix[ok], vis._fruit_z[ok], 0.75 * vis.voxel
+    seen[ok] = (z <= vis._fruit_zbuf[pix] + tol) & (z < zbuf[pix] - tol)
+    return seen
+
+
+def test_zbuffer_matches_explicit_splatting_and_composes():
+    rng = np.random.default_rng(5)
+    fruit = _sphere(np.array([0.5, 0.0, 0.3]), 0.035)
+    vis = VisibilityModel(X_WC, fruit, 0.003)
+    for near_lens in (False, True):
+        # scattered occluders in front of the fruit (some beyond the window's
+        # edge); near the lens their footprints span many pixels
+        y = (-0.55, -0.45) if near_lens else (-0.2, -0.04)
+        occ = np.c_[rng.uniform(0.40, 0.60, 400), rng.uniform(*y, 400),
+                    rng.uniform(0.20, 0.40, 400)]
+        seen = vis.Seen(occ)
+        assert 0 < seen.sum() < vis.max_seen.sum()
+        assert np.array_equal(seen, _ReferenceSeen(vis, occ))
+        # a buffer of part of the occluders, combined with the rest: the same
+        base = vis.ZBuffer(occ[:150])
+        assert np.array_equal(vis.Seen(occ[150:], base), seen)
