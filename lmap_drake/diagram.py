@@ -49,10 +49,12 @@ def AddPlanningStages(b: DiagramBuilder, scenario: Scenario, resources: EpisodeR
     from lmap_drake.systems.shape_completion import ShapeCompletion
 
     cam = scenario.cameras["camera0"]
-    perception = b.AddNamedSystem("perception", Perception(cam, scenario.perception))
+    perception = b.AddNamedSystem("perception", Perception(cam, scenario.perception,
+                                                           robot=resources.robot))
     for name in ("rgb_image", "depth_image", "label_image"):
         b.Connect(views.GetOutputPort(name), perception.GetInputPort(f"camera0.{name}"))
     b.Connect(views.GetOutputPort("num_views"), perception.GetInputPort("capture"))
+    b.Connect(views.GetOutputPort("ur5.position"), perception.GetInputPort("ur5.position"))
     shape = b.AddNamedSystem("shape_completion", ShapeCompletion(
         scenario.shape, resources.decoder, resources.mean_latent))
     reest = b.AddNamedSystem("shape_reestimation", ShapeCompletion(

@@ -548,8 +548,9 @@ def SaveEpisode(result: EpisodeResult, out: Path, clients=None) -> list[str]:
     if plan is not None:
         plan.SaveJson(out / "candidates.json")
         files.append("candidates.json")
-    for k, cont in enumerate(result.status.continuations, start=1):
-        cont.SaveJson(out / f"continuation_{k}.json")      # planned from the held leaf
+    # every re-plan from the held leaf, executed or not (its status says)
+    for k, cont in enumerate(result.status.replan_results, start=1):
+        cont.SaveJson(out / f"continuation_{k}.json")
         files.append(f"continuation_{k}.json")
     camera, X_WC = RecordingCamera(world.scenario, clients)
     files += SaveRecording(out, result.views, camera, X_WC,

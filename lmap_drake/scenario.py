@@ -363,6 +363,10 @@ class PerceptionConfig:
     # more than this apart, m; 0 = keep all) are dropped before
     # de-projection: they float in the gap between a leaf and the fruit.
     flying_pixel_jump: float = 0.005
+    # Robot self-filter: plant points within this distance (m) of the robot's
+    # collision surfaces at the view's joints are dropped (a gripper pixel
+    # mislabelled leaf, fruit or branch is not plant; 0 = keep all).
+    robot_filter_distance: float = 0.01
 
 
 @dc.dataclass
@@ -806,6 +810,7 @@ _RULES = {
     "perception.text_threshold": "[0,1]",
     "perception.nms_threshold": "[0,1]",
     "perception.fusion_match_distance": ">=0",
+    "perception.robot_filter_distance": ">=0",
     "perception.background_stride": ">=1",
     "perception.no_return_free_range": ">=0",
     "shape.latent_size": ">=1",

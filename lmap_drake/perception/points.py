@@ -297,3 +297,33 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
         flags.append("empty_scene")
     scene.flags = flags
     return scene
+
+
+def RemovePointsNear(scene: SemanticScene, points_W: np.ndarray, distance: float
+                     ) -> tuple[SemanticScene, int]:
+    """``scene`` without its branch, leaf and fruit points within
+    ``distance`` (m) of ``points_W`` (e.g. samples of the robot's surface at
+    the view's joints: the robot self-filter), and how many were dropped.
+    Background rays are kept (they only carve free space)."""
+    from scipy.spatial import cKDTree
+    points_W = np.asarray(points_W, float).reshape(-1, 3)
+    if distance <= 0 or len(points_W) == 0:
+        return scene, 0
+    tree = cKDTree(points_W)
+    out = dc.replace(scene)
+    dropped = 0
+    for name in ("branch", "leaf", "fruit"):
+        pts = np.asarray(getattr(scene, f"{name}_points_W"), float).reshape(-1, 3)
+        if len(pts) == 0:
+            continue
+        keep = tree.query(pts, distance_upper_bound=distance)[0] > distance
+        dropped += int((~keep).sum())
+        setattr(out, f"{name}_points_W", pts[keep])
+        setattr(out, f"{name}_instance", np.asarray(getattr(scene, f"{name}_instance"))[keep])
+    if dropped:
+        out.flags = list(scene.flags) + ["robot_filtered"]
+        for name in ("branch", "leaf", "fruit"):
+            flag = f"no_{name}_in_view"
+            if len(getattr(out, f"{name}_points_W")) == 0 and flag not in out.flags:
+                out.flags.append(flag)
+    return out, dropped

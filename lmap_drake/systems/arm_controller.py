@@ -133,6 +133,7 @@ class ControllerStatus:
     motion_paths: list = dc.field(default_factory=list)   # joint waypoints of each motion
     pending_motion: tuple | None = None  # (plan, joint path) waiting for the operator
     replan_log: list = dc.field(default_factory=list)     # "status: message" per re-plan
+    replan_results: list = dc.field(default_factory=list)  # every re-plan's PlanResult
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -144,6 +145,7 @@ class ControllerStatus:
         out.mode_log = list(self.mode_log)
         out.grip_history = list(self.grip_history)
         out.continuations = list(self.continuations)
+        out.replan_results = list(self.replan_results)
         out.motion_paths = list(self.motion_paths)
         return out
 
@@ -539,6 +541,7 @@ class ArmController(LeafSystem):
         st.stage_seconds["replanning_s"] = (st.stage_seconds.get("replanning_s", 0.0)
                                             + time.perf_counter() - t0)
         st.replan_log = st.replan_log + [f"{plan.status}: {plan.message}"]
+        st.replan_results = st.replan_results + [plan]
         if plan.status != "ok":
             self.progress(f"no further motion: {plan.status}: {plan.message}")
             return False

@@ -12,6 +12,10 @@ Input ports:
   camera frame C (Drake convention: +z forward, +x right, +y down) in the
   world W. Unconnected, the fixed eye-to-hand pose ``camera_config.X_PB``
   (base frame world) is used.
+- ``ur5.position`` (vector, 6, rad, optional): the arm's joints when the
+  images were taken. Connected (and a ``robot`` model given), plant points
+  within ``perception.robot_filter_distance`` of the robot's collision
+  surfaces (gripper open and closed) are dropped: the robot self-filter.
 - ``capture`` (vector, 1, optional): a view counter. Whenever its value
   exceeds the number of views already fused, the current view is fused into
   the state at the start of the next simulation step (per-step
@@ -44,8 +48,10 @@ from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
 from lmap_drake.perception.fusion import FuseViews
-from lmap_drake.perception.points import BuildSemanticScene, Intrinsics, PointParams
+from lmap_drake.perception.points import (BuildSemanticScene, Intrinsics, PointParams,
+                                         RemovePointsNear)
 from lmap_drake.perception.segmentation import MakeSegmenter, Segmenter, SegmenterError
+from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.types import SemanticScene
 
 
@@ -61,8 +67,11 @@ class Perception(LeafSystem):
     """RGB-D (+ optional labels) -> SemanticScene; see the module docstring
     for ports, frames and units."""
 
-    def __init__(self, camera_config, config, segmenter: Segmenter | None = None):
+    def __init__(self, camera_config, config, segmenter: Segmenter | None = None,
+                 robot=None):
+        """``robot``: a ``planning.robot_model.RobotModel`` for the self-filter."""
         super().__init__()
+        self._robot = robot
         self.set_name("perception")
         self._config = config
         self._K = Intrinsics.FromCameraConfig(camera_config)
@@ -78,6 +87,7 @@ class Perception(LeafSystem):
             f"{name}.label_image", AbstractValue.Make(ImageLabel16I()))
         self._pose = self.DeclareAbstractInputPort(
             f"{name}.X_WC", AbstractValue.Make(RigidTransform()))
+        self._q = self.DeclareVectorInputPort("ur5.position", 6)
         self._capture = self.DeclareVectorInputPort("capture", 1)
         self._fused_index = self.DeclareAbstractState(
             AbstractValue.Make(SemanticScene(flags=["no_views_fused"], num_views=0)))
@@ -121,7 +131,14 @@ class Perception(LeafSystem):
             label = self._label.Eval(context).data
         seg = self._segmenter.Segment(rgb, depth, label)
         X_WC = self.CameraPose(context).GetAsMatrix4()
-        return BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._params, seg.flags)
+        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._params, seg.flags)
+        distance = self._config.robot_filter_distance
+        if self._robot is not None and self._q.HasValue(context) and distance > 0:
+            q = self._q.Eval(context)
+            robot_W = np.vstack([self._robot.SurfacePoints(q, h)
+                                 for h in (0.0, 0.5 * GRIPPER_MAX_WIDTH)])
+            scene, _ = RemovePointsNear(scene, robot_W, distance)
+        return scene
 
     def _calc_scene(self, context: Context, output) -> None:
         output.set_value(self.ComputeScene(context))
