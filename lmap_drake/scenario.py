@@ -491,7 +491,10 @@ class PlannerConfig:
     grasped leaf swung about its estimated petiole attachment by each of
     ``arc_angles_deg`` about ``num_arc_axes`` axes perpendicular to the
     attachment-grasp line, the gripper turning with it; direction ids
-    100 + axis). ``force_action`` names an arc by its chord (m).
+    100 + axis) and 'twist' (ours: the gripper turns by each of
+    ``twist_angles_deg``, both senses, about the attachment-grasp line, so
+    the blade turns toward edge-on about it; direction ids 200, 201).
+    ``force_action`` names an arc by its chord (m).
 
     ``max_replans``: after the action and the re-estimation, while the
     fruit is predicted less than ``early_stop_fraction`` visible, plan a
@@ -538,6 +541,7 @@ class PlannerConfig:
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc"])
     arc_angles_deg: list[float] = dc.field(default_factory=lambda: [15.0, 30.0, 45.0])
+    twist_angles_deg: list[float] = dc.field(default_factory=lambda: [30.0, 60.0])
     num_arc_axes: int = 8
     max_replans: int = 1
     min_replan_gain: float = 0.05
@@ -894,6 +898,7 @@ _RULES = {
     "planner.max_energy_per_node": ">=0",
     "planner.speed_scale": "(0,1]",
     "planner.arc_angles_deg": "+x>0",
+    "planner.twist_angles_deg": "+x>0",
     "planner.num_arc_axes": ">=1",
     "planner.max_replans": ">=0",
     "planner.min_replan_gain": "[0,1]",
@@ -1075,10 +1080,15 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
     need(s.shape.weights_file or s.shape.method == "supeps", "shape.weights_file",
          "is empty; the ssc and homa methods need the DeepSDF weights")
     fams = list(s.planner.action_families)   # deformation.action.FAMILIES
-    need(bool(fams) and all(f in ("pull", "arc") for f in fams) and len(set(fams)) == len(fams),
-         "planner.action_families", f"must be a non-empty list of 'pull' and/or 'arc', got {fams}")
+    need(bool(fams) and all(f in ("pull", "arc", "twist") for f in fams)
+         and len(set(fams)) == len(fams),
+         "planner.action_families",
+         f"must be a non-empty list of distinct families of 'pull', 'arc', 'twist', "
+         f"got {fams}")
     need(all(0 < a < 180 for a in s.planner.arc_angles_deg), "planner.arc_angles_deg",
          f"must be angles in (0, 180) degrees, got {list(s.planner.arc_angles_deg)}")
+    need(all(0 < a < 180 for a in s.planner.twist_angles_deg), "planner.twist_angles_deg",
+         f"must be angles in (0, 180) degrees, got {list(s.planner.twist_angles_deg)}")
     isb = s.shape.init_scale_bounds
     need(len(isb) != 2 or isb[0] <= isb[1], "shape.init_scale_bounds",
          f"must be [lower, upper] with lower <= upper, got {list(isb)}")

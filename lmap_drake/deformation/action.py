@@ -10,6 +10,10 @@ Two families of motion from the grasp pose (p_WG, R_WG):
   p(f) = pivot + R(f angle) (p_WG - pivot), R_WG(f) = R(f angle) R_WG.
   A straight pull stretches the petiole; an arc about the attachment keeps
   the attachment-grasp distance.
+- ``twist`` (ours): the same rigid rotation about the attachment-grasp line
+  itself (``axis_W`` along p_WG - pivot_W): the grasp point stays, the
+  gripper turns about it and the blade turns about the line toward
+  edge-on; the petiole is twisted, not bent or stretched.
 Both end at a gripper pose X_end = (p_WG + dp_W, R_delta R_WG); the
 deformation graph's handle moves rigidly with the gripper.
 
@@ -31,9 +35,13 @@ class DeformationError(ValueError):
     (empty leaf, no branch to fix the leaf to, grasp off the leaf, ...)."""
 
 
-FAMILIES = ("pull", "arc")
-# Arc actions number their (axis) directions from here, after the pulls'.
+FAMILIES = ("pull", "arc", "twist")
+ROTATIONS = ("arc", "twist")     # families that rotate the gripper about a line
+# Arc actions number their (axis) directions from here, after the pulls';
+# twists from TWIST_DIRECTION_BASE (+0: positive sense about the
+# attachment -> grasp line, +1: negative).
 ARC_DIRECTION_BASE = 100
+TWIST_DIRECTION_BASE = 200
 
 
 def AxisAngleMatrix(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -47,9 +55,9 @@ def AxisAngleMatrix(axis: np.ndarray, angle: float) -> np.ndarray:
 class Action:
     """Grasp the leaf at ``p_WG`` (3, m) with gripper orientation ``R_WG``
     (3x3), then move the gripper: ``family`` 'pull' moves it by ``dp_W``
-    (3, m) without rotating it; 'arc' rotates it by ``angle`` (rad) about
-    the axis ``axis_W`` (unit, 3) through ``pivot_W`` (3, m), and ``dp_W``
-    is then derived (the TCP's net displacement). ``grasp_id`` /
+    (3, m) without rotating it; 'arc' and 'twist' rotate it by ``angle``
+    (rad) about the axis ``axis_W`` (unit, 3) through ``pivot_W`` (3, m),
+    and ``dp_W`` is then derived (the TCP's net displacement). ``grasp_id`` /
     ``direction_id`` are bookkeeping indices (-1 = unset)."""
     p_WG: np.ndarray
     R_WG: np.ndarray
@@ -66,9 +74,9 @@ class Action:
         self.R_WG = np.asarray(self.R_WG, dtype=float).reshape(3, 3)
         if self.family not in FAMILIES:
             raise ValueError(f"unknown action family {self.family!r} (one of {FAMILIES})")
-        if self.family == "arc":
+        if self.family in ROTATIONS:
             if self.pivot_W is None or self.axis_W is None:
-                raise ValueError("an arc action needs pivot_W and axis_W")
+                raise ValueError(f"a {self.family} action needs pivot_W and axis_W")
             self.pivot_W = np.asarray(self.pivot_W, float).reshape(3)
             self.axis_W = np.asarray(self.axis_W, float).reshape(3)
             self.axis_W = self.axis_W / np.linalg.norm(self.axis_W)
@@ -93,7 +101,7 @@ class Action:
     @property
     def R_delta(self) -> np.ndarray:
         """Rotation of the gripper over the motion, in W (I for a pull)."""
-        if self.family == "arc":
+        if self.family in ROTATIONS:
             return AxisAngleMatrix(self.axis_W, self.angle)
         return np.eye(3)
 
@@ -111,7 +119,7 @@ class Action:
         out = []
         for k in range(1, n + 1):
             f = k / n
-            if self.family == "arc":
+            if self.family in ROTATIONS:
                 R = AxisAngleMatrix(self.axis_W, f * self.angle)
                 out.append((self.pivot_W + R @ (self.p_WG - self.pivot_W), R @ self.R_WG))
             else:
@@ -120,14 +128,18 @@ class Action:
 
     @property
     def path_length(self) -> float:
-        """Length (m) of the TCP's path (the arc's length for an arc)."""
-        if self.family == "arc":
+        """Length (m) of the TCP's path (the arc's length for an arc; about
+        0 for a twist, which turns the gripper in place)."""
+        if self.family in ROTATIONS:
             return float(abs(self.angle) * np.linalg.norm(
                 np.cross(self.axis_W, self.p_WG - self.pivot_W)))
         return self.distance
 
     def Describe(self) -> str:
-        """Short human-readable form, e.g. 'pull 4 cm' or 'arc 30 deg (6.1 cm)'."""
+        """Short human-readable form, e.g. 'pull 4 cm', 'arc 30 deg (6.1 cm)'
+        or 'twist -60 deg'."""
+        if self.family == "twist":
+            return f"twist {np.rad2deg(self.angle):.0f} deg"
         if self.family == "arc":
             return f"arc {np.rad2deg(self.angle):.0f} deg ({self.distance * 100:.1f} cm)"
         return f"pull {self.distance * 100:.0f} cm"
@@ -198,6 +210,18 @@ def MakeArcActions(p_WG: np.ndarray, R_WG: np.ndarray, pivot_W: np.ndarray,
     return [Action(p_WG, R_WG, grasp_id=grasp_id, direction_id=ARC_DIRECTION_BASE + int(j),
                    family="arc", pivot_W=pivot_W, axis_W=k, angle=float(a))
             for k, j in zip(axes, ids) for a in angles]
+
+
+def MakeTwistActions(p_WG: np.ndarray, R_WG: np.ndarray, pivot_W: np.ndarray,
+                     angles: list[float], grasp_id: int = -1) -> list[Action]:
+    """Twist actions of one grasp: the gripper turns by +-each angle (rad)
+    about the line from the hinge ``pivot_W`` through the grasp ``p_WG``
+    (direction ids ``TWIST_DIRECTION_BASE`` + 0 / + 1 for the two senses)."""
+    axis = np.asarray(p_WG, float) - np.asarray(pivot_W, float)
+    axis = axis / np.linalg.norm(axis)
+    return [Action(p_WG, R_WG, grasp_id=grasp_id, direction_id=TWIST_DIRECTION_BASE + j,
+                   family="twist", pivot_W=pivot_W, axis_W=sense * axis, angle=float(a))
+            for j, sense in enumerate((1.0, -1.0)) for a in angles]
 
 
 def GroupActionsByGrasp(actions: list[Action]) -> list[list[int]]:

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
-from lmap_drake.deformation.action import Action, HingeAxes, MakeArcActions, PullDirections
+from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions, MakeTwistActions,
+                                          PullDirections)
 from lmap_drake.deformation.graph import FREE, MainLeafComponent
 from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
@@ -249,12 +250,12 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
         # (Arc poses already solved for this axis, e.g. the 30-degree end as
         # the 60-degree arc's midway pose, are reused.)
         poses = [(a.angle, a.p_WG + a.dp_W, a.R_WG_end)]
-        if a.family == "arc":
+        if a.family != "pull":
             mid = dc.replace(a, angle=0.5 * a.angle, dp_W=None)
             poses.insert(0, (mid.angle, mid.p_WG + mid.dp_W, mid.R_WG_end))
         why = ""
         for angle, p, R_end in poses:
-            key = (a.direction_id, round(angle, 9)) if a.family == "arc" else None
+            key = (a.direction_id, round(angle, 9)) if a.family != "pull" else None
             if key in solved:
                 r, pose_why = solved[key]
             else:
@@ -265,7 +266,7 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
                 if key is not None:
                     solved[key] = (r, pose_why)
             if not r.success:
-                why = f"IK failed ({'pulled pose' if a.family == 'pull' else 'along the arc'})"
+                why = f"IK failed ({'pulled pose' if a.family == 'pull' else 'along the ' + a.family})"
                 break
             seed = r.q
             why = why or pose_why
@@ -282,8 +283,9 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
 def _DistanceId(a: Action, cfg: PlannerConfig) -> int:
     """Index of the action's distance in ``planner.distances`` (pulls) or
     of its angle in ``planner.arc_angles_deg`` (arcs)."""
-    if a.family == "arc":
-        deg = np.asarray(cfg.arc_angles_deg, float)
+    if a.family != "pull":
+        deg = np.asarray(cfg.arc_angles_deg if a.family == "arc" else cfg.twist_angles_deg,
+                         float)
         return int(np.argmin(np.abs(deg - np.rad2deg(abs(a.angle)))))
     return int(round(a.distance / 0.02)) - 1
 
@@ -447,6 +449,11 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
             actions += MakeArcActions(g.p_WG, g.R_WG, pivot,
                                       HingeAxes(g.p_WG, pivot, cfg.num_arc_axes), angles,
                                       grasp_id=g.grasp_id)
+        if ("twist" in cfg.action_families and pivot is not None
+                and np.linalg.norm(g.p_WG - pivot) > 0.02):
+            actions += MakeTwistActions(g.p_WG, g.R_WG, pivot,
+                                        np.deg2rad(np.asarray(cfg.twist_angles_deg, float)),
+                                        grasp_id=g.grasp_id)
         out.candidates += _IkAndRobotChecks(ctx, g, cfg, actions)
     timings["generation_collision_s"] += time.perf_counter() - t0
     out.scene, msg = AttachLeaf(ctx.scene, dcfg)
@@ -721,10 +728,15 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
         actions += [Action(p, R, s * u, grasp_id=0, direction_id=int(j))
                     for u, j in zip(dirs, ids) for s in cfg.distances]
     if held.hinge_W is not None and np.linalg.norm(p - held.hinge_W) > 0.02:
-        actions += MakeArcActions(p, R, held.hinge_W, HingeAxes(p, held.hinge_W,
-                                                                cfg.num_arc_axes),
-                                  np.deg2rad(np.asarray(cfg.arc_angles_deg, float)),
-                                  grasp_id=0)
+        if "arc" in cfg.action_families:
+            actions += MakeArcActions(p, R, held.hinge_W, HingeAxes(p, held.hinge_W,
+                                                                    cfg.num_arc_axes),
+                                      np.deg2rad(np.asarray(cfg.arc_angles_deg, float)),
+                                      grasp_id=0)
+        if "twist" in cfg.action_families:
+            actions += MakeTwistActions(p, R, held.hinge_W,
+                                        np.deg2rad(np.asarray(cfg.twist_angles_deg, float)),
+                                        grasp_id=0)
     cands = [Candidate(a, _DistanceId(a, cfg)) for a in actions]
     out.candidates = _MotionChecks(ctx, cfg, cands, np.asarray(ctx.q_current, float))
     timings["generation_collision_s"] += time.perf_counter() - t0

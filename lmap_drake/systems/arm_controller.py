@@ -86,6 +86,7 @@ MODES = ("idle", "capture", "plan_requested", "confirm_wait", "pregrasp", "appro
          "done", "planned", "aborted")
 FINISHED = ("done", "planned", "aborted")
 STALL_WINDOW = 0.3   # s: the pads count as stalled on the leaf after this long without closing
+ROTATION_SPEED = 0.5  # rad/s: the fastest the held leaf is turned (an arc or a twist)
 
 
 @dc.dataclass
@@ -329,8 +330,11 @@ class ArmController(LeafSystem):
         return self._MotionDuration([p.chosen.action for p in plans])
 
     def _MotionDuration(self, actions: list) -> float:
-        """Seconds to move the TCP along ``actions`` at the pull speed (>= 1 s)."""
-        return max(1.0, sum(a.path_length for a in actions) / self._pull_speed)
+        """Seconds to move the TCP along ``actions`` at the pull speed, and to
+        turn it at most ``ROTATION_SPEED`` (a twist turns in place), >= 1 s."""
+        return max(1.0, sum(max(a.path_length / self._pull_speed,
+                                abs(a.angle) / (ROTATION_SPEED * self._speed_scale))
+                            for a in actions))
 
     # --- the state machine -------------------------------------------------
     def _update(self, context, state) -> EventStatus:

@@ -38,7 +38,7 @@ def test_arc_geometry():
     with pytest.raises(ValueError, match="pivot_W"):
         Action(p, R_GRASP, family="arc", axis_W=[0, 0, 1], angle=0.1)
     with pytest.raises(ValueError, match="family"):
-        Action(p, R_GRASP, [0, 0, 0.01], family="twist")
+        Action(p, R_GRASP, [0, 0, 0.01], family="screw")
 
 
 def test_hinge_axes_are_perpendicular_and_spread():
@@ -146,3 +146,32 @@ def test_a_speck_labelled_leaf_near_the_branch_does_not_take_the_petiole():
     assert abs(line[:, 2]).max() < 0.01              # from the blade's base, not from the speck
     hinge = EstimateHinge(pts, branch, cfg)
     assert abs(hinge[2]) < 0.01 and np.linalg.norm(hinge[:2]) < 0.01
+
+
+def test_twist_turns_the_blade_about_the_attachment_grasp_line():
+    """A twist keeps the grasp point and turns the gripper about the line
+    from the hinge through it; the graph turns the blade about that line
+    (the leaf's far side moves, the line's points do not), at less energy
+    than pulling the grasp the same arc length sideways."""
+    from lmap_drake.deformation.action import TWIST_DIRECTION_BASE, MakeTwistActions
+    leaf, branch = OvateLeaf()
+    hinge = EstimateHinge(leaf, branch)
+    p = leaf[np.argmax(leaf[:, 0])] - [0.01, 0, 0]
+    plus, minus = MakeTwistActions(p, R_GRASP, hinge, [np.deg2rad(60)], grasp_id=3)
+    assert (plus.direction_id, minus.direction_id) == (TWIST_DIRECTION_BASE,
+                                                       TWIST_DIRECTION_BASE + 1)
+    assert plus.family == "twist" and plus.grasp_id == 3
+    assert np.allclose(plus.dp_W, 0, atol=1e-12) and plus.path_length < 1e-12
+    assert np.allclose(plus.R_delta @ minus.R_delta, np.eye(3), atol=1e-12)
+    line = (p - hinge) / np.linalg.norm(p - hinge)
+    assert np.allclose(plus.R_delta @ line, line)        # the axis is the line itself
+    assert plus.Describe() == "twist 60 deg" and len(plus.Poses()) >= 12   # <= 5 deg apart
+    assert HingeRotationDeg(hinge, p, p + plus.dp_W) < 1e-6
+    side = Action(p, R_GRASP, 0.02 * np.cross(line, [0, 0, 1.0]))
+    preds = PredictDeformations(leaf, branch, [plus, minus, side], TEST_CONFIG)
+    moved = np.linalg.norm(np.asarray(preds[0].leaf_points_W) - leaf, axis=1)
+    # far from the line the blade moves (up to cm), on the line it barely does
+    off = np.linalg.norm(np.cross(leaf - hinge, line), axis=1)
+    assert moved[off > 0.02].max() > 0.01
+    assert np.median(moved[off < 0.003]) < 0.3 * np.median(moved[off > 0.02])
+    assert preds[0].energy > 0 and preds[1].energy > 0

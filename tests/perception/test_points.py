@@ -208,3 +208,31 @@ def test_flying_pixels_between_two_surfaces_are_flagged_smooth_ones_are_not():
     tilted = 0.5 + 0.004 * np.arange(30)[None, :] * np.ones((20, 1))   # 4 mm per pixel
     assert not FlyingPixelMask(tilted, 0.005).any()
     assert not FlyingPixelMask(depth, 0.0).any()
+
+
+def test_robot_self_filter_drops_points_on_the_robot_only():
+    from lmap_drake.perception.points import RemovePointsNear
+    from lmap_drake.planning.robot_model import RobotModel
+    from lmap_drake.scenario import RobotConfig
+    from lmap_drake.types import SemanticScene
+    robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
+    q = np.array(RobotConfig().initial_q)
+    rng = np.random.default_rng(0)
+    on_robot = robot.SurfacePoints(q)[rng.choice(robot.num_points, 200, replace=False)]
+    on_robot += rng.normal(scale=0.002, size=on_robot.shape)     # sensor noise
+    plant = rng.uniform([0.45, -0.05, 0.25], [0.55, 0.05, 0.40], (300, 3))
+    d_plant = np.min(np.linalg.norm(plant[:, None] - robot.SurfacePoints(q)[None], axis=2),
+                     axis=1)
+    assert d_plant.min() > 0.05                                  # the plant is clear of the arm
+    scene = SemanticScene(leaf_points_W=np.vstack([plant, on_robot[:100]]),
+                          leaf_instance=np.zeros(400, np.int64),
+                          fruit_points_W=on_robot[100:], fruit_instance=np.ones(100, np.int64),
+                          flags=["green_fruit_detected"])
+    out, dropped = RemovePointsNear(scene, robot.SurfacePoints(q), 0.01)
+    assert dropped == 200
+    assert np.array_equal(out.leaf_points_W, plant) and len(out.leaf_instance) == 300
+    assert len(out.fruit_points_W) == 0 and "no_fruit_in_view" in out.flags
+    assert "robot_filtered" in out.flags and "green_fruit_detected" in out.flags
+    assert len(scene.fruit_points_W) == 100                      # the input is not changed
+    same, n = RemovePointsNear(scene, robot.SurfacePoints(q), 0.0)   # 0 = off
+    assert n == 0 and same is scene
