@@ -77,3 +77,19 @@ class SceneEstimate:
     branch: BranchEstimate | None = None
     fruit: FruitEstimate | None = None
     leaf_attachment_W: np.ndarray = dc.field(default_factory=_empty3)
+    # Plants with several fruits and leaves: the other fruits (obstacles for
+    # the robot and the leaf, occluders of the target ``fruit``) and the
+    # other leaves' observed points (occluders and obstacles), W, metres.
+    other_fruits: list = dc.field(default_factory=list)
+    other_leaves_W: np.ndarray = dc.field(default_factory=_empty3)
+
+
+@dc.dataclass
+class PlantEstimate:
+    """Every fruit of a plant completed (paper Sec. III-F): ``fruits[k]`` is
+    the estimate of the fruit instance ``fruit_ids[k]`` of ``semantic``;
+    ``branch`` the completed branches (all instances)."""
+    semantic: SemanticScene
+    branch: BranchEstimate | None = None
+    fruits: list = dc.field(default_factory=list)
+    fruit_ids: list = dc.field(default_factory=list)

@@ -136,14 +136,33 @@ class PlanningContext:
         self.fruit_sdf = fruit.sdf_W if fruit is not None else None
         self.fruit_box = ((fruit.vertices_W.min(0), fruit.vertices_W.max(0))
                           if fruit is not None else None)
+        # Several fruits: the robot and the moved leaf keep clear of every
+        # one (the union's SDF is the minimum); only the target is revealed.
+        others = [f for f in getattr(self.scene, "other_fruits", []) if f is not None]
+        if fruit is not None and others:
+            fruits = [fruit] + others
+            self.fruit_sdf = lambda p: np.min([np.asarray(f.sdf_W(p), float)  # noqa: E731
+                                               for f in fruits], axis=0)
+            V = np.vstack([f.vertices_W for f in fruits])
+            self.fruit_box = (V.min(0), V.max(0))
+        self.other_leaves_W = np.asarray(getattr(self.scene, "other_leaves_W", np.zeros((0, 3))),
+                                         float).reshape(-1, 3)
+        # What hides the target besides the leaf being moved (and the robot):
+        # the branches, the other leaves and the other fruits.
+        self.occluders_W = np.vstack([self.branch_obs_W, self.other_leaves_W]
+                                     + [f.vertices_W for f in others])
         self.branch_box = ((branch.vertices_W.min(0), branch.vertices_W.max(0))
                            if branch is not None and len(branch.vertices_W) else None)
         self.p_WC = np.asarray(self.X_WC, float)[:3, 3]
 
 
 def _FruitSurface(scene: SceneEstimate) -> np.ndarray:
+    return FruitSurfaceSamples(scene.fruit)
+
+
+def FruitSurfaceSamples(f) -> np.ndarray:
+    """Even samples of a ``FruitEstimate``'s surface plus its vertices (W, m)."""
     import trimesh
-    f = scene.fruit
     mesh = trimesh.Trimesh(f.vertices_W, f.faces, process=False)
     pts, _ = trimesh.sample.sample_surface_even(mesh, 6000, seed=0)
     return np.vstack([pts, f.vertices_W])
@@ -160,10 +179,12 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
     robot = ctx.robot
     free = [ctx.q_current + f * (approach.via - ctx.q_current) for f in np.linspace(0, 1, 8)[1:]]
     free += list(approach.to_ready) + list(approach.to_pregrasp)
-    leaf_tree = cKDTree(ctx.leaf_W) if len(ctx.leaf_W) else None
-    if leaf_tree is not None:   # only robot points near the leaf's box can be within the margin
-        leaf_lo = ctx.leaf_W.min(axis=0) - cfg.collision_margin
-        leaf_hi = ctx.leaf_W.max(axis=0) + cfg.collision_margin
+    # (the other leaves of the plant are obstacles like the grasped one)
+    leaves_W = np.vstack([ctx.leaf_W, ctx.other_leaves_W])
+    leaf_tree = cKDTree(leaves_W) if len(leaves_W) else None
+    if leaf_tree is not None:   # only robot points near the leaves' box can be within the margin
+        leaf_lo = leaves_W.min(axis=0) - cfg.collision_margin
+        leaf_hi = leaves_W.max(axis=0) + cfg.collision_margin
     # During the approach the leaf must pass between the open pads: every
     # observed leaf point keeps the margin from the robot, pads included.
     for path, when, leaf_why in (
@@ -408,7 +429,7 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     t0 = time.perf_counter()
     vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel,
                           ctx.image_tan)
-    seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.branch_obs_W]))
+    seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W]))
     timings["visibility_s"] += time.perf_counter() - t0
     out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
                        timings=timings)
@@ -559,8 +580,8 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
                 c.reason = c.reason or why
                 if not is_forced:
                     continue
-            if static_zbuf is None:     # the branch occludes the same for every action
-                static_zbuf = vis.ZBuffer(ctx.branch_obs_W)
+            if static_zbuf is None:     # these occlude the same for every action
+                static_zbuf = vis.ZBuffer(ctx.occluders_W)
             seen = vis.Seen(np.vstack([c.deformed_leaf_W,
                                        ctx.robot.SurfacePoints(c.q_pulled)]), static_zbuf)
             c.seen = int(seen.sum())
@@ -703,7 +724,7 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
     t0 = time.perf_counter()
     vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel,
                           ctx.image_tan)
-    seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.branch_obs_W,
+    seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W,
                                     ctx.robot.SurfacePoints(ctx.q_current)]))
     timings["visibility_s"] += time.perf_counter() - t0
     out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,

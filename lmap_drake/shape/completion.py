@@ -1,7 +1,8 @@
 """The shape-completion stage as one function: SemanticScene -> SceneEstimate
 (world frame W, metres). Branch completion, free space around the fruit
 (carved along the rays to the observed points and the background ray ends),
-then SSC (or a baseline) on the largest fruit instance.
+then SSC (or a baseline) on the largest fruit instance (``CompleteScene``) or
+on every fruit instance (``CompletePlant``).
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
 from lmap_drake.shape.branch import BranchCompletionParams, CompleteBranches
 from lmap_drake.shape.free_space import FreeSpacePoints
 from lmap_drake.shape.ssc import OptimizeShape, SscParams
-from lmap_drake.types import SceneEstimate, SemanticScene
+from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
 METHODS = ("ssc", "homa", "supeps")
 
@@ -53,23 +54,76 @@ def CompleteScene(semantic: SemanticScene, decoder=None, mean_latent=None,
     fruit = LargestInstance(semantic.fruit_points_W, semantic.fruit_instance)
     if len(fruit) < 10 or "no_fruit_in_view" in semantic.flags:
         return out
+    out.fruit = _CompleteFruit(semantic, fruit, np.zeros((0, 3)), out.branch, decoder,
+                               mean_latent, P, method, free_space_voxel, timings)
+    return out
+
+
+def _CompleteFruit(semantic: SemanticScene, fruit: np.ndarray, other_fruits: np.ndarray,
+                   branch, decoder, mean_latent, P: SscParams, method: str,
+                   free_space_voxel: float, timings: dict):
+    """One fruit's estimate from its points ``fruit``; ``other_fruits``
+    (points of the plant's other fruits) are outside it, like the leaves."""
+    cam = np.asarray(semantic.X_WC, float)[:3, 3]
     t0 = time.time()
     if method == "supeps":
-        out.fruit = FitSuperellipsoid(fruit, cam, seed=P.seed)
+        est = FitSuperellipsoid(fruit, cam, seed=P.seed)
     elif method == "homa":
-        out.fruit = FitHoma(decoder, mean_latent, fruit, cam, P)
+        est = FitHoma(decoder, mean_latent, fruit, cam, P)
     else:
         observed = [p for p in (semantic.fruit_points_W, semantic.leaf_points_W,
                                 semantic.branch_points_W, semantic.background_points_W)
                     if len(p)]
         free = FreeSpacePoints(cam, np.vstack(observed), fruit, free_space_voxel)
-        timings["free_space_s"] = time.time() - t0
+        timings["free_space_s"] = timings.get("free_space_s", 0.0) + time.time() - t0
         negatives = [(semantic.leaf_points_W, 1.0), (semantic.branch_points_W, 1.0),
                      (free, 1.0)]
+        if len(other_fruits):
+            negatives.append((other_fruits, 1.0))
         samples = None
-        if out.branch is not None:
-            samples = out.branch.samples_W
+        if branch is not None:
+            samples = branch.samples_W
             negatives.append((samples, P.w_neg_completed_branch))
-        out.fruit = OptimizeShape(decoder, mean_latent, fruit, cam, negatives, samples, P)
-    timings["fruit_s"] = time.time() - t0
+        est = OptimizeShape(decoder, mean_latent, fruit, cam, negatives, samples, P)
+    timings["fruit_s"] = timings.get("fruit_s", 0.0) + time.time() - t0
+    return est
+
+
+def FruitInstances(semantic: SemanticScene, min_points: int = 30) -> list[int]:
+    """Fruit instance ids with at least ``min_points`` points, largest first."""
+    inst = np.asarray(semantic.fruit_instance)
+    if len(inst) != len(semantic.fruit_points_W):
+        return []
+    ids, counts = np.unique(inst[inst >= 0], return_counts=True)
+    order = np.argsort(-counts, kind="stable")
+    return [int(ids[k]) for k in order if counts[k] >= min_points]
+
+
+def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
+                  params: SscParams | None = None, method: str = "ssc",
+                  free_space_voxel: float = 0.003,
+                  branch_params: BranchCompletionParams | None = None,
+                  min_fruit_points: int = 30, timings: dict | None = None) -> PlantEstimate:
+    """Every fruit instance (``FruitInstances``) completed on its own, the
+    other fruits' points counted as outside it (paper Sec. III-F: one
+    estimate per fruit), and the branches completed once."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    P = params or SscParams()
+    timings = {} if timings is None else timings
+    cam = np.asarray(semantic.X_WC, float)[:3, 3]
+    out = PlantEstimate(semantic=semantic)
+    t0 = time.time()
+    if len(semantic.branch_points_W) >= 10:
+        out.branch = CompleteBranches(semantic.branch_points_W, semantic.branch_instance, cam,
+                                      branch_params)
+    timings["branch_s"] = time.time() - t0
+    if "no_fruit_in_view" in semantic.flags:
+        return out
+    pts, inst = np.asarray(semantic.fruit_points_W, float), np.asarray(semantic.fruit_instance)
+    for i in FruitInstances(semantic, min_fruit_points):
+        est = _CompleteFruit(semantic, pts[inst == i], pts[inst != i], out.branch, decoder,
+                             mean_latent, P, method, free_space_voxel, timings)
+        out.fruits.append(est)
+        out.fruit_ids.append(i)
     return out

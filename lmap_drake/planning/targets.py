@@ -1,0 +1,115 @@
+"""Plants with several fruits and leaves (paper Sec. III-F, and two leaves
+over one fruit, the paper's future work): which leaves hide which fruit,
+the scene the single-fruit planner sees for one (fruit, leaf) target, the
+order in which fruits are revealed and which leaf is moved.
+
+World frame W, metres. Visibility fractions are of the completed fruit's
+surface voxels seen from the camera (``planning.visibility``).
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+
+from lmap_drake.planning.visibility import VisibilityModel
+from lmap_drake.types import FruitEstimate, PlantEstimate, SceneEstimate
+
+
+def _Instances(ids: np.ndarray, min_points: int) -> list[int]:
+    ids = np.asarray(ids)
+    u, n = np.unique(ids[ids >= 0], return_counts=True)
+    return [int(i) for i, c in zip(u, n) if c >= min_points]
+
+
+def OccludingLeaves(fruit: FruitEstimate, plant: PlantEstimate, X_WC: np.ndarray,
+                    voxel: float = 0.003, image_tan: tuple | None = None,
+                    min_gain: float = 0.02, min_points: int = 30) -> dict:
+    """How much of ``fruit`` each leaf instance hides: the fruit's visible
+    fraction with everything observed in place (``visible``) and, per leaf,
+    the fraction gained if that leaf alone were gone (``gain``). Leaves
+    gaining at least ``min_gain`` are its occluders, most hiding first.
+    Occluders: every leaf, the branches and the plant's other fruits (their
+    estimates)."""
+    from lmap_drake.planning.lmap import FruitSurfaceSamples
+    sem = plant.semantic
+    vis = VisibilityModel(X_WC, FruitSurfaceSamples(fruit), voxel, image_tan)
+    n_max = int(vis.max_seen.sum())
+    leaf_W = np.asarray(sem.leaf_points_W, float).reshape(-1, 3)
+    leaf_id = np.asarray(sem.leaf_instance)
+    rest = [np.asarray(sem.branch_points_W, float).reshape(-1, 3)]
+    rest += [f.vertices_W for f in plant.fruits if f is not fruit]
+    base = vis.ZBuffer(np.vstack(rest))
+    seen_all = int(vis.Seen(leaf_W, base).sum())
+    out = {"visible": seen_all / n_max if n_max else 0.0, "seen_max": n_max, "leaves": []}
+    if n_max == 0:
+        return out
+    for j in _Instances(leaf_id, min_points):
+        gain = (int(vis.Seen(leaf_W[leaf_id != j], base).sum()) - seen_all) / n_max
+        if gain >= min_gain:
+            out["leaves"].append({"leaf_id": j, "gain": float(gain)})
+    out["leaves"].sort(key=lambda d: -d["gain"])
+    return out
+
+
+def TargetScene(plant: PlantEstimate, k: int, leaf_id: int) -> SceneEstimate:
+    """The single-fruit planner's view of target ``k`` (``plant.fruits[k]``)
+    moving leaf instance ``leaf_id``: that leaf is the one to grasp, every
+    other leaf point is an obstacle and occluder (``other_leaves_W``), the
+    other fruits are obstacles and occluders (``other_fruits``)."""
+    sem = plant.semantic
+    leaf_W = np.asarray(sem.leaf_points_W, float).reshape(-1, 3)
+    leaf_inst = np.asarray(sem.leaf_instance)
+    fruit_W = np.asarray(sem.fruit_points_W, float).reshape(-1, 3)
+    fruit_inst = np.asarray(sem.fruit_instance)
+    mine_leaf = leaf_inst == leaf_id
+    mine_fruit = fruit_inst == plant.fruit_ids[k]
+    target = dc.replace(sem, leaf_points_W=leaf_W[mine_leaf], leaf_instance=leaf_inst[mine_leaf],
+                        fruit_points_W=fruit_W[mine_fruit],
+                        fruit_instance=fruit_inst[mine_fruit],
+                        flags=list(sem.flags))
+    return SceneEstimate(semantic=target, branch=plant.branch, fruit=plant.fruits[k],
+                         other_fruits=[f for m, f in enumerate(plant.fruits) if m != k],
+                         other_leaves_W=leaf_W[~mine_leaf])
+
+
+def OrderTargets(visible: list[float], done_fraction: float = 0.95) -> list[int]:
+    """The order in which fruits are revealed: the least visible first (the
+    one the estimate knows least about gains most from a reveal, and an
+    interrupted episode has spent its motions where they mattered most);
+    fruits already ``done_fraction`` visible need no action and are left
+    out. Ties keep the given order."""
+    v = np.asarray(visible, float)
+    return [int(k) for k in np.argsort(v, kind="stable") if v[k] < done_fraction]
+
+
+def ChooseLeafPlan(options: list[tuple[int, object]], tolerance: float = 0.05
+                   ) -> tuple[int | None, object | None, str]:
+    """Which leaf to move when several hide the fruit: ``options`` are
+    (leaf_id, PlanResult) pairs. Among the plans with a chosen action, the
+    highest predicted visibility wins; plans within ``tolerance`` of it are
+    compared by predicted energy per leaf node (the lower wins). Returns the
+    leaf, its plan and the reason, in words."""
+    ok = [(j, p) for j, p in options if getattr(p, "chosen", None) is not None and p.seen_max]
+    if not ok:
+        return None, None, "no leaf has a feasible action"
+
+    def vis(p):
+        return p.chosen.seen / p.seen_max
+
+    def energy(p):
+        e = p.chosen.EnergyPerNode()
+        return np.inf if e is None else e
+
+    best = max(vis(p) for _, p in ok)
+    close = [(j, p) for j, p in ok if vis(p) >= best - tolerance]
+    j, p = min(close, key=lambda jp: (energy(jp[1]), -vis(jp[1])))
+    if len(ok) == 1:
+        why = f"leaf {j}: the only leaf with a feasible action"
+    else:
+        others = ", ".join(f"leaf {i}: visibility {vis(q):.2f}, energy/node {energy(q):.2e}"
+                           for i, q in ok if i != j)
+        why = (f"leaf {j}: predicted visibility {vis(p):.2f} at energy/node {energy(p):.2e} "
+               f"(others: {others}; within {tolerance:g} of the best visibility the lower "
+               f"energy wins)")
+    return j, p, why

@@ -1,0 +1,87 @@
+"""Several fruits and leaves: occluding leaves per fruit, the target scene
+the single-fruit planner sees, the order of fruits, the leaf to move."""
+import numpy as np
+import trimesh
+
+from lmap_drake.deformation.action import Action
+from lmap_drake.planning.lmap import Candidate, PlanningContext, PlanResult
+from lmap_drake.planning.targets import (ChooseLeafPlan, OccludingLeaves, OrderTargets,
+                                         TargetScene)
+from lmap_drake.types import FruitEstimate, PlantEstimate, SemanticScene
+
+# camera at y = -0.6 looking along +y (as in test_visibility)
+X_WC = np.array([[1, 0, 0, 0.5], [0, 0, 1, -0.6], [0, -1, 0, 0.3], [0, 0, 0, 1.0]])
+
+
+def _fruit(c, r=0.035):
+    m = trimesh.creation.icosphere(3, r).apply_translation(c)
+    c = np.asarray(c, float)
+    return FruitEstimate(np.asarray(m.vertices), np.asarray(m.faces), np.eye(4), np.zeros(1),
+                         c, np.array([0, 0, 1.0]),
+                         sdf_W=lambda p: np.linalg.norm(p - c, axis=1) - r)
+
+
+def _plate(cx, cz, half_x, half_z, y=-0.06, step=0.003):
+    u, v = np.meshgrid(np.arange(-half_x, half_x + 1e-9, step),
+                       np.arange(-half_z, half_z + 1e-9, step))
+    return np.c_[cx + u.ravel(), np.full(u.size, y), cz + v.ravel()]
+
+
+def _plant():
+    A, B = _fruit([0.45, 0.0, 0.30]), _fruit([0.60, 0.0, 0.30])
+    # leaves 0 and 1 each hide a half of A (left / right), leaf 2 most of B
+    leaves = [_plate(0.43, 0.30, 0.022, 0.045), _plate(0.47, 0.30, 0.022, 0.045, y=-0.07),
+              _plate(0.60, 0.31, 0.035, 0.03)]
+    fruit_pts = np.vstack([A.vertices_W[A.vertices_W[:, 1] < -0.02],
+                           B.vertices_W[B.vertices_W[:, 1] < -0.02]])
+    fruit_id = np.r_[np.full((A.vertices_W[:, 1] < -0.02).sum(), 4),
+                     np.full((B.vertices_W[:, 1] < -0.02).sum(), 7)]
+    sem = SemanticScene(leaf_points_W=np.vstack(leaves),
+                        leaf_instance=np.concatenate([np.full(len(p), j)
+                                                      for j, p in enumerate(leaves)]),
+                        fruit_points_W=fruit_pts, fruit_instance=fruit_id, X_WC=X_WC)
+    return PlantEstimate(semantic=sem, fruits=[A, B], fruit_ids=[4, 7]), leaves
+
+
+def test_occluding_leaves_per_fruit():
+    plant, _ = _plant()
+    a = OccludingLeaves(plant.fruits[0], plant, X_WC)
+    assert a["visible"] < 0.5
+    assert {d["leaf_id"] for d in a["leaves"]} == {0, 1}     # two leaves over A, not leaf 2
+    assert all(d["gain"] > 0.1 for d in a["leaves"])
+    b = OccludingLeaves(plant.fruits[1], plant, X_WC)
+    assert [d["leaf_id"] for d in b["leaves"]] == [2]
+    # without the leaves in front it, B is mostly seen: it loses nothing to A
+    assert b["visible"] + b["leaves"][0]["gain"] > 0.9
+
+
+def test_target_scene_keeps_the_rest_as_obstacles():
+    plant, leaves = _plant()
+    t = TargetScene(plant, 0, leaf_id=1)
+    assert np.array_equal(t.semantic.leaf_points_W, leaves[1])
+    assert len(t.other_leaves_W) == len(leaves[0]) + len(leaves[2])
+    assert t.fruit is plant.fruits[0] and t.other_fruits == [plant.fruits[1]]
+    assert set(np.unique(t.semantic.fruit_instance)) == {4}
+    ctx = PlanningContext(t, X_WC, robot=None, q_current=np.zeros(6))
+    # the robot and the moved leaf keep clear of both fruits
+    d = ctx.fruit_sdf(np.array([[0.45, 0, 0.30], [0.60, 0, 0.30], [0.52, 0, 0.5]]))
+    assert d[0] < 0 and d[1] < 0 and d[2] > 0.1
+    assert ctx.fruit_box[0][0] < 0.42 and ctx.fruit_box[1][0] > 0.63
+    # the other leaves and the other fruit occlude the target
+    assert len(ctx.occluders_W) == len(t.other_leaves_W) + len(plant.fruits[1].vertices_W)
+
+
+def test_order_and_leaf_choice():
+    assert OrderTargets([0.5, 0.1, 0.97, 0.1]) == [1, 3, 0]
+
+    def plan(seen, energy, seen_max=100):
+        c = Candidate(Action(np.zeros(3), np.eye(3), [0, 0, 0.02]), 0, seen=seen,
+                      energy=energy, num_leaf_nodes=10)
+        return PlanResult("ok", "lmap", chosen=c, seen_max=seen_max)
+    none = PlanResult("no_feasible_action", "lmap", seen_max=100)
+    # within 0.05 of the best visibility the lower energy wins
+    j, p, why = ChooseLeafPlan([(0, plan(97, 5e-6)), (1, plan(95, 1e-6)), (2, none)])
+    assert j == 1 and "leaf 1" in why and "leaf 0" in why
+    j, _, _ = ChooseLeafPlan([(0, plan(97, 5e-6)), (1, plan(80, 1e-7))])
+    assert j == 0
+    assert ChooseLeafPlan([(2, none)])[0] is None
