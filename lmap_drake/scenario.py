@@ -496,6 +496,13 @@ class PlannerConfig:
     the blade turns toward edge-on about it; direction ids 200, 201).
     ``force_action`` names an arc by its chord (m).
 
+    ``min_usable_grasps``: when fewer grasps than this pass the IK and robot
+    checks (a small leaf near the branch, an edge the arm reaches
+    awkwardly), the failed grasps are retried with the gripper turned 180
+    deg about its approach axis and with the approach tilted +-35 deg in the
+    blade's plane, and grasps between half of ``min_branch_distance`` and
+    it are tried too (``planning.lmap.GraspAlternatives``; 0 = never).
+
     ``max_replans``: after the action and the re-estimation, while the
     fruit is predicted less than ``early_stop_fraction`` visible, plan a
     further motion from the held leaf (its deformation predicted from the
@@ -531,6 +538,7 @@ class PlannerConfig:
     gripper_close_speed: float = 0.05
     grasp_attach_opening: float = 0.006
     min_branch_distance: float = 0.06
+    min_usable_grasps: int = 3
     visibility_voxel: float = 0.003
     collision_margin: float = 0.005
     energy_weight: float = 1.0
@@ -539,7 +547,7 @@ class PlannerConfig:
     method: str = "lmap"  # lmap | random | upward | min_overlap
     speed_scale: float = 1.0
     release_and_retreat: bool = True
-    action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc"])
+    action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     arc_angles_deg: list[float] = dc.field(default_factory=lambda: [15.0, 30.0, 45.0])
     twist_angles_deg: list[float] = dc.field(default_factory=lambda: [30.0, 60.0])
     num_arc_axes: int = 8
@@ -892,6 +900,7 @@ _RULES = {
     "planner.gripper_close_speed": ">0",
     "planner.grasp_attach_opening": "[0,0.085]",
     "planner.min_branch_distance": ">=0",
+    "planner.min_usable_grasps": ">=0",
     "planner.visibility_voxel": ">0",
     "planner.collision_margin": ">=0",
     "planner.energy_weight": ">=0",

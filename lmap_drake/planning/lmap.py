@@ -457,31 +457,96 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     pivot = EstimateHinge(ctx.leaf_W, ctx.branch_all_W, dcfg)
     out.hinge_W = pivot
     angles = np.deg2rad(np.asarray(cfg.arc_angles_deg, float))
+    failed = []
     for g in grasps:
-        actions = []
-        if "pull" in cfg.action_families:
-            dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
-                                               cfg.max_branch_angle_deg, all_dirs)
-            actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id,
-                               direction_id=int(j))
-                        for u, j in zip(dirs, dir_ids) for s in cfg.distances]
-        if ("arc" in cfg.action_families and pivot is not None
-                and np.linalg.norm(g.p_WG - pivot) > 0.02):
-            actions += MakeArcActions(g.p_WG, g.R_WG, pivot,
-                                      HingeAxes(g.p_WG, pivot, cfg.num_arc_axes), angles,
-                                      grasp_id=g.grasp_id)
-        if ("twist" in cfg.action_families and pivot is not None
-                and np.linalg.norm(g.p_WG - pivot) > 0.02):
-            actions += MakeTwistActions(g.p_WG, g.R_WG, pivot,
-                                        np.deg2rad(np.asarray(cfg.twist_angles_deg, float)),
-                                        grasp_id=g.grasp_id)
-        out.candidates += _IkAndRobotChecks(ctx, g, cfg, actions)
+        actions = _GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
+        cands = _IkAndRobotChecks(ctx, g, cfg, actions)
+        if all(c.approach is None for c in cands):
+            failed.append((g, actions))
+        out.candidates += cands
+    if len({c.action.grasp_id for c in out.candidates if c.feasible}) < cfg.min_usable_grasps:
+        _SecondChanceGrasps(ctx, cfg, out, failed, grasps, pivot, angles, all_dirs)
     timings["generation_collision_s"] += time.perf_counter() - t0
     out.scene, msg = AttachLeaf(ctx.scene, dcfg)
     out.message = msg
     progress(f"{len(out.candidates)} candidates from {len(grasps)} grasps, "
              f"{len(out.LiveActions())} pass IK and robot checks")
     return out
+
+
+# Second-chance grasp orientations: the approach turned by these angles
+# (deg) about the pads' closing axis, i.e. within the blade's plane, still
+# crossing the leaf's edge; each also turned 180 deg about the approach axis.
+APPROACH_TILTS_DEG = (0.0, 35.0, -35.0)
+
+
+def GraspAlternatives(R_WG: np.ndarray) -> list[np.ndarray]:
+    """Other gripper orientations for a grasp whose own approach failed, pads
+    still closing across the leaf (G's y axis along the leaf normal): the
+    2F-85 turned 180 deg about its approach axis (it is symmetric; the wrist
+    then sits the other way), and the approach tilted by
+    ``APPROACH_TILTS_DEG`` in the blade's plane (about G's y axis)."""
+    from lmap_drake.deformation.action import AxisAngleMatrix
+    R_WG = np.asarray(R_WG, float)
+    out = []
+    for tilt in APPROACH_TILTS_DEG:
+        R = R_WG @ AxisAngleMatrix([0.0, 1.0, 0.0], np.deg2rad(tilt))
+        out += [R, R @ np.diag([-1.0, -1.0, 1.0])]
+    return out[1:]                      # not the orientation already tried
+
+
+def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: CandidateSet,
+                        failed: list, grasps: list, pivot, angles, all_dirs) -> None:
+    """Fewer than ``planner.min_usable_grasps`` grasps gave a feasible
+    action (a small leaf near the branch, a leaf edge the arm reaches
+    awkwardly): the grasps whose approach failed are retried with the other
+    orientations (``GraspAlternatives``), and grasps dropped for lying
+    within ``min_branch_distance`` of the branch, but at least half of it
+    away, are tried too (the robot-branch checks still apply). A grasp's
+    first orientation whose approach passes replaces its candidates."""
+    from lmap_drake.planning.candidates import Grasp
+    tried = {g.grasp_id for g in grasps}
+    near, _ = GraspCandidates(ctx.leaf_W, ctx.branch_all_W, ctx.p_WC, cfg.num_grasps,
+                              cfg.grasp_inset, 0.5 * cfg.min_branch_distance)
+    extra = []
+    for g in near:
+        if g.grasp_id in tried:
+            continue
+        actions = _GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
+        cands = _IkAndRobotChecks(ctx, g, cfg, actions)
+        out.candidates += cands
+        out.dropped_grasps = [d for d in out.dropped_grasps if d["grasp_id"] != g.grasp_id]
+        if all(c.approach is None for c in cands):
+            extra.append((g, actions))
+    for g, actions in failed + extra:
+        for R in GraspAlternatives(g.R_WG):
+            g2 = Grasp(g.p_WG, R, g.grasp_id)
+            cands = _IkAndRobotChecks(ctx, g2, cfg, [dc.replace(a, R_WG=R) for a in actions])
+            if any(c.approach is not None for c in cands):
+                out.candidates = [c for c in out.candidates
+                                  if c.action.grasp_id != g.grasp_id] + cands
+                break
+
+
+def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all_dirs
+                  ) -> list[Action]:
+    """Every configured motion (pulls, arcs, twists) from grasp ``g``."""
+    actions = []
+    if "pull" in cfg.action_families:
+        dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
+                                           cfg.max_branch_angle_deg, all_dirs)
+        actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
+                    for u, j in zip(dirs, dir_ids) for s in cfg.distances]
+    if pivot is not None and np.linalg.norm(g.p_WG - pivot) > 0.02:
+        if "arc" in cfg.action_families:
+            actions += MakeArcActions(g.p_WG, g.R_WG, pivot,
+                                      HingeAxes(g.p_WG, pivot, cfg.num_arc_axes), angles,
+                                      grasp_id=g.grasp_id)
+        if "twist" in cfg.action_families:
+            actions += MakeTwistActions(g.p_WG, g.R_WG, pivot,
+                                        np.deg2rad(np.asarray(cfg.twist_angles_deg, float)),
+                                        grasp_id=g.grasp_id)
+    return actions
 
 
 def _ForcedKey(force_action) -> tuple[int, int, float]:

@@ -81,3 +81,19 @@ def test_narrow_opening_follows_the_leafs_local_thickness():
     assert wide == pytest.approx(2 * (1.96 * 0.004 + cfg.collision_margin + 0.003), rel=0.1)
     very_noisy = leaf + np.c_[np.zeros((4000, 2)), rng.normal(0, 0.02, 4000)]
     assert NarrowOpening(very_noisy, grasp, cfg) == cfg.pregrasp_opening
+
+
+def test_grasp_alternatives_keep_the_pads_across_the_leaf():
+    from lmap_drake.planning.lmap import APPROACH_TILTS_DEG, GraspAlternatives
+    # pads close along y = the leaf normal (W y); approach z along W +x
+    R = np.column_stack([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    alts = GraspAlternatives(R)
+    assert len(alts) == 2 * len(APPROACH_TILTS_DEG) - 1
+    for A in alts:
+        assert np.allclose(A.T @ A, np.eye(3)) and np.isclose(np.linalg.det(A), 1.0)
+        assert np.isclose(abs(A[:, 1] @ R[:, 1]), 1.0)         # closing axis: the leaf normal
+        assert abs(A[:, 2] @ R[:, 1]) < 1e-12                  # approach in the blade plane
+        assert A[:, 2] @ R[:, 2] > np.cos(np.deg2rad(36))      # still toward the leaf
+        assert not np.allclose(A, R)
+    # the 180-degree turn about the approach axis is among them
+    assert any(np.allclose(A, R @ np.diag([-1.0, -1.0, 1.0])) for A in alts)
