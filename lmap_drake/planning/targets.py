@@ -113,3 +113,54 @@ def ChooseLeafPlan(options: list[tuple[int, object]], tolerance: float = 0.05
                f"(others: {others}; within {tolerance:g} of the best visibility the lower "
                f"energy wins)")
     return j, p, why
+
+
+@dc.dataclass
+class TargetPlan:
+    """The plan for one fruit of the plant: ``fruit_index`` into
+    ``PlantEstimate.fruits`` (instance ``fruit_id``), its visible fraction
+    before any motion (predicted from the estimates), its occluding leaves
+    (``OccludingLeaves``), the leaf chosen and its plan, why (in words),
+    and every (leaf, plan) option weighed."""
+    fruit_index: int
+    fruit_id: int
+    visible: float
+    occluders: list
+    leaf_id: int | None = None
+    plan: object = None
+    why: str = ""
+    options: list = dc.field(default_factory=list)
+
+
+def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current: np.ndarray,
+               cfg, dcfg, image_tan: tuple | None = None, max_leaves: int = 2,
+               progress=None) -> TargetPlan:
+    """Plans the reveal of fruit ``k``: for each of its (at most
+    ``max_leaves``) occluding leaves, the single-fruit LMAP planner on
+    ``TargetScene`` (the rest of the plant as obstacles and occluders);
+    ``ChooseLeafPlan`` picks the leaf."""
+    from lmap_drake.planning.lmap import PlanLmap, PlanningContext
+    fruit = plant.fruits[k]
+    occ = OccludingLeaves(fruit, plant, X_WC, cfg.visibility_voxel, image_tan)
+    out = TargetPlan(k, plant.fruit_ids[k], occ["visible"], occ["leaves"])
+    if occ["visible"] >= cfg.early_stop_fraction:
+        out.why = f"already {occ['visible']:.0%} visible: no action needed"
+        return out
+    if not occ["leaves"]:
+        out.why = "no leaf hides it (it is hidden by the branch or another fruit)"
+        return out
+    for d in occ["leaves"][:max_leaves]:
+        ctx = PlanningContext(TargetScene(plant, k, d["leaf_id"]), X_WC, robot,
+                              np.asarray(q_current, float), image_tan)
+        out.options.append((d["leaf_id"], PlanLmap(ctx, cfg, dcfg, progress)))
+    out.leaf_id, out.plan, out.why = ChooseLeafPlan(out.options)
+    return out
+
+
+def FruitOrder(plant: PlantEstimate, X_WC: np.ndarray, cfg, image_tan: tuple | None = None
+               ) -> tuple[list[int], list[float]]:
+    """The fruits' reveal order (``OrderTargets``: least visible first, the
+    ones already visible left out) and every fruit's visible fraction."""
+    vis = [OccludingLeaves(f, plant, X_WC, cfg.visibility_voxel, image_tan)["visible"]
+           for f in plant.fruits]
+    return OrderTargets(vis, cfg.early_stop_fraction), vis

@@ -85,3 +85,41 @@ def test_order_and_leaf_choice():
     j, _, _ = ChooseLeafPlan([(0, plan(97, 5e-6)), (1, plan(80, 1e-7))])
     assert j == 0
     assert ChooseLeafPlan([(2, none)])[0] is None
+
+
+def test_plan_target_weighs_both_leaves_over_one_fruit():
+    """Two leaves over fruit A on a branch; the planner runs once per leaf
+    and the choice names both; fruit order puts the least visible first."""
+    from lmap_drake.planning.robot_model import RobotModel
+    from lmap_drake.planning.targets import FruitOrder, PlanTarget
+    from lmap_drake.scenario import Scenario
+    s = Scenario()
+    s.planner.num_grasps = 6
+    s.planner.distances = [0.04, 0.08]
+    s.planner.action_families = ["pull", "arc"]
+    X = s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
+    robot = RobotModel(s.robot.X_WB.GetDeterministicValue())
+    # the synthetic plant of the planning-system tests, with a second fruit
+    # beside it and the leaf split in two
+    from tests.systems.test_planning_system import _scene
+    one = _scene()
+    leaf = one.semantic.leaf_points_W
+    left = leaf[:, 0] < np.median(leaf[:, 0])
+    c_B = one.fruit.center_W + [0.0, 0.0, -0.11]
+    B = _fruit(c_B)
+    fruit_pts = np.vstack([one.semantic.fruit_points_W, B.vertices_W[B.vertices_W[:, 1]
+                                                                      < c_B[1] - 0.02]])
+    ids = np.r_[np.zeros(len(one.semantic.fruit_points_W), int),
+                np.ones(len(fruit_pts) - len(one.semantic.fruit_points_W), int)]
+    sem = SemanticScene(branch_points_W=one.semantic.branch_points_W,
+                        leaf_points_W=leaf, leaf_instance=np.where(left, 0, 1),
+                        fruit_points_W=fruit_pts, fruit_instance=ids, X_WC=X)
+    plant = PlantEstimate(semantic=sem, branch=one.branch, fruits=[one.fruit, B],
+                          fruit_ids=[0, 1])
+    order, vis = FruitOrder(plant, X, s.planner)
+    assert order == [0] and vis[1] > 0.95 > vis[0]      # B is in the open
+    t = PlanTarget(plant, 0, X, robot, np.asarray(s.robot.initial_q), s.planner, s.deformation)
+    assert {j for j, _ in t.options} == {0, 1}
+    assert t.plan is not None and t.plan.status == "ok", t.why
+    assert t.leaf_id in (0, 1) and f"leaf {t.leaf_id}" in t.why
+    assert t.plan is dict(t.options)[t.leaf_id]
