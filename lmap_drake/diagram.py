@@ -103,13 +103,34 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station:
     stages = AddPlanningStages(b, scenario, resources, views)
     controller = b.AddNamedSystem("arm_controller", ArmController(
         scenario, resources.robot, options=options, progress=resources.progress))
-    b.Connect(stages["action_selection"].GetOutputPort("plan"), controller.GetInputPort("plan"))
     b.Connect(stages["perception"].GetOutputPort("semantic_scene"),
               controller.GetInputPort("semantic_scene"))
-    b.Connect(stages["shape_completion"].GetOutputPort("scene_estimate"),
-              controller.GetInputPort("scene_estimate"))
-    b.Connect(stages["shape_reestimation"].GetOutputPort("scene_estimate"),
-              controller.GetInputPort("final_estimate"))
+    if scenario.planner.targets == "all":
+        # Several fruits: PlantPlanning plans the next fruit on the newest
+        # view; TargetReestimate hands the current fruit's re-estimate on.
+        from lmap_drake.systems.planning import PlantPlanning, TargetReestimate
+        plant = b.AddNamedSystem("plant_planning", PlantPlanning(scenario, resources.robot))
+        b.Connect(stages["shape_completion"].GetOutputPort("plant_estimate"),
+                  plant.GetInputPort("plant_estimate"))
+        b.Connect(views.GetOutputPort("ur5.position"), plant.GetInputPort("ur5.position"))
+        b.Connect(controller.GetOutputPort("status"), plant.GetInputPort("status"))
+        b.Connect(plant.GetOutputPort("plan"), controller.GetInputPort("plan"))
+        b.Connect(plant.GetOutputPort("scene_estimate"),
+                  controller.GetInputPort("scene_estimate"))
+        target = b.AddNamedSystem("target_reestimate", TargetReestimate(scenario,
+                                                                         resources.robot))
+        b.Connect(stages["shape_reestimation"].GetOutputPort("plant_estimate"),
+                  target.GetInputPort("plant_estimate"))
+        b.Connect(views.GetOutputPort("ur5.position"), target.GetInputPort("ur5.position"))
+        b.Connect(controller.GetOutputPort("status"), target.GetInputPort("status"))
+        reestimate = target.GetOutputPort("scene_estimate")
+    else:
+        b.Connect(stages["action_selection"].GetOutputPort("plan"),
+                  controller.GetInputPort("plan"))
+        b.Connect(stages["shape_completion"].GetOutputPort("scene_estimate"),
+                  controller.GetInputPort("scene_estimate"))
+        reestimate = stages["shape_reestimation"].GetOutputPort("scene_estimate")
+    b.Connect(reestimate, controller.GetInputPort("final_estimate"))
     b.Connect(stages["perception"].GetOutputPort("num_views_fused"),
               controller.GetInputPort("views_fused"))
     b.Connect(station.GetOutputPort("ur5.state_estimated"),
@@ -124,8 +145,7 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station:
     replan = b.AddNamedSystem("continuation_planning", ContinuationPlanning(
         scenario, stages["action_candidates"]))
     b.Connect(controller.GetOutputPort("status"), replan.GetInputPort("status"))
-    b.Connect(stages["shape_reestimation"].GetOutputPort("scene_estimate"),
-              replan.GetInputPort("scene_estimate"))
+    b.Connect(reestimate, replan.GetInputPort("scene_estimate"))
     b.Connect(views.GetOutputPort("ur5.position"), replan.GetInputPort("ur5.position"))
     b.Connect(replan.GetOutputPort("plan"), controller.GetInputPort("continuation"))
     diagram = b.Build()

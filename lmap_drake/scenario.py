@@ -496,6 +496,14 @@ class PlannerConfig:
     the blade turns toward edge-on about it; direction ids 200, 201).
     ``force_action`` names an arc by its chord (m).
 
+    ``targets``: ``largest`` reveals the most-seen fruit (the paper's
+    single-fruit episode); ``all`` reveals every fruit of the plant in turn
+    (paper Sec. III-F): each fruit completed on its own, the least visible
+    first, the leaf that hides it chosen among its occluding leaves by
+    predicted visibility then energy; each target is planned, grasped,
+    moved, observed, re-estimated, released and retreated from before the
+    next (``planning.targets``, ``systems.planning.PlantPlanning``).
+
     ``min_usable_grasps``: when fewer grasps than this pass the IK and robot
     checks (a small leaf near the branch, an edge the arm reaches
     awkwardly), the failed grasps are retried with the gripper turned 180
@@ -539,6 +547,7 @@ class PlannerConfig:
     grasp_attach_opening: float = 0.006
     min_branch_distance: float = 0.06
     min_usable_grasps: int = 3
+    targets: str = "largest"   # largest | all
     visibility_voxel: float = 0.003
     collision_margin: float = 0.005
     energy_weight: float = 1.0
@@ -921,6 +930,7 @@ _ENUMS = {
     "shape.method": ("ssc", "homa", "supeps"),                       # shape.completion.METHODS
     "deformation.arap_method": ("lbfgs", "plain"),
     "planner.method": ("lmap", "random", "upward", "min_overlap"),
+    "planner.targets": ("largest", "all"),
     "perception.segmenter": ("segnet", "color_depth", "label", "grounded_sam"),
     "perception.sam_model_type": ("vit_h", "vit_l", "vit_b"),
 }

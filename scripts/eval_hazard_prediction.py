@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Does the planner's prediction rank petiole loading and strain as the FEM
-plant world does, for straight pulls and hinge arcs?
+plant world does, for straight pulls, hinge arcs and twists?
 
     python scripts/eval_hazard_prediction.py --out out/hazard.json
     python scripts/eval_hazard_prediction.py --out h.json \
@@ -19,7 +19,8 @@ diagrams/suite.yaml):
 3. From that grasp: pulls along the 6 axial and 8 diagonal directions that
    pass the branch-angle rule, by ``--pull_distances``, and arcs about the
    estimated hinge (``planning.lmap.EstimateHinge``) around
-   ``--num_axes`` axes by ``--arc_angles``. All are predicted in one
+   ``--num_axes`` axes by ``--arc_angles``, and twists about the
+   hinge-grasp line by +-``--twist_angles``. All are predicted in one
    ``PredictDeformations`` call; each is executed on its own fork of the
    grasped world (``PlanActionPath``, the controller's pull speed, then a
    0.3 s hold) and scored by the plant world: maximum petiole force and
@@ -85,7 +86,7 @@ def EvaluateScenario(scenario, args, log) -> dict:
 
     from eval_deformation_vs_fem import LeafMeshWorkaround
     from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions,
-                                               PullDirections)
+                                               MakeTwistActions, PullDirections)
     from lmap_drake.deformation.predict import PredictDeformations
     from lmap_drake.perception.observe import SemanticSceneFromImages
     from lmap_drake.planning.candidates import DirectionsForGrasp
@@ -125,6 +126,7 @@ def EvaluateScenario(scenario, args, log) -> dict:
                for u, j in zip(dirs, ids) for d in args.pull_distances]
     actions += MakeArcActions(p_WG, R_WG, hinge, HingeAxes(p_WG, hinge, args.num_axes),
                               np.deg2rad(args.arc_angles))
+    actions += MakeTwistActions(p_WG, R_WG, hinge, np.deg2rad(args.twist_angles))
     np.savez(Path(args.out).with_suffix(f".{scenario_name_of(scenario)}.npz"),
              leaf_in=leaf_in, branch=branch, p_WG=p_WG, R_WG=R_WG, hinge=hinge)
     preds = PredictDeformations(leaf_in, branch, actions, scenario.deformation)
@@ -153,7 +155,7 @@ def scenario_name_of(s) -> str:
 
 def Correlations(rows: list[dict]) -> dict:
     out = {}
-    for fam in ("all", "pull", "arc"):
+    for fam in ("all", "pull", "arc", "twist"):
         sel = [r for r in rows if "error" not in r and (fam == "all" or r["family"] == fam)]
         out[fam] = {"n": len(sel)}
         for pk in PREDICTED:
@@ -181,7 +183,12 @@ def Repredict(path: str, deformation_text: str, hinge_bending_weight: float) -> 
         z = np.load(Path(path).with_suffix(f".{name}.npz"))
         acts = []
         for r in sc["rows"]:
-            if r["family"] == "arc":
+            if r["family"] == "twist":
+                from lmap_drake.deformation.action import MakeTwistActions
+                twists = MakeTwistActions(z["p_WG"], z["R_WG"], z["hinge"],
+                                          [np.deg2rad(r["angle_deg"])])
+                acts.append(twists[r["direction_id"] - 200])
+            elif r["family"] == "arc":
                 axes = HingeAxes(z["p_WG"], z["hinge"], d["config"]["num_axes"])
                 acts += MakeArcActions(z["p_WG"], z["R_WG"], z["hinge"],
                                        axes[[r["direction_id"] - 100]],
@@ -211,6 +218,7 @@ def main(argv=None) -> int:
     p.add_argument("--scenarios", nargs="*", default=DEFAULT_SCENARIOS)
     p.add_argument("--pull_distances", nargs="+", type=float, default=[0.04, 0.08])
     p.add_argument("--arc_angles", nargs="+", type=float, default=[30.0, 60.0])
+    p.add_argument("--twist_angles", nargs="+", type=float, default=[30.0, 60.0])
     p.add_argument("--num_axes", type=int, default=8)
     p.add_argument("--speed", type=float, default=0.03, help="TCP speed (m/s)")
     p.add_argument("--hold", type=float, default=0.3)

@@ -93,6 +93,9 @@ class PlanResult:
     timings: dict = dc.field(default_factory=dict)
     message: str = ""
     hinge_W: np.ndarray | None = None   # the arcs' pivot (estimated petiole attachment)
+    # Several fruits (``planner.targets: all``): which fruit this plan is for
+    # and which leaf it moves, and why (JSON-able; see systems.planning.PlantPlanning).
+    target: dict | None = None
 
     def Summary(self) -> dict:
         out = {"status": self.status, "method": self.method, "message": self.message,
@@ -101,6 +104,8 @@ class PlanResult:
                "num_feasible": sum(c.feasible for c in self.candidates),
                "dropped_grasps": self.dropped_grasps,
                "hinge_W": None if self.hinge_W is None else np.round(self.hinge_W, 4).tolist()}
+        if self.target is not None:
+            out["target"] = self.target
         if self.chosen is not None:
             out["chosen"] = self.chosen.Row()
         return out

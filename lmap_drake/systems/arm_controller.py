@@ -6,6 +6,12 @@ Drake LeafSystem, the same on the simulated and the hardware station.
     [-> [confirm_wait ->] pull -> hold -> observe, up to planner.max_replans]
     -> release -> retreat -> done            (or planned, or aborted)
 
+With ``planner.targets: all`` (several fruits) the ``plan`` input is
+``PlantPlanning``'s plan for the next fruit; after ``retreat`` the fruit's
+record joins ``status.targets`` and the controller captures a new view and
+plans again (a fruit without a feasible action is recorded and skipped),
+until the plan says no action is needed (every fruit visible or handled).
+
 ``pull`` executes the chosen motion, a straight pull or a hinge arc
 (``planning.motion.PlanActionPath``). After ``observe`` (re-estimation on the
 fused views) the ``continuation`` input (``ContinuationPlanning``: a further
@@ -135,6 +141,9 @@ class ControllerStatus:
     pending_motion: tuple | None = None  # (plan, joint path) waiting for the operator
     replan_log: list = dc.field(default_factory=list)     # "status: message" per re-plan
     replan_results: list = dc.field(default_factory=list)  # every re-plan's PlanResult
+    # planner.targets: all -- one record per fruit handled (see _EndTarget)
+    targets: list = dc.field(default_factory=list)
+    t_target: float = 0.0               # when the current target's plan was requested
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -147,6 +156,7 @@ class ControllerStatus:
         out.grip_history = list(self.grip_history)
         out.continuations = list(self.continuations)
         out.replan_results = list(self.replan_results)
+        out.targets = list(self.targets)
         out.motion_paths = list(self.motion_paths)
         return out
 
@@ -213,6 +223,7 @@ class ArmController(LeafSystem):
         self._cont = self.DeclareAbstractInputPort(
             "continuation", AbstractValue.Make(PlanResult("no_fruit", "lmap")))
         self._max_replans = int(cfg.max_replans)
+        self._multi = cfg.targets == "all"
         q0 = options.initial_q if options.initial_q is not None else scenario.robot.initial_q
         w0 = (options.initial_gripper if options.initial_gripper is not None
               else scenario.robot.initial_gripper_width)
@@ -366,7 +377,8 @@ class ArmController(LeafSystem):
                 st.captures = 1
                 self._enter(st, "capture", t)
         elif mode == "capture":
-            if self._views_fused(context) >= 1:
+            if self._views_fused(context) >= max(st.captures, 1):
+                st.t_target = t
                 self._enter(st, "plan_requested", t)
         elif mode == "plan_requested":
             self._Plan(context, st, t)
@@ -451,8 +463,15 @@ class ArmController(LeafSystem):
                     self._start_path(st, t, waypoints, fraction)
                 else:
                     st.trajectory = None
-                    self._enter(st, "done", t, "action executed; shape re-estimated on the "
-                                "fused views; leaf released and arm retreated")
+                    done = ("action executed; shape re-estimated on the fused views; leaf "
+                            "released and arm retreated")
+                    if self._multi:         # the next fruit, from a fresh view
+                        self._EndTarget(st, t, "revealed: " + done)
+                        st.captures += 1
+                        self._enter(st, "capture", t, f"{len(st.targets)} fruit(s) handled; "
+                                    "looking again for the next one")
+                    else:
+                        self._enter(st, "done", t, done)
 
     def _Stop(self, context, st: ControllerStatus, t: float) -> None:
         """Holds the measured joints; the gripper keeps its current command
@@ -481,8 +500,17 @@ class ArmController(LeafSystem):
                                 planning_s=t3 - t2)
         st.stage_seconds.update({k: v for k, v in plan.timings.items()})
         if plan.status == "no_action_needed":
-            st.final_estimate = st.initial_estimate
+            if not st.targets:
+                st.final_estimate = st.initial_estimate
             self._enter(st, "done", t, "no action needed: " + plan.message)
+            return
+        if self._multi and plan.target is not None and plan.status == "no_feasible_action":
+            # this fruit cannot be revealed: recorded, on to the next one
+            st.final_estimate = st.initial_estimate
+            self._EndTarget(st, t, f"{plan.status}: {plan.message}")
+            st.t_target = t
+            self._enter(st, "plan_requested", t, f"fruit {plan.target.get('fruit_id')}: no "
+                        "feasible action; planning the next fruit")
             return
         if plan.status != "ok":
             if plan.status == "stage_error":
@@ -515,6 +543,23 @@ class ArmController(LeafSystem):
             self._enter(st, "confirm_wait", t, summary)
         else:
             self._StartMotion(st, t, summary)
+
+    def _EndTarget(self, st: ControllerStatus, t: float, outcome: str) -> None:
+        """Closes the current fruit's record (``targets``: its plan and
+        target, the continuations, estimates before and after, the time
+        window, the captures so far) and clears the per-target state."""
+        st.targets = st.targets + [{
+            "target": st.plan.target if st.plan is not None else None, "outcome": outcome,
+            "plan": st.plan, "continuations": list(st.continuations),
+            "replan_log": list(st.replan_log), "replan_results": list(st.replan_results),
+            "initial_estimate": st.initial_estimate, "final_estimate": st.final_estimate,
+            "t_start": st.t_target, "t_end": t, "captures": st.captures,
+            "stage_seconds": dict(st.stage_seconds)}]
+        st.continuations, st.replan_results, st.replan_log = [], [], []
+        st.motion_paths, st.pull_path, st.segments = [], [], []
+        st.grasp_path, st.pregrasp_path, st.grip_history = [], [], []
+        st.released, st.t_released, st.grasp_acknowledged = False, 0.0, False
+        st.confirmed, st.pending_motion, st.gripper_ramp = None, None, None
 
     def _StartRelease(self, st: ControllerStatus, t: float, message: str) -> None:
         """Back along every executed motion, still holding, so the leaf

@@ -30,10 +30,29 @@ candidates and ActionSelection runs the baseline at the largest of
   output:  ``plan`` (abstract PlanResult): a further motion from the held
            grasp (``planning.lmap.PlanContinuation``), or why there is none.
 
+``PlantPlanning`` (several fruits, ``planner.targets: all``)
+  inputs:  ``plant_estimate`` (abstract PlantEstimate of the newest view),
+           ``ur5.position`` (6, rad), ``status`` (abstract ArmController
+           status: ``targets``, the fruits handled so far).
+  outputs: ``plan`` (abstract PlanResult for the next fruit: the least
+           visible one not yet handled, its leaf chosen among the leaves
+           hiding it; ``target`` says which and why; ``no_action_needed``
+           when every fruit is visible or handled), ``scene_estimate``
+           (abstract SceneEstimate: that target's scene, the rest of the
+           plant as obstacles and occluders).
+``TargetReestimate``
+  inputs:  ``plant_estimate`` (the fused views' PlantEstimate),
+           ``ur5.position`` (6, rad; at the newest view), ``status``.
+  output:  ``scene_estimate``: the current target's fruit re-estimated on
+           the fused views, the leaf nearest the gripper as its leaf (what
+           ``observe`` and ``ContinuationPlanning`` use).
+
 All outputs are computed on demand and cached by Drake until an input
 changes. The robot model (a MultibodyPlant for IK) is an attribute.
 """
 from __future__ import annotations
+
+import dataclasses as dc
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -196,3 +215,143 @@ class ContinuationPlanning(LeafSystem):
             plan = PlanResult("stage_error", cfg.method,
                               message=_StageError("continuation_planning", err))
         output.set_value(plan)
+
+
+# A fruit estimate whose centre lies this close (m) to a handled target's is
+# that target again (instance ids are not kept between views).
+SAME_FRUIT_DISTANCE = 0.03
+
+
+def _Handled(plant, status) -> list[bool]:
+    done = [np.asarray(t["target"]["center_W"], float) for t in getattr(status, "targets", [])
+            if t.get("target")]
+    return [any(np.linalg.norm(f.center_W - c) < SAME_FRUIT_DISTANCE for c in done)
+            for f in plant.fruits]
+
+
+class PlantPlanning(LeafSystem):
+    """See the module docstring."""
+
+    def __init__(self, scenario: Scenario, robot: RobotModel | None = None):
+        super().__init__()
+        self._scenario = scenario
+        self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
+        self._X_WC = _ScenarioCameraPose(scenario)
+        self._image_tan = _ImageTangents(scenario)
+        from lmap_drake.types import PlantEstimate
+        self._plant = self.DeclareAbstractInputPort(
+            "plant_estimate", AbstractValue.Make(PlantEstimate(SemanticScene())))
+        self._q = self.DeclareVectorInputPort("ur5.position", 6)
+        self._status = self.DeclareAbstractInputPort("status", AbstractValue.Make(object()))
+        self._plan_port = self.DeclareAbstractOutputPort(
+            "plan", lambda: AbstractValue.Make(PlanResult("no_fruit", "lmap")), self._calc)
+        self.DeclareAbstractOutputPort(
+            "scene_estimate", lambda: AbstractValue.Make(SceneEstimate(SemanticScene())),
+            self._calc_scene)
+
+    def _calc(self, context, output) -> None:
+        cfg = self._scenario.planner
+        try:
+            output.set_value(self._Plan(context))
+        except Exception as err:  # noqa: BLE001 - a stage failure becomes a status
+            output.set_value(PlanResult("stage_error", cfg.method,
+                                        message=_StageError("plant_planning", err)))
+
+    def _Plan(self, context) -> PlanResult:
+        from lmap_drake.planning.targets import FruitOrder, PlanTarget
+        cfg, dcfg = self._scenario.planner, self._scenario.deformation
+        plant = self._plant.Eval(context)
+        status = self._status.Eval(context)
+        if not plant.fruits:
+            return PlanResult("no_fruit", cfg.method, message="no fruit seen")
+        handled = _Handled(plant, status)
+        order, visible = FruitOrder(plant, self._X_WC, cfg, self._image_tan)
+        order = [k for k in order if not handled[k]]
+        if not order:
+            n = sum(handled)
+            return PlanResult("no_action_needed", cfg.method,
+                              message=f"every fruit is visible or handled ({len(plant.fruits)} "
+                                      f"seen, {n} handled; visible "
+                                      f"{', '.join(f'{v:.2f}' for v in visible)})")
+        k = order[0]
+        t = PlanTarget(plant, k, self._X_WC, self._robot, self._q.Eval(context), cfg, dcfg,
+                       self._image_tan)
+        info = {"fruit_index": k, "fruit_id": t.fruit_id,
+                "center_W": np.round(plant.fruits[k].center_W, 4).tolist(),
+                "visible_predicted": round(t.visible, 3), "leaf_id": t.leaf_id,
+                "occluding_leaves": t.occluders, "why": t.why,
+                "options": [{"leaf_id": j, "status": p.status,
+                             "visibility": (None if p.chosen is None or not p.seen_max
+                                            else round(p.chosen.seen / p.seen_max, 3)),
+                             "energy_per_node": (None if p.chosen is None
+                                                 else p.chosen.EnergyPerNode())}
+                            for j, p in t.options],
+                "remaining": len(order) - 1, "num_fruits": len(plant.fruits)}
+        if t.plan is not None:
+            plan = t.plan
+        elif t.options:            # every leaf's plan failed: the first one says why
+            plan = dc.replace(t.options[0][1], status="no_feasible_action",
+                              message=f"fruit {t.fruit_id}: {t.why}; "
+                                      f"{t.options[0][1].message}")
+        else:
+            plan = PlanResult("no_feasible_action", cfg.method,
+                              message=f"fruit {t.fruit_id}: {t.why}")
+        plan = dc.replace(plan, target=info)
+        return plan
+
+    def _calc_scene(self, context, output) -> None:
+        from lmap_drake.planning.targets import TargetScene
+        plan = self._plan_port.Eval(context)
+        plant = self._plant.Eval(context)
+        t = plan.target
+        if t is None or t.get("leaf_id") is None:
+            output.set_value(SceneEstimate(semantic=plant.semantic, branch=plant.branch))
+            return
+        output.set_value(TargetScene(plant, t["fruit_index"], t["leaf_id"]))
+
+
+class TargetReestimate(LeafSystem):
+    """See the module docstring."""
+
+    def __init__(self, scenario: Scenario, robot: RobotModel | None = None):
+        super().__init__()
+        self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
+        from lmap_drake.types import PlantEstimate
+        self._plant = self.DeclareAbstractInputPort(
+            "plant_estimate", AbstractValue.Make(PlantEstimate(SemanticScene())))
+        self._q = self.DeclareVectorInputPort("ur5.position", 6)
+        self._status = self.DeclareAbstractInputPort("status", AbstractValue.Make(object()))
+        self.DeclareAbstractOutputPort(
+            "scene_estimate", lambda: AbstractValue.Make(SceneEstimate(SemanticScene())),
+            self._calc)
+
+    def _calc(self, context, output) -> None:
+        from lmap_drake.planning.targets import TargetScene
+        plant = self._plant.Eval(context)
+        status = self._status.Eval(context)
+        plan = getattr(status, "plan", None)
+        target = getattr(plan, "target", None)
+        if not plant.fruits or target is None:
+            output.set_value(SceneEstimate(semantic=plant.semantic, branch=plant.branch))
+            return
+        c = np.asarray(target["center_W"], float)
+        k = int(np.argmin([np.linalg.norm(f.center_W - c) for f in plant.fruits]))
+        output.set_value(TargetScene(plant, k, HeldLeaf(plant.semantic,
+                                                        self._robot.TcpPose(
+                                                            self._q.Eval(context)).translation())))
+
+
+def HeldLeaf(semantic: SemanticScene, p_WT: np.ndarray, radius: float = 0.04) -> int:
+    """The leaf instance with the most points within ``radius`` (m) of the
+    TCP at ``p_WT``: the leaf in the gripper (the largest instance when none
+    is that close; -1 without leaf points)."""
+    pts = np.asarray(semantic.leaf_points_W, float).reshape(-1, 3)
+    ids = np.asarray(semantic.leaf_instance)
+    if len(pts) == 0 or len(ids) != len(pts):
+        return -1
+    near = np.linalg.norm(pts - p_WT, axis=1) < radius
+    pool = ids[near & (ids >= 0)] if np.any(near & (ids >= 0)) else ids[ids >= 0]
+    if len(pool) == 0:
+        return -1
+    u, n = np.unique(pool, return_counts=True)
+    return int(u[np.argmax(n)])

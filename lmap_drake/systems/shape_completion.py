@@ -15,6 +15,10 @@ Output ports:
   latent, centre, peduncle axis, ``sdf_W`` callable, loss trace). Computed
   on demand and cached by Drake until the input changes (it depends on the
   input port only, not on time or state).
+- ``plant_estimate`` (abstract ``PlantEstimate``): every fruit instance
+  completed on its own (``CompletePlant``; the other fruits' points count as
+  outside it) and the branches; for plants with several fruits
+  (``planner.targets: all``). Computed only when evaluated.
 
 The DeepSDF decoder is loaded once in the constructor (from
 ``ShapeConfig.weights_file``, or passed in) and kept as an attribute, not
@@ -31,10 +35,10 @@ from pydrake.systems.framework import LeafSystem
 
 from lmap_drake.scenario import ShapeConfig
 from lmap_drake.shape.branch import BranchCompletionParams
-from lmap_drake.shape.completion import CompleteScene
+from lmap_drake.shape.completion import CompletePlant, CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.ssc import SscParams
-from lmap_drake.types import SceneEstimate, SemanticScene
+from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
 
 def BranchParamsFromConfig(cfg: ShapeConfig) -> BranchCompletionParams:
@@ -66,6 +70,9 @@ class ShapeCompletion(LeafSystem):
         self.DeclareAbstractOutputPort(
             "scene_estimate", lambda: AbstractValue.Make(SceneEstimate(SemanticScene())),
             self._calc, prerequisites_of_calc={self._in.ticket()})
+        self.DeclareAbstractOutputPort(
+            "plant_estimate", lambda: AbstractValue.Make(PlantEstimate(SemanticScene())),
+            self._calc_plant, prerequisites_of_calc={self._in.ticket()})
 
     def params(self, reestimate: bool) -> SscParams:
         return SscParams.FromConfig(self.cfg, reestimate=reestimate)
@@ -76,5 +83,15 @@ class ShapeCompletion(LeafSystem):
         timings = {}
         est = CompleteScene(sem, self.decoder, self.mean_latent, self.params(re), self.method,
                             self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg), timings)
+        self.last_timings = timings
+        output.set_value(est)
+
+    def _calc_plant(self, context, output):
+        sem: SemanticScene = self._in.Eval(context)
+        re = self.reestimate or "reestimate" in sem.flags
+        timings = {}
+        est = CompletePlant(sem, self.decoder, self.mean_latent, self.params(re), self.method,
+                            self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg),
+                            timings=timings)
         self.last_timings = timings
         output.set_value(est)

@@ -1,0 +1,99 @@
+"""Several fruits at diagram level: PlantPlanning (the next fruit, the leaf
+to move) and the ArmController's sequencing, on a synthetic two-fruit plant
+(fixed estimates, no station): fruit A behind one leaf, fruit B behind
+another; the controller reveals one, releases, retreats, looks again,
+plans the other, then ends when both are handled."""
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from lmap_drake.scenario import Scenario
+from lmap_drake.systems.arm_controller import ArmController, ControllerOptions
+from lmap_drake.systems.planning import HeldLeaf, PlantPlanning
+from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
+from tests.planning.test_targets import _fruit
+from tests.systems.test_planning_system import _scene
+
+
+def TwoFruitPlant() -> PlantEstimate:
+    """The planning tests' plant, and a second leaf and fruit 11 cm lower."""
+    one = _scene()
+    sem = one.semantic
+    drop = np.array([0.0, 0.0, -0.11])
+    leaf2 = sem.leaf_points_W + drop
+    A = one.fruit
+    B = _fruit(A.center_W + drop)
+    fa, fb = sem.fruit_points_W, sem.fruit_points_W + drop
+    plant_sem = SemanticScene(
+        branch_points_W=sem.branch_points_W,
+        leaf_points_W=np.vstack([sem.leaf_points_W, leaf2]),
+        leaf_instance=np.r_[np.zeros(len(leaf2), int), np.ones(len(leaf2), int)],
+        fruit_points_W=np.vstack([fa, fb]),
+        fruit_instance=np.r_[np.full(len(fa), 3), np.full(len(fb), 5)], X_WC=sem.X_WC)
+    return PlantEstimate(semantic=plant_sem, branch=one.branch, fruits=[A, B],
+                         fruit_ids=[3, 5])
+
+
+def _Scenario() -> Scenario:
+    s = Scenario()
+    s.planner.targets = "all"
+    s.planner.num_grasps = 6
+    s.planner.distances = [0.04, 0.08]
+    s.planner.action_families = ["pull", "arc"]
+    s.planner.max_replans = 0
+    return s
+
+
+def test_held_leaf_is_the_instance_at_the_gripper():
+    plant = TwoFruitPlant()
+    leaf = plant.semantic.leaf_points_W
+    assert HeldLeaf(plant.semantic, leaf[-1]) == 1
+    assert HeldLeaf(plant.semantic, leaf[0]) == 0
+    assert HeldLeaf(SemanticScene(), leaf[0]) == -1
+
+
+def test_fruits_are_revealed_one_after_another():
+    s = _Scenario()
+    plant = TwoFruitPlant()
+    b = DiagramBuilder()
+    planner = b.AddNamedSystem("plant_planning", PlantPlanning(s))
+    c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
+        grasp_ack_required=False)))
+    b.Connect(c.GetOutputPort("status"), planner.GetInputPort("status"))
+    b.Connect(planner.GetOutputPort("plan"), c.GetInputPort("plan"))
+    b.Connect(planner.GetOutputPort("scene_estimate"), c.GetInputPort("scene_estimate"))
+    d = b.Build()
+    sim = Simulator(d)
+    ctx = sim.get_mutable_context()
+    pc, cc = planner.GetMyMutableContextFromRoot(ctx), c.GetMyMutableContextFromRoot(ctx)
+    planner.GetInputPort("plant_estimate").FixValue(pc, AbstractValue.Make(plant))
+    planner.GetInputPort("ur5.position").FixValue(pc, s.robot.initial_q)
+    c.GetInputPort("semantic_scene").FixValue(cc, AbstractValue.Make(SemanticScene()))
+    c.GetInputPort("final_estimate").FixValue(cc, AbstractValue.Make(SceneEstimate(
+        SemanticScene())))
+    c.GetInputPort("ur5.state_estimated").FixValue(cc, np.r_[s.robot.initial_q, np.zeros(6)])
+    c.GetInputPort("gripper.state_measured").FixValue(cc, [0.003, 0.0, 1.0])
+    c.GetInputPort("views_fused").FixValue(cc, [10.0])
+    while sim.get_context().get_time() < 120.0 and not c.Status(cc).finished:
+        sim.AdvanceTo(sim.get_context().get_time() + 0.25)
+    st = c.Status(cc)
+    assert st.mode == "done", st.message
+    assert "every fruit is visible or handled" in st.message
+    modes = [m for _, m in st.mode_log]
+    assert modes.count("pull") == 2 and modes.count("retreat") == 2
+    # a fresh view before each fruit, and a last one that finds nothing left
+    assert modes.count("capture") == 3
+    assert len(st.targets) == 2
+    ids = [t["target"]["fruit_id"] for t in st.targets]
+    assert sorted(ids) == [3, 5]
+    for t in st.targets:
+        assert t["outcome"].startswith("revealed")
+        assert t["target"]["leaf_id"] in (0, 1) and t["target"]["why"]
+        assert t["plan"].chosen is not None and t["t_end"] > t["t_start"]
+    # each fruit's leaf is the one in front of it
+    by_id = {t["target"]["fruit_id"]: t["target"]["leaf_id"] for t in st.targets}
+    assert by_id == {3: 0, 5: 1}
+    # the less visible fruit first
+    vis = [t["target"]["visible_predicted"] for t in st.targets]
+    assert vis[0] <= vis[1] + 1e-9
