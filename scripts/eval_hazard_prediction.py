@@ -70,8 +70,12 @@ def _Execute(grasped, action, speed: float, hold: float) -> dict:
     world = grasped.Fork()
     n0 = len(world.samples)
     q_path = PlanActionPath(world.robot, action, world.q_cmd)
+    from lmap_drake.systems.arm_controller import ROTATION_SPEED
+    # the controller's timing: the pull speed along the path, turns at most
+    # ROTATION_SPEED (a twist turns in place)
     traj = TimeJointPath(world.time, world.q_cmd, q_path, 0.3, 0.01,
-                         max(1.0, action.path_length / speed))
+                         max(1.0, action.path_length / speed,
+                             abs(action.angle) / ROTATION_SPEED))
     world.AdvanceTo(traj.end_time(), traj)
     world.Hold(hold)
     s = world.samples[n0:] + [world.Sample()]
@@ -122,11 +126,15 @@ def EvaluateScenario(scenario, args, log) -> dict:
     p_WG, R_WG = X_WT.translation(), X_WT.rotation().matrix()
     hinge = EstimateHinge(leaf, branch)
     dirs, ids = DirectionsForGrasp(p_WG, branch, 120.0, PullDirections())
-    actions = [Action(p_WG, R_WG, d * u, direction_id=int(j))
-               for u, j in zip(dirs, ids) for d in args.pull_distances]
-    actions += MakeArcActions(p_WG, R_WG, hinge, HingeAxes(p_WG, hinge, args.num_axes),
-                              np.deg2rad(args.arc_angles))
-    actions += MakeTwistActions(p_WG, R_WG, hinge, np.deg2rad(args.twist_angles))
+    actions = []
+    if "pull" in args.families:
+        actions += [Action(p_WG, R_WG, d * u, direction_id=int(j))
+                    for u, j in zip(dirs, ids) for d in args.pull_distances]
+    if "arc" in args.families:
+        actions += MakeArcActions(p_WG, R_WG, hinge, HingeAxes(p_WG, hinge, args.num_axes),
+                                  np.deg2rad(args.arc_angles))
+    if "twist" in args.families:
+        actions += MakeTwistActions(p_WG, R_WG, hinge, np.deg2rad(args.twist_angles))
     np.savez(Path(args.out).with_suffix(f".{scenario_name_of(scenario)}.npz"),
              leaf_in=leaf_in, branch=branch, p_WG=p_WG, R_WG=R_WG, hinge=hinge)
     preds = PredictDeformations(leaf_in, branch, actions, scenario.deformation)
@@ -219,6 +227,12 @@ def main(argv=None) -> int:
     p.add_argument("--pull_distances", nargs="+", type=float, default=[0.04, 0.08])
     p.add_argument("--arc_angles", nargs="+", type=float, default=[30.0, 60.0])
     p.add_argument("--twist_angles", nargs="+", type=float, default=[30.0, 60.0])
+    p.add_argument("--families", nargs="+", default=["pull", "arc", "twist"],
+                   choices=["pull", "arc", "twist"],
+                   help="action families to execute (e.g. only the twists, to pool with "
+                        "an earlier run's pulls and arcs: --pool)")
+    p.add_argument("--pool", nargs="*", default=[],
+                   help="earlier runs' JSON whose rows join the pooled correlations")
     p.add_argument("--num_axes", type=int, default=8)
     p.add_argument("--speed", type=float, default=0.03, help="TCP speed (m/s)")
     p.add_argument("--hold", type=float, default=0.3)
@@ -253,6 +267,21 @@ def main(argv=None) -> int:
         Path(a.out).write_text(json.dumps(out, indent=1))
         print(f"{name}: {len(res['rows'])} actions in {res['seconds']} s; "
               f"{json.dumps(res['correlation']['all'])}", file=sys.stderr)
+    if a.pool:
+        # this run's actions joined with earlier runs' (same scenes, same grasp)
+        combined: dict = {}
+        for f in a.pool:
+            for name, sc in json.loads(Path(f).read_text())["scenarios"].items():
+                combined.setdefault(name, []).extend(sc["rows"])
+        for name, sc in out["scenarios"].items():
+            combined.setdefault(name, []).extend(sc["rows"])
+        out["pooled_with_earlier"] = {
+            "files": list(a.pool),
+            "per_scene": {n: Correlations(r) for n, r in combined.items()},
+            "all": Correlations([r for rows in combined.values() for r in rows])}
+        Path(a.out).write_text(json.dumps(out, indent=1))
+        print(json.dumps(out["pooled_with_earlier"]["all"], indent=1))
+        return 0
     print(json.dumps(out["pooled"], indent=1))
     return 0
 
