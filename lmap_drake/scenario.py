@@ -533,7 +533,16 @@ class PlannerConfig:
     grasp more than this about the attachment. In the FEM world 45-degree
     arcs loaded the petiole up to 11 N on four suite scenes, while on random
     scenes 60-degree turns reached 15.1-15.3 N (the plant-hazard limit is
-    15 N), so the arcs stop at 45 degrees and re-planning may add a little."""
+    15 N), so the arcs stop at 45 degrees and re-planning may add a little.
+
+    ``petiole_torsion_ratio``: a twist loads the petiole in torsion; the
+    turn that the bending term and ``max_hinge_deg`` see is the equivalent
+    sqrt(bend^2 + ratio twist^2) (``planning.lmap.EquivalentTurnDeg``), the
+    ratio being the petiole's torsional to bending stiffness. 0.25 is the
+    geometric mean of the bounds the FEM world gave on two random suites
+    (seeds 157 and 211): 45-degree arcs followed by 30-degree twists loaded
+    the petiole 7.3-11.7 N (12 episodes: allowed needs ratio <= 0.53), by
+    60-degree twists 11.5-15.6 N (3: rejected needs ratio > 0.13)."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -564,6 +573,7 @@ class PlannerConfig:
     min_replan_gain: float = 0.05
     hinge_bending_weight: float = 3.0e-7
     max_hinge_deg: float = 50.0
+    petiole_torsion_ratio: float = 0.25
 
 
 @dc.dataclass
@@ -910,6 +920,7 @@ _RULES = {
     "planner.grasp_attach_opening": "[0,0.085]",
     "planner.min_branch_distance": ">=0",
     "planner.min_usable_grasps": ">=0",
+    "planner.petiole_torsion_ratio": ">=0",
     "planner.visibility_voxel": ">0",
     "planner.collision_margin": ">=0",
     "planner.energy_weight": ">=0",

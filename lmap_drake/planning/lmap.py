@@ -326,6 +326,17 @@ def HingeRotationDeg(hinge_W, p_from_W, p_to_W) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
+def EquivalentTurnDeg(bend_deg: float, twist_rad: float, torsion_ratio: float) -> float:
+    """The petiole's load as one turn (deg): sqrt(bend^2 + ratio twist^2),
+    ``bend_deg`` the turn of the grasp point about the hinge, ``twist_rad``
+    the leaf's twist about the hinge-grasp line and ``ratio`` the petiole's
+    torsional to bending stiffness (the energies k_b bend^2 + k_t twist^2
+    written as one bend). NaN without a hinge."""
+    if not np.isfinite(bend_deg):
+        return bend_deg
+    return float(np.hypot(bend_deg, np.sqrt(max(torsion_ratio, 0.0)) * np.degrees(twist_rad)))
+
+
 def PetioleBendingEnergy(hinge_deg: float, weight: float) -> float:
     """Per leaf node (m^2): ``weight`` * theta^2 (theta in rad), the petiole
     bending where it joins the branch when the leaf turns by theta about
@@ -592,7 +603,8 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
                           cfg: PlannerConfig, method: str = "lmap",
                           energy_offset_per_node: float = 0.0,
                           hinge_reference_W: np.ndarray | None = None,
-                          min_gain: float = 0.0) -> PlanResult:
+                          min_gain: float = 0.0, twist_offset_rad: float = 0.0
+                          ) -> PlanResult:
     """Paper Sec. III-C-2/3: leaf-fruit checks, visibility with early stop
     along the distances, and the score. ``predictions`` are aligned with
     ``cset.LiveActions()`` (``PredictedDeformation``: ``energy``,
@@ -618,7 +630,10 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         c.arap_energy = float(p.energy)
         c.num_leaf_nodes = int(np.count_nonzero(np.asarray(p.node_kind) == FREE))
         ref = c.action.p_WG if hinge_reference_W is None else hinge_reference_W
-        c.hinge_deg = HingeRotationDeg(cset.hinge_W, ref, c.action.p_WG + c.action.dp_W)
+        c.hinge_deg = EquivalentTurnDeg(
+            HingeRotationDeg(cset.hinge_W, ref, c.action.p_WG + c.action.dp_W),
+            twist_offset_rad + (abs(c.action.angle) if c.action.family == "twist" else 0.0),
+            cfg.petiole_torsion_ratio)
         c.energy = c.arap_energy + c.num_leaf_nodes * PetioleBendingEnergy(
             c.hinge_deg, cfg.hinge_bending_weight)
         if np.isfinite(c.hinge_deg) and c.hinge_deg > cfg.max_hinge_deg:
@@ -768,6 +783,7 @@ class HeldGrasp:
     hinge_W: np.ndarray | None
     motions: int
     energy_per_node: float
+    twist_rad: float = 0.0     # the executed twists' summed angle (rad)
 
     @staticmethod
     def After(plans: list) -> "HeldGrasp":
@@ -776,8 +792,10 @@ class HeldGrasp:
         first, last = plans[0].chosen.action, plans[-1].chosen.action
         e = sum(p.chosen.arap_energy / max(1, p.chosen.num_leaf_nodes) for p in plans
                 if np.isfinite(p.chosen.arap_energy))
+        twist = sum(abs(p.chosen.action.angle) for p in plans
+                    if p.chosen.action.family == "twist")
         return HeldGrasp(first.p_WG, first.R_WG, last.p_WG + last.dp_W, last.R_WG_end,
-                         plans[0].hinge_W, len(plans), e)
+                         plans[0].hinge_W, len(plans), e, twist)
 
 
 def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
@@ -852,7 +870,8 @@ def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformation
     result = SelectFromPredictions(ctx, cset, predictions, cfg,
                                    energy_offset_per_node=held.energy_per_node,
                                    hinge_reference_W=held.p_WG0,
-                                   min_gain=cfg.min_replan_gain)
+                                   min_gain=cfg.min_replan_gain,
+                                   twist_offset_rad=held.twist_rad)
     result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
     progress(f"continuation: {result.status}" + (f" ({result.message})" if result.message else ""))
     return result

@@ -175,3 +175,20 @@ def test_twist_turns_the_blade_about_the_attachment_grasp_line():
     assert moved[off > 0.02].max() > 0.01
     assert np.median(moved[off < 0.003]) < 0.3 * np.median(moved[off > 0.02])
     assert preds[0].energy > 0 and preds[1].energy > 0
+
+
+def test_equivalent_turn_counts_twist_by_the_torsion_ratio():
+    from lmap_drake.planning.lmap import EquivalentTurnDeg, HeldGrasp
+    from lmap_drake.planning.lmap import Candidate, PlanResult
+    assert EquivalentTurnDeg(45.0, 0.0, 0.25) == 45.0
+    assert np.isclose(EquivalentTurnDeg(0.0, np.deg2rad(60), 0.25), 30.0)
+    assert np.isclose(EquivalentTurnDeg(45.0, np.deg2rad(60), 0.25), np.hypot(45, 30))
+    assert np.isclose(EquivalentTurnDeg(45.0, np.deg2rad(60), 0.0), 45.0)
+    assert np.isnan(EquivalentTurnDeg(float("nan"), 1.0, 0.25))
+    # the held state sums the executed twists (either sense)
+    p = np.array([0.1, 0.0, 0.0])
+    from lmap_drake.deformation.action import MakeTwistActions
+    tw = MakeTwistActions(p, R_GRASP, np.zeros(3), [np.deg2rad(30)])
+    arc = MakeArcActions(p, R_GRASP, np.zeros(3), HingeAxes(p, np.zeros(3), 4)[:1], [0.5])[0]
+    plans = [PlanResult("ok", "lmap", chosen=Candidate(a, 0)) for a in (arc, tw[1])]
+    assert np.isclose(HeldGrasp.After(plans).twist_rad, np.deg2rad(30))
