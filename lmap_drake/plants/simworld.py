@@ -40,21 +40,26 @@ def _Kabsch(P: np.ndarray, Q: np.ndarray) -> RigidTransform:
     return RigidTransform(RotationMatrix(R), cq - R @ cp)
 
 
-def UnoccludedFruitPixels(scenario: Scenario) -> int:
+def UnoccludedFruitPixels(scenario: Scenario, fruit: int | None = None) -> int:
     """camera0's fruit pixel count with the leaf and robot removed (fruit and
-    branch only): the denominator of the visibility fraction."""
+    branch only): the denominator of the visibility fraction. ``kind:
+    multi``: the pixels of fruit instance ``fruit`` (None: all fruits)."""
     from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams
     from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.sensors import RgbdSensor
 
     from lmap_drake.labels import FRUIT, DecodeLabels
-    from lmap_drake.plants.scene import AddProceduralPlant
+    from lmap_drake.plants.scene import AddMultiPlant, AddProceduralPlant
 
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-    AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
-                       with_leaf=False)
+    if scenario.plant_scene.kind == "multi":
+        AddMultiPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
+                      with_leaves=False)
+    else:
+        AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
+                           with_leaf=False)
     plant.Finalize()
     cam = scenario.cameras["camera0"]
     sg.AddRenderer(cam.renderer_name, MakeRenderEngineVtk(RenderEngineVtkParams()))
@@ -65,18 +70,41 @@ def UnoccludedFruitPixels(scenario: Scenario) -> int:
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
     label = sensor.label_image_output_port().Eval(sensor.GetMyContextFromRoot(ctx))
-    cls, _ = DecodeLabels(label.data)
-    return int((cls == FRUIT).sum())
+    cls, inst = DecodeLabels(label.data)
+    mask = cls == FRUIT
+    if fruit is not None:
+        mask &= inst == fruit
+    return int(mask.sum())
 
 
 @dc.dataclass
 class GraspState:
     grasp: LeafGrasp
-    vertices: np.ndarray  # leaf vertex indices held by the gripper
+    vertices: np.ndarray  # leaf vertex indices held by the gripper (of leaf grasp.leaf)
+
+
+@dc.dataclass
+class _LeafRef:
+    """One leaf's reference mesh (world, m) as the sim needs it."""
+    rest_W: np.ndarray
+    tets: np.ndarray
+    uv: np.ndarray
+    fixed: np.ndarray
+
+
+def _LeafRefs(model) -> list[_LeafRef]:
+    if hasattr(model, "leaves"):     # MultiPlantModel
+        return [_LeafRef(x.rest_W, x.tets, x.uv, x.fixed) for x in model.leaves]
+    return [_LeafRef(model.leaf_rest_W, model.leaf_tets, model.leaf_uv, model.leaf_fixed)]
 
 
 class PlantWorldSim:
     """Simulated UR5 + FEM-leaf plant, driven through the station's ports.
+
+    ``plant_scene.kind: procedural`` (one leaf, ``model`` a ``PlantModel``)
+    or ``multi`` (leaves ``leaf_0`` ... , ``model`` a ``MultiPlantModel``;
+    ``LeafVertices(j)``, ``Visibility(fruit=i)``; the outcome measures take
+    the worst leaf and fruit).
 
     ``progress`` receives short status strings. Times in seconds, joint
     angles in radians, openings in metres."""
@@ -86,8 +114,9 @@ class PlantWorldSim:
         """``make_diagram(scenario, meshcat, leaf_grasp) -> (root, station)``
         builds the simulated Diagram (default: the station alone, driven
         through its input ports by this object)."""
-        if scenario.plant_scene.kind != "procedural":
-            raise ValueError("PlantWorldSim needs plant_scene.kind: procedural")
+        if scenario.plant_scene.kind not in ("procedural", "multi"):
+            raise ValueError("PlantWorldSim needs plant_scene.kind: procedural or multi")
+        self.multi = scenario.plant_scene.kind == "multi"
         self.scenario = scenario
         self.meshcat = meshcat
         self._make_diagram = make_diagram
@@ -100,13 +129,21 @@ class PlantWorldSim:
         self.width_cmd = float(scenario.robot.initial_gripper_width)
         self.samples: list[OutcomeSample] = []
         self.grasp_state: GraspState | None = None
-        self._unoccluded: int | None = None
+        self._unoccluded: dict = {}
+        self.leaf_refs = _LeafRefs(self.model)
         # The petiole's force is read one ring of tets away from the fixed
         # vertices (the ring that touches them is a stress singularity).
-        tets = self.model.leaf_tets
-        ring1 = ConstrainedTetMask(tets, np.flatnonzero(self.model.leaf_fixed))
-        self._petiole_tets = ConstrainedTetMask(tets, np.unique(tets[ring1])) & ~ring1
+        self._petiole_tets_of = []
+        for ref in self.leaf_refs:
+            ring1 = ConstrainedTetMask(ref.tets, np.flatnonzero(ref.fixed))
+            self._petiole_tets_of.append(
+                ConstrainedTetMask(ref.tets, np.unique(ref.tets[ring1])) & ~ring1)
+        self._petiole_tets = self._petiole_tets_of[0]
         self._build(None, None)
+
+    @property
+    def num_leaves(self) -> int:
+        return len(self.leaf_refs)
 
     # --- building and state carry-over ----------------------------------
     def _build(self, grasp: LeafGrasp | None, old_context) -> None:
@@ -123,7 +160,9 @@ class PlantWorldSim:
         self.plant = self.station.GetSubsystemByName("plant")
         self.scene_graph = self.station.GetSubsystemByName("scene_graph")
         self.deformable = self.plant.deformable_model()
-        self.leaf_id = self.deformable.GetBodyByName("leaf").body_id()
+        names = [f"leaf_{j}" for j in range(len(self.leaf_refs))] if self.multi else ["leaf"]
+        self.leaf_ids = [self.deformable.GetBodyByName(n).body_id() for n in names]
+        self.leaf_id = self.leaf_ids[0]
         self.ApplyCommands()
         self.simulator.Initialize()
 
@@ -165,9 +204,10 @@ class PlantWorldSim:
         return self.context.get_time()
 
     # --- reading the world ------------------------------------------------
-    def LeafVertices(self) -> np.ndarray:
-        """Current leaf vertex positions (N, 3), world frame."""
-        return self.deformable.GetPositions(self.plant_context, self.leaf_id).T.copy()
+    def LeafVertices(self, leaf: int = 0) -> np.ndarray:
+        """Current vertex positions (N, 3), world frame, of leaf ``leaf`` (the
+        only one of a procedural plant)."""
+        return self.deformable.GetPositions(self.plant_context, self.leaf_ids[leaf]).T.copy()
 
     def q(self) -> np.ndarray:
         return self.station.GetOutputPort("ur5.position_measured").Eval(self.station_context).copy()
@@ -195,35 +235,50 @@ class PlantWorldSim:
             out[name] = copy_
         return out
 
-    def Visibility(self, label=None) -> float:
+    def Visibility(self, label=None, fruit: int | None = None) -> float:
         """The fruit's visible fraction in camera0 now, or in ``label`` (a
-        label image or array, e.g. a captured view's)."""
-        if self._unoccluded is None:
-            self._unoccluded = UnoccludedFruitPixels(self.scenario)
+        label image or array, e.g. a captured view's). ``kind: multi``:
+        fruit instance ``fruit`` (default 0)."""
+        if self.multi and fruit is None:
+            fruit = 0
+        if fruit not in self._unoccluded:
+            self._unoccluded[fruit] = UnoccludedFruitPixels(self.scenario, fruit)
         if label is None:
             label = self.station.GetOutputPort("camera0.label_image").Eval(self.station_context)
-        return VisibilityFraction(label, self._unoccluded)
+        if fruit is None:
+            return VisibilityFraction(label, self._unoccluded[fruit])
+        from lmap_drake.labels import FRUIT, EncodeLabel
+        lab = np.asarray(label.data if hasattr(label, "data") else label).reshape(-1)
+        return float(min(1.0, (lab == EncodeLabel(FRUIT, fruit)).sum() /
+                         max(self._unoccluded[fruit], 1)))
 
     def Sample(self) -> OutcomeSample:
         """Ground-truth measures now (see ``OutcomeConfig``)."""
         cfg = self.scenario.plant_scene
-        V = self.LeafVertices()
-        rest, tets = self.model.leaf_rest_W, self.model.leaf_tets
-        constrained = np.flatnonzero(self.model.leaf_fixed)
-        if self.grasp_state is not None:
-            constrained = np.union1d(constrained, self.grasp_state.vertices)
-        strain = StrainPercentile(rest, V, tets, ConstrainedTetMask(tets, constrained),
-                                  cfg.outcome.strain_percentile)
-        force = PetioleForce(rest, V, tets, self._petiole_tets, cfg.leaf.youngs_modulus,
-                             cfg.leaf.petiole_width * cfg.leaf.thickness)
-        pen = max(0.0, -float(MeshSignedDistance(self.model.fruit_mesh_W, V).min()))
+        fruits = [f.mesh_W for f in self.model.fruits] if self.multi else \
+            [self.model.fruit_mesh_W]
+        strain = force = pen = 0.0
+        for j, ref in enumerate(self.leaf_refs):
+            V = self.LeafVertices(j)
+            constrained = np.flatnonzero(ref.fixed)
+            if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
+                constrained = np.union1d(constrained, self.grasp_state.vertices)
+            strain = max(strain, StrainPercentile(
+                ref.rest_W, V, ref.tets, ConstrainedTetMask(ref.tets, constrained),
+                cfg.outcome.strain_percentile))
+            force = max(force, PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
+                                            cfg.leaf.youngs_modulus,
+                                            cfg.leaf.petiole_width * cfg.leaf.thickness))
+            for mesh in fruits:
+                pen = max(pen, -float(MeshSignedDistance(mesh, V).min()))
         pen = max(pen, self._RobotFruitPenetration())
         return OutcomeSample(strain, force, pen, self._FruitContactForce())
 
     def _fruit_ids(self) -> set:
         inspector = self.scene_graph.model_inspector()
         return {g for g in inspector.GetAllGeometryIds()
-                if inspector.GetName(g).endswith("fruit_collision")}
+                if inspector.GetName(g).endswith("_collision")
+                and inspector.GetName(g).split("::")[-1].startswith("fruit")}
 
     def _RobotFruitPenetration(self) -> float:
         query = self.scene_graph.get_query_output_port().Eval(
@@ -319,20 +374,26 @@ class PlantWorldSim:
         X_WG = self.X_WG()
         X_GT = X_WG.inverse() @ self.X_WT()
         pad = np.array([0.022, max(width, 0.001) + 0.004, 0.038])
-        V = self.LeafVertices()
-        p_G = (X_WG.inverse().GetAsMatrix4() @ np.c_[V, np.ones(len(V))].T).T[:, :3]
-        rel = np.abs(p_G - X_GT.translation())
-        inside = np.flatnonzero(np.all(rel <= pad / 2, axis=1))
+        best = (np.zeros(0, int), 0, None)
+        for j in range(len(self.leaf_refs)):     # the leaf with most vertices between the pads
+            V = self.LeafVertices(j)
+            p_G = (X_WG.inverse().GetAsMatrix4() @ np.c_[V, np.ones(len(V))].T).T[:, :3]
+            rel = np.abs(p_G - X_GT.translation())
+            inside = np.flatnonzero(np.all(rel <= pad / 2, axis=1))
+            if len(inside) > len(best[0]):
+                best = (inside, j, V)
+        inside, leaf, V = best
         if len(inside) < 3:
             raise RuntimeError(f"grasp failed: {len(inside)} leaf vertices between the pads "
                                f"(opening {width * 1000:.1f} mm)")
-        T = _Kabsch(self.model.leaf_rest_W[inside], V[inside])
-        grasp = LeafGrasp(X_GA=X_WG.inverse() @ T, p_GR=X_GT.translation(), size=pad)
+        T = _Kabsch(self.leaf_refs[leaf].rest_W[inside], V[inside])
+        grasp = LeafGrasp(X_GA=X_WG.inverse() @ T, p_GR=X_GT.translation(), size=pad,
+                          leaf=leaf)
         old_simulator = self.simulator  # keep the old context alive while copying
         self._build(grasp, self.context)
         del old_simulator
         self.grasp_state = GraspState(grasp, inside)
-        self.progress(f"grasped {len(inside)} leaf vertices")
+        self.progress(f"grasped {len(inside)} leaf vertices" + (f" (leaf {leaf})" if self.multi else ""))
         return self.grasp_state
 
     def Fork(self) -> "PlantWorldSim":
