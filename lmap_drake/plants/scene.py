@@ -174,9 +174,10 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
 
 # --- multi-fruit plant (kind: multi) ----------------------------------------
 
-def _AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
+def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
     """Registers one FEM leaf (rest mesh ``rest_W`` (N, 3) world, m) fixed to
-    the world at its ``fixed`` vertices; returns (body id, geometry id)."""
+    the world at its ``fixed`` vertices (none: a free leaf); returns (body
+    id, geometry id)."""
     from pydrake.geometry import AddContactMaterial, Sphere
     from pydrake.multibody.fem import DeformableBodyConfig
 
@@ -203,10 +204,11 @@ def _AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
     dm = plant.mutable_deformable_model()
     body_id = dm.RegisterDeformableBody(gi, body_cfg, 1.0)
     pts = rest_W[fixed]
-    center = pts.mean(axis=0)
-    radius = float(np.linalg.norm(pts - center, axis=1).max()) + 2e-4
-    dm.AddFixedConstraint(body_id, plant.world_body(), RigidTransform(), Sphere(radius),
-                          RigidTransform(center))
+    if len(pts):
+        center = pts.mean(axis=0)
+        radius = float(np.linalg.norm(pts - center, axis=1).max()) + 2e-4
+        dm.AddFixedConstraint(body_id, plant.world_body(), RigidTransform(), Sphere(radius),
+                              RigidTransform(center))
     return body_id, dm.GetGeometryId(body_id)
 
 
@@ -273,7 +275,7 @@ def AddMultiPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConf
         return handles
     cfm = scene_graph.collision_filter_manager()
     for j, leaf in enumerate(model.leaves):
-        bid, gid = _AddFemLeaf(plant, f"leaf_{j}", leaf.rest_W, leaf.tets, leaf.fixed, cfg.leaf,
+        bid, gid = AddFemLeaf(plant, f"leaf_{j}", leaf.rest_W, leaf.tets, leaf.fixed, cfg.leaf,
                                EncodeLabel(LEAF, j))
         handles["leaf_body_ids"].append(bid)
         handles["leaf_geometry_ids"].append(gid)
