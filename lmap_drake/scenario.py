@@ -271,15 +271,17 @@ class MultiPlantConfig:
     stem above the top fruit, swung outward by ``free_leaf_swing_deg``.
     Leaves keep ``leaf_gap`` (m) from each other, from every fruit
     (``plant_scene.leaf.min_fruit_clearance``) and from the stem and the
-    other shoots at rest; ``leaf_leaf_contact: false`` filters leaf-leaf
-    contact out of the simulation (Drake's deformable-deformable contact is
-    costly). World frame, metres."""
+    other shoots at rest. ``leaf_leaf_contact: true`` turns on Drake's
+    deformable-deformable contact between leaves; off by default: with these
+    thin two-layer leaves it does not keep a leaf from passing through
+    another and costs 10-40x per step while in contact (measured with drake
+    1.51.1, see tests/plants/test_multi_contact.py). World frame, metres."""
     fruits: list[MultiFruitConfig] = dc.field(default_factory=_DefaultMultiFruits)
     num_leaves: int = 4
     shoot_radius: float = 0.004
     leaf_gap: float = 0.003
     free_leaf_swing_deg: float = 55.0
-    leaf_leaf_contact: bool = True
+    leaf_leaf_contact: bool = False
 
 
 @dc.dataclass

@@ -1,8 +1,7 @@
 """Drake contact of FEM leaves (the leaves of a ``kind: multi`` plant):
-a leaf dropped on a fruit rests on it; a leaf dropped on another leaf is
-caught by Drake 1.51's deformable-deformable contact (it falls straight
-through with leaf-leaf contact filtered out) but sinks into it slowly (see
-the test's docstring). Small leaves and short horizons keep these cheap."""
+a leaf dropped on a fruit rests on it; Drake 1.51's deformable-deformable
+contact does not keep a leaf dropped on another from passing through it
+(a canary test: see its docstring). Small leaves and short horizons keep these cheap."""
 import numpy as np
 import pytest
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
@@ -33,12 +32,17 @@ def _flat_leaf(z: float, dx: float = 0.0, dy: float = 0.0, scale: float = 1.0):
     return V, OrientTets(V, tets)
 
 
-def _world(leaves, fruit=None, leaf_leaf_contact=True):
-    """Plant with the given leaves ((V, tets, fixed mask) each) and an
-    optional fruit mesh welded to the world."""
+def _world(leaves, fruit=None, leaf_leaf_contact=True, table_top=None):
+    """Plant with the given leaves ((V, tets, fixed mask) each), an optional
+    fruit mesh welded to the world and an optional rigid table (top at z
+    ``table_top``)."""
+    from pydrake.geometry import Box
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlant(MultibodyPlantConfig(
         time_step=0.01, discrete_contact_approximation="sap"), builder)
+    if table_top is not None:
+        plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([0, 0, table_top - 0.05]),
+                                        Box(0.3, 0.3, 0.1), "table", CoulombFriction(0.8, 0.8))
     if fruit is not None:
         plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(),
                                         _ObjMesh(fruit, "fruit"), "fruit_collision",
@@ -81,29 +85,35 @@ def test_leaf_dropped_on_a_fruit_rests_on_it():
     assert positions(0)[above, 2].min() > top - 0.001
 
 
-@pytest.mark.parametrize("contact", [True, False])
-def test_leaf_dropped_on_a_leaf_is_held_only_with_leaf_leaf_contact(contact):
-    """Drake 1.51 has deformable-deformable contact and it stops a leaf
-    falling on another, but it does not hold it for long with these thin
-    two-layer leaves: measured, the top leaf sinks into the lower one (blade
-    median 1.5 mm below the lower leaf's top at 0.1 s, 2.2 mm at 0.3 s, 94 %
-    of its blade vertices below the lower leaf at 0.5 s; the hydroelastic
-    modulus has no effect). This test checks the short-horizon part."""
+def _depth_below_top(A: np.ndarray, top: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """How far (m) each point of P lies below leaf A's upper surface (its
+    ``top`` vertices, linearly interpolated over x-y); NaN off A."""
+    from scipy.interpolate import LinearNDInterpolator
+    return LinearNDInterpolator(A[top, :2], A[top, 2])(P[:, :2]) - P[:, 2]
+
+
+def test_drake_leaf_leaf_contact_does_not_keep_thin_leaves_apart():
+    """A canary for a Drake limitation (1.51.1): leaf A lies free on a rigid
+    table, leaf B is dropped on it from 0.5 mm with deformable-deformable
+    contact on. Contact is computed (it slows B) but B ends up through A
+    (measured at 0.2 s: B's underside 2.6-2.9 mm below A's top, A 2 mm
+    thick, A pushed up). With A held by a fixed constraint instead, B sinks
+    through it in ~0.5 s; at time_step 0.002 SAP fails to converge. Hence
+    ``multi.leaf_leaf_contact`` defaults to false and the generator keeps
+    leaves apart at rest. If this test fails, Drake now holds thin leaves
+    apart: revisit that default."""
     z0 = 0.3
-    A, TA = _flat_leaf(z0, dx=-0.01, scale=1.5)               # larger, held in place
-    B, TB = _flat_leaf(z0 + THICKNESS + 0.0005, dy=0.003)     # on A's middle, 0.5 mm above
-    sim, positions = _world([(A, TA, np.ones(len(A), bool)),
-                             (B, TB, np.zeros(len(B), bool))], leaf_leaf_contact=contact)
-    blade = B[:, 0] > -0.035                                   # B's petiole hangs off A's
-    pen = 0.0
-    for t in (0.03, 0.06, 0.1):
-        sim.AdvanceTo(t)
-        pen = max(pen, LeafLeafPenetration([positions(1), positions(0)], [TB, TA])[0, 1])
-    z = positions(1)[blade, 2]
-    bottom_A = z0 - THICKNESS / 2
-    if contact:
-        assert pen < 0.0012, f"leaf B's vertices entered leaf A by {pen * 1e3:.2f} mm"
-        assert np.median(z) > bottom_A and z.min() > bottom_A - 0.0015, \
-            "leaf B went through leaf A within 0.1 s"
-    else:
-        assert np.median(z) < z0 - 0.02, "without leaf-leaf contact B falls through A"
+    A, TA = _flat_leaf(z0, dx=-0.01, scale=1.5)                 # larger
+    B, TB = _flat_leaf(z0 + THICKNESS + 0.0005, dy=0.003)       # on A's middle
+    sim, positions = _world([(A, TA, np.zeros(len(A), bool)),
+                             (B, TB, np.zeros(len(B), bool))], leaf_leaf_contact=True,
+                            table_top=z0 - THICKNESS / 2 - 0.0003)
+    bottom = np.isclose(B[:, 2], B[:, 2].min()) & (B[:, 0] > -0.035)   # B's blade underside
+    top_A = np.isclose(A[:, 2], A[:, 2].max())
+    sim.AdvanceTo(0.2)
+    depth = _depth_below_top(positions(0), top_A, positions(1)[bottom])
+    depth = depth[np.isfinite(depth)]
+    assert len(depth) > 0.5 * bottom.sum()
+    assert np.median(depth) > THICKNESS, \
+        f"B's underside is only {np.median(depth) * 1e3:.2f} mm below A's top: Drake now " \
+        f"keeps thin leaves apart"
