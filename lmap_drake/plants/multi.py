@@ -121,7 +121,8 @@ class MultiPlantModel:
                         "peduncle_tip_W": f.peduncle_tip_W.tolist(),
                         "fruit_volume_m3": f.volume, "X_WO": f.X_WO.tolist(),
                         "shoot": f.shoot, "stalk_W": f.stalk_W.tolist(),
-                        "occlusion_requested": f.occlusion_requested,
+                        "occlusion_requested": (None if np.isnan(f.occlusion_requested)
+                                                else f.occlusion_requested),
                         "occlusion_predicted": f.occlusion_predicted,
                         "occlusion_clamped": f.occlusion_clamped,
                         "occluders": list(f.occluders),
