@@ -133,3 +133,26 @@ def test_unbuildable_plant_names_the_key():
         GenerateMultiPlant(_cfg(f, num_leaves=2), P_WC)
     assert err.value.key == "plant_scene.multi.fruits[1].height"
     assert isinstance(err.value, PlantGenerationError)
+
+
+def test_multi_suite_file_is_the_multi_suite():
+    """diagrams/multi_suite.yaml loads and holds MultiSuite() (regenerate it
+    with scripts/make_suite.py --multi); building every scene is left to
+    scripts/render_multi_suite.py (about 5 s each)."""
+    import yaml
+    from pydrake.common.yaml import yaml_dump_typed
+
+    from lmap_drake.paths import DIAGRAMS_DIR
+    from lmap_drake.plants.suite import MultiSuite
+    path = DIAGRAMS_DIR / "multi_suite.yaml"
+    names = list(yaml.safe_load(path.read_text()))
+    suite = MultiSuite()
+    assert names == list(suite) and len(names) >= 6
+    two = 0
+    for name in names:
+        ps = LoadScenario(filename=path, scenario_name=name).plant_scene
+        assert ps.kind == "multi" and 2 <= len(ps.multi.fruits) <= 4
+        assert yaml_dump_typed(ps, schema=PlantSceneConfig) == \
+            yaml_dump_typed(suite[name], schema=PlantSceneConfig)
+        two += any(f.num_leaves == 2 for f in ps.multi.fruits)
+    assert two >= 2
