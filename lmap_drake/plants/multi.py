@@ -542,8 +542,8 @@ def GenerateMultiPlant(cfg, p_WC) -> MultiPlantModel:
                                    f"fruit (height / side)")
         b = int(np.argmax(vals))
         target = float(fc.occlusion)
-        if target >= vals[b]:
-            t_best, new, o = float(grid[b]), res[b][1], float(vals[b])
+        if target >= vals[b]:      # the most these leaves hide (checked below)
+            new = res[b][1]
         else:
             lo, hi = float(grid[b]), 90.0
             best = (abs(vals[b] - target), float(grid[b]), res[b][1], float(vals[b]))
@@ -556,7 +556,7 @@ def GenerateMultiPlant(cfg, p_WC) -> MultiPlantModel:
                     lo = mid
                 else:
                     hi = mid
-            _, t_best, new, o = best
+            new = best[2]
         for j, leaf in zip(idx, new):
             leaves[j] = leaf
             placed.add(j)

@@ -3,7 +3,6 @@ a leaf dropped on a fruit rests on it; Drake 1.51's deformable-deformable
 contact does not keep a leaf dropped on another from passing through it
 (a canary test: see its docstring). Small leaves and short horizons keep these cheap."""
 import numpy as np
-import pytest
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import (AddMultibodyPlant, CoulombFriction,
@@ -14,7 +13,6 @@ from pydrake.systems.framework import DiagramBuilder
 from lmap_drake.labels import LEAF, EncodeLabel
 from lmap_drake.plants.generator import MeshSignedDistance
 from lmap_drake.plants.leaf import ExtrudeToTets, LeafShape, OrientTets, TriangulateLeaf
-from lmap_drake.plants.multi import LeafLeafPenetration
 from lmap_drake.plants.pepper import MakePepper, PepperShapeOf
 from lmap_drake.plants.scene import AddFemLeaf, _ObjMesh
 from lmap_drake.scenario import FruitConfig, LeafConfig
