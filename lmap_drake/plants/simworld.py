@@ -415,28 +415,34 @@ class PlantWorldSim:
         self.grasp_state = None
 
 
-def LeafPoint(world: PlantWorldSim, u: float, v: float) -> tuple[int, np.ndarray]:
-    """Index and current position of the leaf mid-surface vertex nearest to
-    leaf coordinates (u, v)."""
-    uv = world.model.leaf_uv
+def LeafPoint(world: PlantWorldSim, u: float, v: float, leaf: int = 0) -> tuple[int, np.ndarray]:
+    """Index and current position of the mid-surface vertex of leaf ``leaf``
+    nearest to leaf coordinates (u, v)."""
+    uv = world.leaf_refs[leaf].uv
     n = len(uv) // 3
     idx = int(np.argmin(np.linalg.norm(uv[n:2 * n] - [u, v], axis=1))) + n
-    return idx, world.LeafVertices()[idx]
+    return idx, world.LeafVertices(leaf)[idx]
 
 
-def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float) -> RigidTransform:
+def _LeafNormal(world: PlantWorldSim, leaf: int) -> np.ndarray:
+    """Rest blade normal (toward the camera) of leaf ``leaf``."""
+    return world.model.leaves[leaf].normal_W if world.multi else world.model.leaf_normal_W
+
+
+def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float,
+                 leaf: int = 0) -> RigidTransform:
     """``X_WT`` for a grasp ``from_tip`` (m) from the blade tip, ``v`` (m) to
     the side of the midrib: pads closing across the blade (TCP y = current
     blade normal), approaching within the blade plane along the direction
     from the robot's shoulder to the grasp point (the natural reach)."""
     length = world.scenario.plant_scene.leaf.length
     u = length - from_tip
-    _, p = LeafPoint(world, u, v)
-    _, p_a = LeafPoint(world, u - 0.02, v)
-    _, p_b = LeafPoint(world, u - 0.01, v + 0.01)
+    _, p = LeafPoint(world, u, v, leaf)
+    _, p_a = LeafPoint(world, u - 0.02, v, leaf)
+    _, p_b = LeafPoint(world, u - 0.01, v + 0.01, leaf)
     n = np.cross(p_a - p, p_b - p)
     n /= np.linalg.norm(n)
-    if n @ world.model.leaf_normal_W < 0:
+    if n @ _LeafNormal(world, leaf) < 0:
         n = -n
     p_shoulder = world.X_WB.multiply(np.array([0.0, 0.0, 0.089159]))
     z = p - p_shoulder
@@ -446,14 +452,14 @@ def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float) -> RigidTransf
     return RigidTransform(RotationMatrix(np.c_[x, n, z]), p)
 
 
-def ApproachAndGrasp(world: PlantWorldSim, pull) -> RigidTransform:
-    """Moves to the pre-grasp pose, approaches, closes on the leaf and builds
-    the grasp (``pull`` is a ``ScriptedPullConfig``). Returns the grasp
-    ``X_WT``."""
+def ApproachAndGrasp(world: PlantWorldSim, pull, leaf: int = 0) -> RigidTransform:
+    """Moves to the pre-grasp pose, approaches, closes on leaf ``leaf`` and
+    builds the grasp (``pull`` is a ``ScriptedPullConfig``). Returns the
+    grasp ``X_WT``."""
     from lmap_drake.planning.motion import PlanApproach
-    X_WT_grasp = TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v)
+    X_WT_grasp = TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v, leaf)
     world.progress("planning the approach (IK)")
-    plan = PlanApproach(world.robot, X_WT_grasp, world.q_cmd, world.model.leaf_normal_W,
+    plan = PlanApproach(world.robot, X_WT_grasp, world.q_cmd, _LeafNormal(world, leaf),
                         pull.pregrasp_distance, pull.pregrasp_opening)
     world.progress("moving to the pre-grasp pose")
     world.SetGripper(pull.pregrasp_opening, 0.0)
