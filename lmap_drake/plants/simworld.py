@@ -255,9 +255,8 @@ class PlantWorldSim:
     def Sample(self) -> OutcomeSample:
         """Ground-truth measures now (see ``OutcomeConfig``)."""
         cfg = self.scenario.plant_scene
-        fruits = [f.mesh_W for f in self.model.fruits] if self.multi else \
-            [self.model.fruit_mesh_W]
         strain = force = pen = 0.0
+        Vs = []
         for j, ref in enumerate(self.leaf_refs):
             V = self.LeafVertices(j)
             constrained = np.flatnonzero(ref.fixed)
@@ -269,8 +268,17 @@ class PlantWorldSim:
             force = max(force, PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
                                             cfg.leaf.youngs_modulus,
                                             cfg.leaf.petiole_width * cfg.leaf.thickness))
-            for mesh in fruits:
-                pen = max(pen, -float(MeshSignedDistance(mesh, V).min()))
+            Vs.append(V)
+        if self.multi:      # one ray-casting scene of every fruit, built once
+            if getattr(self, "_fruits_sdf", None) is None:
+                from lmap_drake.plants.multi import _o3d_scene
+                self._fruits_sdf = _o3d_scene([f.mesh_W for f in self.model.fruits])
+            import open3d as o3d
+            d = self._fruits_sdf.compute_signed_distance(
+                o3d.core.Tensor(np.vstack(Vs).astype(np.float32))).numpy()
+            pen = max(pen, -float(d.min()))
+        else:
+            pen = max(pen, -float(MeshSignedDistance(self.model.fruit_mesh_W, Vs[0]).min()))
         pen = max(pen, self._RobotFruitPenetration())
         return OutcomeSample(strain, force, pen, self._FruitContactForce())
 
