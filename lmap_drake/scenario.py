@@ -646,8 +646,14 @@ def _schema_fields(schema) -> dict | None:
 def _unknown_keys(schema, data, path: str) -> list[str]:
     """Dotted paths of keys in ``data`` that ``schema`` does not know."""
     fields = _schema_fields(schema)
+    origin = typing.get_origin(schema)
+    if origin in (list, typing.List, collections.abc.Sequence) and isinstance(data, list):
+        item_type = typing.get_args(schema)[0] if typing.get_args(schema) else None
+        out = []
+        for i, v in enumerate(data):
+            out += _unknown_keys(item_type, v, f"{path}[{i}]")
+        return out
     if fields is None or not isinstance(data, dict):
-        origin = typing.get_origin(schema)
         if origin in (dict, typing.Mapping, collections.abc.Mapping) and isinstance(data, dict):
             value_type = typing.get_args(schema)[1]
             out = []
@@ -976,11 +982,19 @@ def _InRaw(raw, path: str) -> bool:
     written in the raw YAML map ``raw``."""
     node = raw
     for part in path.split("."):
+        m = re.fullmatch(r"(.*)\[(\d+)\]", part)      # a list item: key[i]
+        key, index = (m.group(1), int(m.group(2))) if m else (part, None)
         if not isinstance(node, dict):
             return True
-        if part not in node:
+        if key not in node:
             return False
-        node = node[part]
+        node = node[key]
+        if index is not None:
+            if not isinstance(node, list):
+                return True
+            if index >= len(node):
+                return False
+            node = node[index]
     return True
 
 

@@ -118,11 +118,20 @@ def test_two_fruits_with_more_free_leaves():
     ("{multi: {fruits: [{fruit: {size: [0.07, 0.07]}}, {height: 0.4}]}}",
      "plant_scene.multi.fruits[0].fruit.size"),
     ("{multi: {leaf_gap: -0.001}}", "plant_scene.multi.leaf_gap"),
+    ("{multi: {fruits: [{height: .nan}, {height: 0.4}]}}", "plant_scene.multi.fruits[0].height"),
 ])
 def test_bad_config_names_the_key(text, key):
     with pytest.raises(ScenarioError) as err:
         LoadScenario(scenario_text=f"{{plant_scene: {{kind: multi, {text[1:-1]}}}}}")
     assert str(err.value).startswith(key + " ")
+
+
+def test_unknown_key_in_a_fruit_is_named():
+    with pytest.raises(ScenarioError) as err:
+        LoadScenario(scenario_text="{plant_scene: {kind: multi, multi: {fruits: "
+                                   "[{height: 0.2}, {fruit: {colr: 1}}]}}}")
+    assert "unknown key(s) plant_scene.multi.fruits[1].fruit.colr in --scenario_text" \
+        in str(err.value)
 
 
 def test_unbuildable_plant_names_the_key():
