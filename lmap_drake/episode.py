@@ -45,10 +45,17 @@ def RunStationSnapshot(scenario: Scenario, out: Path,
     """Builds the simulated station with the scenario's plant, holds the arm
     at ``robot.initial_q`` for ``simulation_duration`` s, and writes
     ``scenario.yaml``, ``rgb.png``, ``depth.png`` (colour-mapped metres),
-    ``label.png`` and ``scene.html``."""
+    ``label.png`` and ``scene.html`` (``kind: multi``: also the plant's
+    ground truth, ``ground_truth.json`` with a ``fruits`` list, and meshes)."""
     from lmap_drake.plants.world import MakePlantStation
     out = Path(out)
     DumpScenario(scenario, out / "scenario.yaml")
+    extra = []
+    if scenario.plant_scene.kind == "multi":
+        from lmap_drake.plants.multi import SaveMultiGroundTruth
+        from lmap_drake.plants.world import GetPlantModel
+        progress("generating the multi-fruit plant")
+        extra = SaveMultiGroundTruth(GetPlantModel(scenario), out)
     progress("building station")
     meshcat = Meshcat()
     builder = DiagramBuilder()
@@ -73,7 +80,7 @@ def RunStationSnapshot(scenario: Scenario, out: Path,
     SaveDepth(station.GetOutputPort("camera0.depth_image").Eval(context), out / "depth.png")
     SaveLabel(station.GetOutputPort("camera0.label_image").Eval(context), out / "label.png")
     (out / "scene.html").write_text(meshcat.StaticHtml())
-    return ["scenario.yaml", "rgb.png", "depth.png", "label.png", "scene.html"]
+    return ["scenario.yaml", "rgb.png", "depth.png", "label.png", "scene.html"] + extra
 
 
 def RunScriptedPullEpisode(scenario: Scenario, out: Path,

@@ -230,12 +230,69 @@ class OutcomeConfig:
 
 
 @dc.dataclass
+class MultiFruitConfig:
+    """One fruit of a ``kind: multi`` plant. It hangs from its own side
+    shoot that leaves the main stem ``height`` (m, above the branch base) on
+    the ``side`` (+1 / -1: +/- the lateral direction seen from camera0) and
+    reaches just past the fruit (``shoot_extra`` m beyond the peduncle,
+    rising ``shoot_rise_deg``). ``num_leaves`` (0-2) leaves sit on that
+    shoot and are swung to hide ``occlusion`` of the fruit from camera0
+    (counting every leaf of the plant; ignored with 0 leaves). ``fruit``:
+    shape and colour as ``plant_scene.fruit`` (its ``tilt_deg``,
+    ``tilt_azimuth_deg``, ``peduncle_*`` are used; ``height_on_branch``,
+    ``gap_to_branch``, ``lean_deg`` and ``mesh_file`` are not)."""
+    height: float = 0.25
+    side: float = 1.0
+    occlusion: float = 0.7
+    num_leaves: int = 1
+    shoot_extra: float = 0.01
+    shoot_rise_deg: float = 20.0
+    fruit: FruitConfig = dc.field(default_factory=FruitConfig)
+
+
+def _DefaultMultiFruits() -> list:
+    def one(height, side, occlusion, leaves, color, size):
+        f = MultiFruitConfig(height=height, side=side, occlusion=occlusion, num_leaves=leaves)
+        f.fruit.color = Rgba(*color, 1.0)
+        f.fruit.stripe_color = Rgba(*[0.7 * c for c in color], 1.0)
+        f.fruit.size = list(size)
+        return f
+    return [one(0.13, 1.0, 0.8, 2, (0.75, 0.05, 0.05), (0.07, 0.07, 0.08)),
+            one(0.24, -1.0, 0.6, 1, (0.95, 0.75, 0.05), (0.065, 0.065, 0.075)),
+            one(0.35, 1.0, 0.0, 0, (0.95, 0.45, 0.05), (0.06, 0.06, 0.07))]
+
+
+@dc.dataclass
+class MultiPlantConfig:
+    """``plant_scene.kind: multi``: a main stem (``plant_scene.branch``,
+    base ``plant_scene.p_W_branch_base``) with one side shoot per fruit in
+    ``fruits`` (2-4) and ``num_leaves`` (2-6) FEM leaves shaped by
+    ``plant_scene.leaf``: the fruits' ``num_leaves`` first, the rest on the
+    stem above the top fruit, swung outward by ``free_leaf_swing_deg``.
+    Leaves keep ``leaf_gap`` (m) from each other, from every fruit
+    (``plant_scene.leaf.min_fruit_clearance``) and from the stem and the
+    other shoots at rest. ``leaf_leaf_contact: true`` turns on Drake's
+    deformable-deformable contact between leaves; off by default: with these
+    thin two-layer leaves it does not keep a leaf from passing through
+    another and costs 10-40x per step while in contact (measured with drake
+    1.51.1, see tests/plants/test_multi_contact.py). World frame, metres."""
+    fruits: list[MultiFruitConfig] = dc.field(default_factory=_DefaultMultiFruits)
+    num_leaves: int = 4
+    shoot_radius: float = 0.004
+    leaf_gap: float = 0.003
+    free_leaf_swing_deg: float = 55.0
+    leaf_leaf_contact: bool = False
+
+
+@dc.dataclass
 class PlantSceneConfig:
     """The plant in front of the robot. ``kind: procedural`` builds the
     branch, pepper and FEM leaf from the sub-configs, with the leaf swung so
     that it hides ``occlusion`` of the fruit from camera0; ``kind:
     placeholder`` is a cheap rigid scene (branch cylinder, leaf plate,
-    pepper mesh) for fast tests. World frame, metres."""
+    pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
+    on side shoots and several FEM leaves (``multi``,
+    ``lmap_drake/plants/multi.py``). World frame, metres."""
     kind: str = "placeholder"
     name: str = ""
     p_W_branch_base: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
@@ -246,6 +303,7 @@ class PlantSceneConfig:
     fruit: FruitConfig = dc.field(default_factory=FruitConfig)
     pull: ScriptedPullConfig = dc.field(default_factory=ScriptedPullConfig)
     outcome: OutcomeConfig = dc.field(default_factory=OutcomeConfig)
+    multi: MultiPlantConfig = dc.field(default_factory=MultiPlantConfig)
     # placeholder-only fields
     branch_length: float = 0.5
     branch_radius: float = 0.006
@@ -623,8 +681,14 @@ def _schema_fields(schema) -> dict | None:
 def _unknown_keys(schema, data, path: str) -> list[str]:
     """Dotted paths of keys in ``data`` that ``schema`` does not know."""
     fields = _schema_fields(schema)
+    origin = typing.get_origin(schema)
+    if origin in (list, typing.List, collections.abc.Sequence) and isinstance(data, list):
+        item_type = typing.get_args(schema)[0] if typing.get_args(schema) else None
+        out = []
+        for i, v in enumerate(data):
+            out += _unknown_keys(item_type, v, f"{path}[{i}]")
+        return out
     if fields is None or not isinstance(data, dict):
-        origin = typing.get_origin(schema)
         if origin in (dict, typing.Mapping, collections.abc.Mapping) and isinstance(data, dict):
             value_type = typing.get_args(schema)[1]
             out = []
@@ -935,7 +999,7 @@ _RULES = {
     "planner.max_hinge_deg": "(0,180]",
 }
 _ENUMS = {
-    "plant_scene.kind": ("placeholder", "procedural"),
+    "plant_scene.kind": ("placeholder", "procedural", "multi"),
     "plant_scene.leaf.shape": ("ovate", "elliptic"),
     "plant_scene.fruit.variant": ("blocky", "elongated", "conical"),  # plants.pepper.VARIANTS
     "shape.method": ("ssc", "homa", "supeps"),                       # shape.completion.METHODS
@@ -958,11 +1022,19 @@ def _InRaw(raw, path: str) -> bool:
     written in the raw YAML map ``raw``."""
     node = raw
     for part in path.split("."):
+        m = re.fullmatch(r"(.*)\[(\d+)\]", part)      # a list item: key[i]
+        key, index = (m.group(1), int(m.group(2))) if m else (part, None)
         if not isinstance(node, dict):
             return True
-        if part not in node:
+        if key not in node:
             return False
-        node = node[part]
+        node = node[key]
+        if index is not None:
+            if not isinstance(node, list):
+                return True
+            if index >= len(node):
+                return False
+            node = node[index]
     return True
 
 
@@ -1107,6 +1179,13 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
             fail(err.key, err.detail)
     need(not fr.mesh_file or ps.kind == "procedural", "plant_scene.fruit.mesh_file",
          "needs plant_scene.kind: procedural")
+    if ps.kind == "multi":
+        from lmap_drake.plants.multi import ValidateMultiConfig
+        from lmap_drake.plants.generator import PlantGenerationError
+        try:
+            ValidateMultiConfig(ps)
+        except PlantGenerationError as err:
+            fail(err.key, err.detail)
     need(s.shape.weights_file or s.shape.method == "supeps", "shape.weights_file",
          "is empty; the ssc and homa methods need the DeepSDF weights")
     fams = list(s.planner.action_families)   # deformation.action.FAMILIES

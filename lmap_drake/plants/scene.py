@@ -18,9 +18,10 @@ from lmap_drake.scenario import PlantSceneConfig
 
 def RegisterLabeledGeometry(plant: MultibodyPlant, body: RigidBody, X_BG: RigidTransform,
                             shape: Shape, name: str, rgba: Rgba, label: int,
-                            collision: bool = True, friction: float = 0.8) -> None:
+                            collision: bool = True, friction: float = 0.8):
     """Registers visual (illustration + perception with ``label``) and,
-    optionally, collision geometry for ``body``."""
+    optionally, collision geometry for ``body``; returns the collision
+    geometry's id (None without)."""
     gi = GeometryInstance(X_BG, shape, name)
     ill = IllustrationProperties()
     ill.AddProperty("phong", "diffuse", rgba)
@@ -31,8 +32,9 @@ def RegisterLabeledGeometry(plant: MultibodyPlant, body: RigidBody, X_BG: RigidT
     gi.set_perception_properties(per)
     plant.RegisterVisualGeometry(body, gi)
     if collision:
-        plant.RegisterCollisionGeometry(body, X_BG, shape, name + "_collision",
-                                        CoulombFriction(friction, friction))
+        return plant.RegisterCollisionGeometry(body, X_BG, shape, name + "_collision",
+                                               CoulombFriction(friction, friction))
+    return None
 
 
 def AddPlaceholderPlant(plant: MultibodyPlant, cfg: PlantSceneConfig) -> dict:
@@ -168,3 +170,119 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
                                                     GeometrySet(branch_gids)))
     return {"branch_body": branch_body, "leaf_body_id": leaf_id,
             "leaf_geometry_id": leaf_gid, "fruit_geometry_ids": fruit_ids}
+
+
+# --- multi-fruit plant (kind: multi) ----------------------------------------
+
+def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
+    """Registers one FEM leaf (rest mesh ``rest_W`` (N, 3) world, m) fixed to
+    the world at its ``fixed`` vertices (none: a free leaf); returns (body
+    id, geometry id)."""
+    from pydrake.geometry import AddContactMaterial, Sphere
+    from pydrake.multibody.fem import DeformableBodyConfig
+
+    from lmap_drake.plants.leaf import TetMeshToVtk
+    vtk = InMemoryMesh()
+    vtk.mesh_file = MemoryFile(TetMeshToVtk(rest_W, tets), ".vtk", name + ".vtk")
+    gi = GeometryInstance(RigidTransform(), Mesh(vtk), name)
+    prox = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(0.8, 0.8), properties=prox)
+    gi.set_proximity_properties(prox)
+    ill = IllustrationProperties()
+    ill.AddProperty("phong", "diffuse", leaf_cfg.color)
+    gi.set_illustration_properties(ill)
+    per = PerceptionProperties()
+    per.AddProperty("phong", "diffuse", leaf_cfg.color)
+    per.AddProperty("label", "id", RenderLabel(label))
+    gi.set_perception_properties(per)
+    body_cfg = DeformableBodyConfig()
+    body_cfg.set_youngs_modulus(leaf_cfg.youngs_modulus)
+    body_cfg.set_poissons_ratio(leaf_cfg.poissons_ratio)
+    body_cfg.set_mass_density(leaf_cfg.mass_density)
+    body_cfg.set_stiffness_damping_coefficient(leaf_cfg.stiffness_damping)
+    body_cfg.set_mass_damping_coefficient(leaf_cfg.mass_damping)
+    dm = plant.mutable_deformable_model()
+    body_id = dm.RegisterDeformableBody(gi, body_cfg, 1.0)
+    pts = rest_W[fixed]
+    if len(pts):
+        center = pts.mean(axis=0)
+        radius = float(np.linalg.norm(pts - center, axis=1).max()) + 2e-4
+        dm.AddFixedConstraint(body_id, plant.world_body(), RigidTransform(), Sphere(radius),
+                              RigidTransform(center))
+    return body_id, dm.GetGeometryId(body_id)
+
+
+def AddMultiPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConfig,
+                  with_leaves: bool = True) -> dict:
+    """Adds a ``MultiPlantModel`` to ``plant``: every stem/shoot as rigid
+    cylinders welded to the world (label ``EncodeLabel(BRANCH, b)``, b the
+    branch index: 0 the stem, i + 1 fruit i's shoot; a fruit's stalk carries
+    its shoot's label), every fruit welded to the world (``EncodeLabel(FRUIT,
+    i)``, collision geometry ``fruit_<i>_collision``) and every leaf as its
+    own FEM body ``leaf_<j>`` (``EncodeLabel(LEAF, j)``) fixed at its
+    petiole base. Leaves collide with the gripper, fruits, branches (not with
+    the shoot their petiole sits on) and, unless
+    ``cfg.multi.leaf_leaf_contact`` is false, with each other.
+
+    Returns handles: ``branch_geometry_ids`` (per branch), ``leaf_body_ids``,
+    ``leaf_geometry_ids``, ``fruit_geometry_ids`` (per fruit)."""
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
+    from pydrake.multibody.tree import SpatialInertia
+
+    world = plant.world_body()
+    instance = plant.AddModelInstance("plant_world")
+    body = plant.AddRigidBody("branch", instance, SpatialInertia.SolidCylinderWithMass(
+        0.05, cfg.branch.radius, cfg.branch.length, [0, 0, 1]))
+    plant.WeldFrames(plant.world_frame(), body.body_frame(), RigidTransform())
+    branch_gids = []
+    for b, br in enumerate(model.branches):
+        gids = []
+        pts = br.points_W
+        for k in range(len(pts) - 1):
+            X, length = _CylinderBetween(pts[k], pts[k + 1])
+            # Shoots reach a little into the stem (no visible seam).
+            length += br.radius if b > 0 else 0.0
+            gids.append(RegisterLabeledGeometry(
+                plant, body, X, Cylinder(br.radius, length), f"{br.name}_{k}", cfg.branch.color,
+                EncodeLabel(BRANCH, b)))
+        branch_gids.append(gids)
+    fruit_ids = []
+    for i, f in enumerate(model.fruits):
+        X, length = _CylinderBetween(*f.stalk_W)
+        RegisterLabeledGeometry(plant, body, X, Cylinder(f.stalk_radius, length + 0.004),
+                                f"stalk_{i}", cfg.branch.color, EncodeLabel(BRANCH, f.shoot),
+                                collision=False)
+        if f.peduncle_mesh_W is not None:
+            RegisterLabeledGeometry(plant, body, RigidTransform(),
+                                    _ObjMesh(f.peduncle_mesh_W, f"peduncle_{i}"),
+                                    f"peduncle_{i}", cfg.branch.color,
+                                    EncodeLabel(BRANCH, f.shoot), collision=False)
+        stripes = f.stripe_faces
+        parts = [(f.mesh_W.submesh([~stripes], append=True) if stripes.any() else f.mesh_W,
+                  f.color, f"fruit_{i}")]
+        if stripes.any():
+            parts.append((f.mesh_W.submesh([stripes], append=True), f.stripe_color,
+                          f"fruit_{i}_stripes"))
+        for mesh, color, name in parts:
+            RegisterLabeledGeometry(plant, world, RigidTransform(), _ObjMesh(mesh, name), name,
+                                    color, EncodeLabel(FRUIT, i), collision=False)
+        fruit_ids.append(plant.RegisterCollisionGeometry(
+            world, RigidTransform(), _ObjMesh(f.mesh_W, f"fruit_{i}_collision"),
+            f"fruit_{i}_collision", CoulombFriction(0.5, 0.5)))
+    handles = {"branch_body": body, "branch_geometry_ids": branch_gids,
+               "fruit_geometry_ids": fruit_ids, "leaf_body_ids": [], "leaf_geometry_ids": []}
+    if not with_leaves:
+        return handles
+    cfm = scene_graph.collision_filter_manager()
+    for j, leaf in enumerate(model.leaves):
+        bid, gid = AddFemLeaf(plant, f"leaf_{j}", leaf.rest_W, leaf.tets, leaf.fixed, cfg.leaf,
+                               EncodeLabel(LEAF, j))
+        handles["leaf_body_ids"].append(bid)
+        handles["leaf_geometry_ids"].append(gid)
+        # The petiole base lies inside its own shoot (or the stem).
+        cfm.Apply(CollisionFilterDeclaration().ExcludeBetween(
+            GeometrySet(gid), GeometrySet(branch_gids[leaf.shoot])))
+    if not cfg.multi.leaf_leaf_contact:
+        cfm.Apply(CollisionFilterDeclaration().ExcludeWithin(
+            GeometrySet(handles["leaf_geometry_ids"])))
+    return handles

@@ -40,21 +40,26 @@ def _Kabsch(P: np.ndarray, Q: np.ndarray) -> RigidTransform:
     return RigidTransform(RotationMatrix(R), cq - R @ cp)
 
 
-def UnoccludedFruitPixels(scenario: Scenario) -> int:
+def UnoccludedFruitPixels(scenario: Scenario, fruit: int | None = None) -> int:
     """camera0's fruit pixel count with the leaf and robot removed (fruit and
-    branch only): the denominator of the visibility fraction."""
+    branch only): the denominator of the visibility fraction. ``kind:
+    multi``: the pixels of fruit instance ``fruit`` (None: all fruits)."""
     from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams
     from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.sensors import RgbdSensor
 
     from lmap_drake.labels import FRUIT, DecodeLabels
-    from lmap_drake.plants.scene import AddProceduralPlant
+    from lmap_drake.plants.scene import AddMultiPlant, AddProceduralPlant
 
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-    AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
-                       with_leaf=False)
+    if scenario.plant_scene.kind == "multi":
+        AddMultiPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
+                      with_leaves=False)
+    else:
+        AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
+                           with_leaf=False)
     plant.Finalize()
     cam = scenario.cameras["camera0"]
     sg.AddRenderer(cam.renderer_name, MakeRenderEngineVtk(RenderEngineVtkParams()))
@@ -65,18 +70,41 @@ def UnoccludedFruitPixels(scenario: Scenario) -> int:
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
     label = sensor.label_image_output_port().Eval(sensor.GetMyContextFromRoot(ctx))
-    cls, _ = DecodeLabels(label.data)
-    return int((cls == FRUIT).sum())
+    cls, inst = DecodeLabels(label.data)
+    mask = cls == FRUIT
+    if fruit is not None:
+        mask &= inst == fruit
+    return int(mask.sum())
 
 
 @dc.dataclass
 class GraspState:
     grasp: LeafGrasp
-    vertices: np.ndarray  # leaf vertex indices held by the gripper
+    vertices: np.ndarray  # leaf vertex indices held by the gripper (of leaf grasp.leaf)
+
+
+@dc.dataclass
+class _LeafRef:
+    """One leaf's reference mesh (world, m) as the sim needs it."""
+    rest_W: np.ndarray
+    tets: np.ndarray
+    uv: np.ndarray
+    fixed: np.ndarray
+
+
+def _LeafRefs(model) -> list[_LeafRef]:
+    if hasattr(model, "leaves"):     # MultiPlantModel
+        return [_LeafRef(x.rest_W, x.tets, x.uv, x.fixed) for x in model.leaves]
+    return [_LeafRef(model.leaf_rest_W, model.leaf_tets, model.leaf_uv, model.leaf_fixed)]
 
 
 class PlantWorldSim:
     """Simulated UR5 + FEM-leaf plant, driven through the station's ports.
+
+    ``plant_scene.kind: procedural`` (one leaf, ``model`` a ``PlantModel``)
+    or ``multi`` (leaves ``leaf_0`` ... , ``model`` a ``MultiPlantModel``;
+    ``LeafVertices(j)``, ``Visibility(fruit=i)``; the outcome measures take
+    the worst leaf and fruit).
 
     ``progress`` receives short status strings. Times in seconds, joint
     angles in radians, openings in metres."""
@@ -86,8 +114,9 @@ class PlantWorldSim:
         """``make_diagram(scenario, meshcat, leaf_grasp) -> (root, station)``
         builds the simulated Diagram (default: the station alone, driven
         through its input ports by this object)."""
-        if scenario.plant_scene.kind != "procedural":
-            raise ValueError("PlantWorldSim needs plant_scene.kind: procedural")
+        if scenario.plant_scene.kind not in ("procedural", "multi"):
+            raise ValueError("PlantWorldSim needs plant_scene.kind: procedural or multi")
+        self.multi = scenario.plant_scene.kind == "multi"
         self.scenario = scenario
         self.meshcat = meshcat
         self._make_diagram = make_diagram
@@ -100,13 +129,21 @@ class PlantWorldSim:
         self.width_cmd = float(scenario.robot.initial_gripper_width)
         self.samples: list[OutcomeSample] = []
         self.grasp_state: GraspState | None = None
-        self._unoccluded: int | None = None
+        self._unoccluded: dict = {}
+        self.leaf_refs = _LeafRefs(self.model)
         # The petiole's force is read one ring of tets away from the fixed
         # vertices (the ring that touches them is a stress singularity).
-        tets = self.model.leaf_tets
-        ring1 = ConstrainedTetMask(tets, np.flatnonzero(self.model.leaf_fixed))
-        self._petiole_tets = ConstrainedTetMask(tets, np.unique(tets[ring1])) & ~ring1
+        self._petiole_tets_of = []
+        for ref in self.leaf_refs:
+            ring1 = ConstrainedTetMask(ref.tets, np.flatnonzero(ref.fixed))
+            self._petiole_tets_of.append(
+                ConstrainedTetMask(ref.tets, np.unique(ref.tets[ring1])) & ~ring1)
+        self._petiole_tets = self._petiole_tets_of[0]
         self._build(None, None)
+
+    @property
+    def num_leaves(self) -> int:
+        return len(self.leaf_refs)
 
     # --- building and state carry-over ----------------------------------
     def _build(self, grasp: LeafGrasp | None, old_context) -> None:
@@ -123,7 +160,9 @@ class PlantWorldSim:
         self.plant = self.station.GetSubsystemByName("plant")
         self.scene_graph = self.station.GetSubsystemByName("scene_graph")
         self.deformable = self.plant.deformable_model()
-        self.leaf_id = self.deformable.GetBodyByName("leaf").body_id()
+        names = [f"leaf_{j}" for j in range(len(self.leaf_refs))] if self.multi else ["leaf"]
+        self.leaf_ids = [self.deformable.GetBodyByName(n).body_id() for n in names]
+        self.leaf_id = self.leaf_ids[0]
         self.ApplyCommands()
         self.simulator.Initialize()
 
@@ -165,9 +204,10 @@ class PlantWorldSim:
         return self.context.get_time()
 
     # --- reading the world ------------------------------------------------
-    def LeafVertices(self) -> np.ndarray:
-        """Current leaf vertex positions (N, 3), world frame."""
-        return self.deformable.GetPositions(self.plant_context, self.leaf_id).T.copy()
+    def LeafVertices(self, leaf: int = 0) -> np.ndarray:
+        """Current vertex positions (N, 3), world frame, of leaf ``leaf`` (the
+        only one of a procedural plant)."""
+        return self.deformable.GetPositions(self.plant_context, self.leaf_ids[leaf]).T.copy()
 
     def q(self) -> np.ndarray:
         return self.station.GetOutputPort("ur5.position_measured").Eval(self.station_context).copy()
@@ -195,35 +235,58 @@ class PlantWorldSim:
             out[name] = copy_
         return out
 
-    def Visibility(self, label=None) -> float:
+    def Visibility(self, label=None, fruit: int | None = None) -> float:
         """The fruit's visible fraction in camera0 now, or in ``label`` (a
-        label image or array, e.g. a captured view's)."""
-        if self._unoccluded is None:
-            self._unoccluded = UnoccludedFruitPixels(self.scenario)
+        label image or array, e.g. a captured view's). ``kind: multi``:
+        fruit instance ``fruit`` (default 0)."""
+        if self.multi and fruit is None:
+            fruit = 0
+        if fruit not in self._unoccluded:
+            self._unoccluded[fruit] = UnoccludedFruitPixels(self.scenario, fruit)
         if label is None:
             label = self.station.GetOutputPort("camera0.label_image").Eval(self.station_context)
-        return VisibilityFraction(label, self._unoccluded)
+        if fruit is None:
+            return VisibilityFraction(label, self._unoccluded[fruit])
+        from lmap_drake.labels import FRUIT, EncodeLabel
+        lab = np.asarray(label.data if hasattr(label, "data") else label).reshape(-1)
+        return float(min(1.0, (lab == EncodeLabel(FRUIT, fruit)).sum() /
+                         max(self._unoccluded[fruit], 1)))
 
     def Sample(self) -> OutcomeSample:
         """Ground-truth measures now (see ``OutcomeConfig``)."""
         cfg = self.scenario.plant_scene
-        V = self.LeafVertices()
-        rest, tets = self.model.leaf_rest_W, self.model.leaf_tets
-        constrained = np.flatnonzero(self.model.leaf_fixed)
-        if self.grasp_state is not None:
-            constrained = np.union1d(constrained, self.grasp_state.vertices)
-        strain = StrainPercentile(rest, V, tets, ConstrainedTetMask(tets, constrained),
-                                  cfg.outcome.strain_percentile)
-        force = PetioleForce(rest, V, tets, self._petiole_tets, cfg.leaf.youngs_modulus,
-                             cfg.leaf.petiole_width * cfg.leaf.thickness)
-        pen = max(0.0, -float(MeshSignedDistance(self.model.fruit_mesh_W, V).min()))
+        strain = force = pen = 0.0
+        Vs = []
+        for j, ref in enumerate(self.leaf_refs):
+            V = self.LeafVertices(j)
+            constrained = np.flatnonzero(ref.fixed)
+            if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
+                constrained = np.union1d(constrained, self.grasp_state.vertices)
+            strain = max(strain, StrainPercentile(
+                ref.rest_W, V, ref.tets, ConstrainedTetMask(ref.tets, constrained),
+                cfg.outcome.strain_percentile))
+            force = max(force, PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
+                                            cfg.leaf.youngs_modulus,
+                                            cfg.leaf.petiole_width * cfg.leaf.thickness))
+            Vs.append(V)
+        if self.multi:      # one ray-casting scene of every fruit, built once
+            if getattr(self, "_fruits_sdf", None) is None:
+                from lmap_drake.plants.multi import _o3d_scene
+                self._fruits_sdf = _o3d_scene([f.mesh_W for f in self.model.fruits])
+            import open3d as o3d
+            d = self._fruits_sdf.compute_signed_distance(
+                o3d.core.Tensor(np.vstack(Vs).astype(np.float32))).numpy()
+            pen = max(pen, -float(d.min()))
+        else:
+            pen = max(pen, -float(MeshSignedDistance(self.model.fruit_mesh_W, Vs[0]).min()))
         pen = max(pen, self._RobotFruitPenetration())
         return OutcomeSample(strain, force, pen, self._FruitContactForce())
 
     def _fruit_ids(self) -> set:
         inspector = self.scene_graph.model_inspector()
         return {g for g in inspector.GetAllGeometryIds()
-                if inspector.GetName(g).endswith("fruit_collision")}
+                if inspector.GetName(g).endswith("_collision")
+                and inspector.GetName(g).split("::")[-1].startswith("fruit")}
 
     def _RobotFruitPenetration(self) -> float:
         query = self.scene_graph.get_query_output_port().Eval(
@@ -319,20 +382,26 @@ class PlantWorldSim:
         X_WG = self.X_WG()
         X_GT = X_WG.inverse() @ self.X_WT()
         pad = np.array([0.022, max(width, 0.001) + 0.004, 0.038])
-        V = self.LeafVertices()
-        p_G = (X_WG.inverse().GetAsMatrix4() @ np.c_[V, np.ones(len(V))].T).T[:, :3]
-        rel = np.abs(p_G - X_GT.translation())
-        inside = np.flatnonzero(np.all(rel <= pad / 2, axis=1))
+        best = (np.zeros(0, int), 0, None)
+        for j in range(len(self.leaf_refs)):     # the leaf with most vertices between the pads
+            V = self.LeafVertices(j)
+            p_G = (X_WG.inverse().GetAsMatrix4() @ np.c_[V, np.ones(len(V))].T).T[:, :3]
+            rel = np.abs(p_G - X_GT.translation())
+            inside = np.flatnonzero(np.all(rel <= pad / 2, axis=1))
+            if len(inside) > len(best[0]):
+                best = (inside, j, V)
+        inside, leaf, V = best
         if len(inside) < 3:
             raise RuntimeError(f"grasp failed: {len(inside)} leaf vertices between the pads "
                                f"(opening {width * 1000:.1f} mm)")
-        T = _Kabsch(self.model.leaf_rest_W[inside], V[inside])
-        grasp = LeafGrasp(X_GA=X_WG.inverse() @ T, p_GR=X_GT.translation(), size=pad)
+        T = _Kabsch(self.leaf_refs[leaf].rest_W[inside], V[inside])
+        grasp = LeafGrasp(X_GA=X_WG.inverse() @ T, p_GR=X_GT.translation(), size=pad,
+                          leaf=leaf)
         old_simulator = self.simulator  # keep the old context alive while copying
         self._build(grasp, self.context)
         del old_simulator
         self.grasp_state = GraspState(grasp, inside)
-        self.progress(f"grasped {len(inside)} leaf vertices")
+        self.progress(f"grasped {len(inside)} leaf vertices" + (f" (leaf {leaf})" if self.multi else ""))
         return self.grasp_state
 
     def Fork(self) -> "PlantWorldSim":
@@ -354,28 +423,34 @@ class PlantWorldSim:
         self.grasp_state = None
 
 
-def LeafPoint(world: PlantWorldSim, u: float, v: float) -> tuple[int, np.ndarray]:
-    """Index and current position of the leaf mid-surface vertex nearest to
-    leaf coordinates (u, v)."""
-    uv = world.model.leaf_uv
+def LeafPoint(world: PlantWorldSim, u: float, v: float, leaf: int = 0) -> tuple[int, np.ndarray]:
+    """Index and current position of the mid-surface vertex of leaf ``leaf``
+    nearest to leaf coordinates (u, v)."""
+    uv = world.leaf_refs[leaf].uv
     n = len(uv) // 3
     idx = int(np.argmin(np.linalg.norm(uv[n:2 * n] - [u, v], axis=1))) + n
-    return idx, world.LeafVertices()[idx]
+    return idx, world.LeafVertices(leaf)[idx]
 
 
-def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float) -> RigidTransform:
+def _LeafNormal(world: PlantWorldSim, leaf: int) -> np.ndarray:
+    """Rest blade normal (toward the camera) of leaf ``leaf``."""
+    return world.model.leaves[leaf].normal_W if world.multi else world.model.leaf_normal_W
+
+
+def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float,
+                 leaf: int = 0) -> RigidTransform:
     """``X_WT`` for a grasp ``from_tip`` (m) from the blade tip, ``v`` (m) to
     the side of the midrib: pads closing across the blade (TCP y = current
     blade normal), approaching within the blade plane along the direction
     from the robot's shoulder to the grasp point (the natural reach)."""
     length = world.scenario.plant_scene.leaf.length
     u = length - from_tip
-    _, p = LeafPoint(world, u, v)
-    _, p_a = LeafPoint(world, u - 0.02, v)
-    _, p_b = LeafPoint(world, u - 0.01, v + 0.01)
+    _, p = LeafPoint(world, u, v, leaf)
+    _, p_a = LeafPoint(world, u - 0.02, v, leaf)
+    _, p_b = LeafPoint(world, u - 0.01, v + 0.01, leaf)
     n = np.cross(p_a - p, p_b - p)
     n /= np.linalg.norm(n)
-    if n @ world.model.leaf_normal_W < 0:
+    if n @ _LeafNormal(world, leaf) < 0:
         n = -n
     p_shoulder = world.X_WB.multiply(np.array([0.0, 0.0, 0.089159]))
     z = p - p_shoulder
@@ -385,14 +460,14 @@ def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float) -> RigidTransf
     return RigidTransform(RotationMatrix(np.c_[x, n, z]), p)
 
 
-def ApproachAndGrasp(world: PlantWorldSim, pull) -> RigidTransform:
-    """Moves to the pre-grasp pose, approaches, closes on the leaf and builds
-    the grasp (``pull`` is a ``ScriptedPullConfig``). Returns the grasp
-    ``X_WT``."""
+def ApproachAndGrasp(world: PlantWorldSim, pull, leaf: int = 0) -> RigidTransform:
+    """Moves to the pre-grasp pose, approaches, closes on leaf ``leaf`` and
+    builds the grasp (``pull`` is a ``ScriptedPullConfig``). Returns the
+    grasp ``X_WT``."""
     from lmap_drake.planning.motion import PlanApproach
-    X_WT_grasp = TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v)
+    X_WT_grasp = TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v, leaf)
     world.progress("planning the approach (IK)")
-    plan = PlanApproach(world.robot, X_WT_grasp, world.q_cmd, world.model.leaf_normal_W,
+    plan = PlanApproach(world.robot, X_WT_grasp, world.q_cmd, _LeafNormal(world, leaf),
                         pull.pregrasp_distance, pull.pregrasp_opening)
     world.progress("moving to the pre-grasp pose")
     world.SetGripper(pull.pregrasp_opening, 0.0)

@@ -42,6 +42,30 @@ def _fruit(spec: dict) -> FruitConfig:
     return f
 
 
+def _PlantSceneYaml(cfg: PlantSceneConfig) -> str:
+    """``cfg`` as YAML, only what differs from the defaults (a multi plant's
+    fruits each against ``MultiFruitConfig()``: Drake's loader builds list
+    items from their type's defaults)."""
+    if cfg.kind != "multi":
+        return yaml_dump_typed(cfg, schema=PlantSceneConfig, defaults=PlantSceneConfig())
+    import copy
+
+    import yaml
+
+    from lmap_drake.scenario import MultiFruitConfig
+    plain = copy.deepcopy(cfg)
+    plain.multi.fruits = PlantSceneConfig().multi.fruits
+    data = yaml.safe_load(yaml_dump_typed(plain, schema=PlantSceneConfig,
+                                          defaults=PlantSceneConfig())) or {}
+    if yaml_dump_typed(cfg, schema=PlantSceneConfig) != yaml_dump_typed(plain,
+                                                                       schema=PlantSceneConfig):
+        data.setdefault("multi", {})["fruits"] = [
+            yaml.safe_load(yaml_dump_typed(f, schema=MultiFruitConfig,
+                                           defaults=MultiFruitConfig())) or {}
+            for f in cfg.multi.fruits]
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=96)
+
+
 def PaperSuite() -> dict[str, PlantSceneConfig]:
     """The 12 named paper-like plant scenes."""
     out = {}
@@ -117,7 +141,57 @@ def SuiteYaml(suite: dict[str, PlantSceneConfig], header: str = "") -> str:
     """A scenario file: one named scenario per plant scene."""
     lines = [header] if header else []
     for name, cfg in suite.items():
-        body = yaml_dump_typed(cfg, schema=PlantSceneConfig, defaults=PlantSceneConfig())
+        body = _PlantSceneYaml(cfg)
         lines.append(f"{name}:\n  plant_scene:\n" + "".join(
             f"    {line}\n" for line in body.splitlines()))
     return "\n".join(lines)
+
+
+# --- multi-fruit plants (plant_scene.kind: multi) ----------------------------
+
+def _multi_fruit(height, side, occlusion, leaves, pepper="round_red", size=None, **fruit):
+    from lmap_drake.scenario import MultiFruitConfig
+    f = MultiFruitConfig(height=height, side=side, occlusion=occlusion, num_leaves=leaves)
+    f.fruit = _fruit(PEPPERS[pepper])
+    if size is not None:
+        f.fruit.size = list(size)
+    for k, v in fruit.items():
+        setattr(f.fruit, k, v)
+    return f
+
+
+def MultiSuite() -> dict[str, PlantSceneConfig]:
+    """Named multi-fruit plant scenes (2-4 fruits, 2-6 leaves; some fruits
+    under two leaves), at the default plant position."""
+    small = (0.06, 0.06, 0.07)
+    scenes = {
+        "three_fruits_default": dict(),
+        "two_fruits_two_leaves_heavy": dict(num_leaves=3, fruits=[
+            _multi_fruit(0.15, 1.0, 0.85, 2, "round_red"),
+            _multi_fruit(0.28, -1.0, 0.5, 1, "round_yellow", size=(0.065, 0.06, 0.075))]),
+        "two_fruits_both_double": dict(num_leaves=5, fruits=[
+            _multi_fruit(0.14, -1.0, 0.75, 2, "striped_red"),
+            _multi_fruit(0.27, 1.0, 0.8, 2, "round_red", size=(0.065, 0.065, 0.075))]),
+        "three_fruits_partial": dict(num_leaves=3, fruits=[
+            _multi_fruit(0.13, 1.0, 0.45, 1, "round_yellow", size=(0.065, 0.06, 0.075)),
+            _multi_fruit(0.24, -1.0, 0.55, 1, "round_red", size=small),
+            _multi_fruit(0.35, 1.0, 0.0, 0, "striped_red", size=(0.055, 0.055, 0.085))]),
+        "four_fruits": dict(num_leaves=4, fruits=[
+            _multi_fruit(0.11, 1.0, 0.7, 1, "round_red", size=small),
+            _multi_fruit(0.19, -1.0, 0.6, 1, "round_yellow", size=small),
+            _multi_fruit(0.28, 1.0, 0.5, 1, "striped_red", size=(0.055, 0.055, 0.075)),
+            _multi_fruit(0.37, -1.0, 0.0, 0, "round_red", size=small)]),
+        "four_fruits_six_leaves": dict(num_leaves=6, fruits=[
+            _multi_fruit(0.11, -1.0, 0.85, 2, "round_red", size=small),
+            _multi_fruit(0.19, 1.0, 0.6, 1, "round_yellow", size=small),
+            _multi_fruit(0.28, -1.0, 0.65, 1, "round_red", size=small),
+            _multi_fruit(0.37, 1.0, 0.5, 1, "striped_red", size=(0.055, 0.055, 0.075))]),
+    }
+    out = {}
+    for name, spec in scenes.items():
+        cfg = PlantSceneConfig(kind="multi")
+        cfg.name = name
+        for k, v in spec.items():
+            setattr(cfg.multi, k, v)
+        out[name] = cfg
+    return out

@@ -22,10 +22,11 @@ class LeafGrasp:
     reference positions, placed by ``X_GA`` (pose of the leaf's reference
     mesh, i.e. of W at the reference, in the gripper-base frame G), fall in
     the box ``size`` (m) centred at ``p_GR`` (between the pads) are fixed to
-    the gripper base."""
+    the gripper base. ``leaf``: which leaf (``kind: multi``; 0 otherwise)."""
     X_GA: RigidTransform
     p_GR: np.ndarray
     size: np.ndarray
+    leaf: int = 0
 
 
 @functools.lru_cache(maxsize=8)
@@ -37,26 +38,46 @@ def _CachedPlantModel(plant_scene_yaml: str, p_WC: tuple):
     return GeneratePlant(cfg, np.array(p_WC))
 
 
+@functools.lru_cache(maxsize=8)
+def _CachedMultiPlantModel(plant_scene_yaml: str, p_WC: tuple):
+    from pydrake.common.yaml import yaml_load_typed
+    from lmap_drake.plants.multi import GenerateMultiPlant
+    from lmap_drake.scenario import PlantSceneConfig
+    cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
+    return GenerateMultiPlant(cfg, np.array(p_WC))
+
+
 def GetPlantModel(scenario: Scenario):
-    """The generated plant (``PlantModel``) of a procedural scenario; cached,
-    deterministic in the scenario."""
+    """The generated plant of a procedural scenario (``PlantModel``) or of a
+    ``kind: multi`` one (``MultiPlantModel``); cached, deterministic in the
+    scenario."""
     from pydrake.common.yaml import yaml_dump_typed
     from lmap_drake.scenario import PlantSceneConfig
-    if scenario.plant_scene.kind != "procedural":
-        raise ValueError("GetPlantModel needs plant_scene.kind: procedural")
+    kind = scenario.plant_scene.kind
+    if kind not in ("procedural", "multi"):
+        raise ValueError("GetPlantModel needs plant_scene.kind: procedural or multi")
     p_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().translation()
-    return _CachedPlantModel(yaml_dump_typed(scenario.plant_scene, schema=PlantSceneConfig),
-                             tuple(float(x) for x in p_WC))
+    cached = _CachedPlantModel if kind == "procedural" else _CachedMultiPlantModel
+    return cached(yaml_dump_typed(scenario.plant_scene, schema=PlantSceneConfig),
+                  tuple(float(x) for x in p_WC))
 
 
 def PlantWorldAdder(scenario: Scenario, leaf_grasp: LeafGrasp | None = None):
     """``add_world(plant, scene_graph)`` for ``MakeStation``: the procedural
     plant (FEM leaf; with ``leaf_grasp`` the grasped leaf region fixed to the
     gripper base) or the rigid placeholder plant."""
-    from lmap_drake.plants.scene import AddPlaceholderPlant, AddProceduralPlant
+    from lmap_drake.plants.scene import AddMultiPlant, AddPlaceholderPlant, AddProceduralPlant
 
     def add(plant, scene_graph) -> None:
-        if scenario.plant_scene.kind == "procedural":
+        if scenario.plant_scene.kind == "multi":
+            handles = AddMultiPlant(plant, scene_graph, GetPlantModel(scenario),
+                                    scenario.plant_scene)
+            if leaf_grasp is not None:
+                from pydrake.geometry import Box
+                plant.mutable_deformable_model().AddFixedConstraint(
+                    handles["leaf_body_ids"][leaf_grasp.leaf], plant.GetBodyByName("robotiq_base"),
+                    leaf_grasp.X_GA, Box(*leaf_grasp.size), RigidTransform(leaf_grasp.p_GR))
+        elif scenario.plant_scene.kind == "procedural":
             handles = AddProceduralPlant(plant, scene_graph, GetPlantModel(scenario),
                                          scenario.plant_scene)
             if leaf_grasp is not None:
@@ -66,7 +87,7 @@ def PlantWorldAdder(scenario: Scenario, leaf_grasp: LeafGrasp | None = None):
                     leaf_grasp.X_GA, Box(*leaf_grasp.size), RigidTransform(leaf_grasp.p_GR))
         else:
             if leaf_grasp is not None:
-                raise ValueError("a leaf grasp needs plant_scene.kind: procedural")
+                raise ValueError("a leaf grasp needs plant_scene.kind: procedural or multi")
             AddPlaceholderPlant(plant, scenario.plant_scene)
     return add
 

@@ -1,0 +1,167 @@
+"""The multi-fruit plant generator (``plant_scene.kind: multi``), without a
+Diagram: determinism, counts, per-fruit occlusion, leaves apart at rest,
+ground truth and config errors naming the key."""
+import json
+
+import numpy as np
+import pytest
+
+from lmap_drake.plants.generator import MeshSignedDistance, PlantGenerationError
+from lmap_drake.plants.multi import (MultiConfigError, GenerateMultiPlant, LeafLeafGap,
+                                     SaveMultiGroundTruth, BranchClearance, _FruitView,
+                                     OCCLUSION_TOLERANCE)
+from lmap_drake.scenario import (LoadScenario, MultiFruitConfig, PlantSceneConfig,
+                                 ScenarioError)
+
+P_WC = np.array([0.5, -0.6, 0.47])
+
+
+@pytest.fixture(scope="module")
+def default_plant():
+    return GenerateMultiPlant(PlantSceneConfig(kind="multi"), P_WC)
+
+
+def _cfg(fruits=None, **multi):
+    cfg = PlantSceneConfig(kind="multi")
+    if fruits is not None:
+        cfg.multi.fruits = fruits
+    for k, v in multi.items():
+        setattr(cfg.multi, k, v)
+    return cfg
+
+
+def test_counts_and_structure(default_plant):
+    m = default_plant
+    cfg = PlantSceneConfig(kind="multi").multi
+    assert len(m.fruits) == len(cfg.fruits) == 3
+    assert len(m.leaves) == cfg.num_leaves == 4
+    assert len(m.branches) == 1 + len(m.fruits)          # stem + one shoot per fruit
+    for i, (f, fc) in enumerate(zip(m.fruits, cfg.fruits)):
+        assert f.shoot == i + 1
+        assert sum(lf.fruit == i for lf in m.leaves) == fc.num_leaves
+        assert f.mesh_W.is_watertight and f.volume > 1e-4
+        np.testing.assert_allclose(f.X_WO[:3, 3], f.center_W)
+        # The stalk ends on the fruit's shoot.
+        assert BranchClearance(f.stalk_W[1:], m.branches[f.shoot]).min() < 0
+    for lf in m.leaves:
+        assert 500 <= len(lf.tets) <= 1500                  # like the single plant's leaf
+        assert lf.fixed.sum() >= 6
+        # The petiole base sits on its own shoot (or the stem).
+        assert BranchClearance(lf.rest_W[lf.fixed], m.branches[lf.shoot]).min() < 0.005
+
+
+def test_deterministic(default_plant):
+    b = GenerateMultiPlant(PlantSceneConfig(kind="multi"), P_WC)
+    for la, lb in zip(default_plant.leaves, b.leaves):
+        np.testing.assert_array_equal(la.rest_W, lb.rest_W)
+    for fa, fb in zip(default_plant.fruits, b.fruits):
+        np.testing.assert_array_equal(fa.mesh_W.vertices, fb.mesh_W.vertices)
+    assert default_plant.GroundTruthDict() == b.GroundTruthDict()
+
+
+def test_per_fruit_occlusion_and_occluders(default_plant):
+    m = default_plant
+    cfg = PlantSceneConfig(kind="multi").multi
+    for i, (f, fc) in enumerate(zip(m.fruits, cfg.fruits)):
+        own = [j for j, lf in enumerate(m.leaves) if lf.fruit == i]
+        if fc.num_leaves:
+            assert f.occlusion_predicted == pytest.approx(fc.occlusion, abs=OCCLUSION_TOLERANCE)
+            assert set(own) <= set(f.occluders)
+    # Independent check of one fruit: a fresh ray cast with every leaf.
+    others = [g.mesh_W for k, g in enumerate(m.fruits) if k != 0]
+    view = _FruitView(m.fruits[0].mesh_W, others, P_WC, n=2000)
+    occ = view.Occlusion([lf.Surface() for lf in m.leaves])
+    assert occ == pytest.approx(m.fruits[0].occlusion_predicted, abs=0.04)
+
+
+def test_two_leaves_over_one_fruit_and_leaves_apart_at_rest(default_plant):
+    m = default_plant
+    assert any(sum(lf.fruit == i for lf in m.leaves) == 2 for i in range(len(m.fruits)))
+    gap = PlantSceneConfig().multi.leaf_gap
+    surfs = [lf.Surface() for lf in m.leaves]
+    for a in range(len(surfs)):
+        for b in range(a + 1, len(surfs)):
+            assert LeafLeafGap(surfs[a], surfs[b]) >= gap - 1e-4
+        for f in m.fruits:
+            assert MeshSignedDistance(f.mesh_W, m.leaves[a].rest_W).min() > 0.003
+
+
+def test_ground_truth_file(default_plant, tmp_path):
+    names = SaveMultiGroundTruth(default_plant, tmp_path)
+    gt = json.loads((tmp_path / "ground_truth.json").read_text())
+    assert len(gt["fruits"]) == 3 and len(gt["leaves"]) == 4
+    assert gt["fruits"][0]["occluders"] == default_plant.fruits[0].occluders
+    assert {"fruit_center_W", "X_WO", "occlusion_predicted", "shoot"} <= set(gt["fruits"][0])
+    assert all((tmp_path / n).exists() for n in names)
+
+
+def test_two_fruits_with_more_free_leaves():
+    f = [MultiFruitConfig(height=0.16, side=1.0, occlusion=0.5, num_leaves=1),
+         MultiFruitConfig(height=0.28, side=-1.0, occlusion=0.7, num_leaves=1)]
+    m = GenerateMultiPlant(_cfg(f, num_leaves=4), P_WC)
+    assert len(m.fruits) == 2 and len(m.leaves) == 4
+    assert sum(lf.fruit == -1 for lf in m.leaves) == 2
+    for fr, fc in zip(m.fruits, f):
+        assert fr.occlusion_predicted == pytest.approx(fc.occlusion, abs=OCCLUSION_TOLERANCE)
+
+
+@pytest.mark.parametrize("text, key", [
+    ("{multi: {num_leaves: 7}}", "plant_scene.multi.num_leaves"),
+    ("{multi: {num_leaves: 2}}", "plant_scene.multi.num_leaves"),   # fewer than the fruits'
+    ("{multi: {fruits: [{height: 0.2}]}}", "plant_scene.multi.fruits"),
+    ("{multi: {fruits: [{height: 0.2}, {height: 0.9}]}}", "plant_scene.multi.fruits[1].height"),
+    ("{multi: {fruits: [{num_leaves: 3}, {height: 0.4}]}}",
+     "plant_scene.multi.fruits[0].num_leaves"),
+    ("{multi: {fruits: [{occlusion: 1.2}, {height: 0.4}]}}",
+     "plant_scene.multi.fruits[0].occlusion"),
+    ("{multi: {fruits: [{side: 0}, {height: 0.4}]}}", "plant_scene.multi.fruits[0].side"),
+    ("{multi: {fruits: [{fruit: {size: [0.07, 0.07]}}, {height: 0.4}]}}",
+     "plant_scene.multi.fruits[0].fruit.size"),
+    ("{multi: {leaf_gap: -0.001}}", "plant_scene.multi.leaf_gap"),
+    ("{multi: {fruits: [{height: .nan}, {height: 0.4}]}}", "plant_scene.multi.fruits[0].height"),
+])
+def test_bad_config_names_the_key(text, key):
+    with pytest.raises(ScenarioError) as err:
+        LoadScenario(scenario_text=f"{{plant_scene: {{kind: multi, {text[1:-1]}}}}}")
+    assert str(err.value).startswith(key + " ")
+
+
+def test_unknown_key_in_a_fruit_is_named():
+    with pytest.raises(ScenarioError) as err:
+        LoadScenario(scenario_text="{plant_scene: {kind: multi, multi: {fruits: "
+                                   "[{height: 0.2}, {fruit: {colr: 1}}]}}}")
+    assert "unknown key(s) plant_scene.multi.fruits[1].fruit.colr in --scenario_text" \
+        in str(err.value)
+
+
+def test_unbuildable_plant_names_the_key():
+    # Two fruits on the same side at almost the same height overlap.
+    f = [MultiFruitConfig(height=0.2, side=1.0, num_leaves=1),
+         MultiFruitConfig(height=0.23, side=1.0, num_leaves=1)]
+    with pytest.raises(MultiConfigError) as err:
+        GenerateMultiPlant(_cfg(f, num_leaves=2), P_WC)
+    assert err.value.key == "plant_scene.multi.fruits[1].height"
+    assert isinstance(err.value, PlantGenerationError)
+
+
+def test_multi_suite_file_is_the_multi_suite():
+    """diagrams/multi_suite.yaml loads and holds MultiSuite() (regenerate it
+    with scripts/make_suite.py --multi); building every scene is left to
+    scripts/render_multi_suite.py (about 5 s each)."""
+    import yaml
+    from pydrake.common.yaml import yaml_dump_typed
+
+    from lmap_drake.paths import DIAGRAMS_DIR
+    from lmap_drake.plants.suite import MultiSuite
+    path = DIAGRAMS_DIR / "multi_suite.yaml"
+    names = list(yaml.safe_load(path.read_text()))
+    suite = MultiSuite()
+    assert names == list(suite) and len(names) >= 6
+    two = 0
+    for name in names:
+        ps = LoadScenario(filename=path, scenario_name=name).plant_scene
+        assert ps.kind == "multi" and 2 <= len(ps.multi.fruits) <= 4
+        assert yaml_dump_typed(ps, schema=PlantSceneConfig) == \
+            yaml_dump_typed(suite[name], schema=PlantSceneConfig)
+        two += any(f.num_leaves == 2 for f in ps.multi.fruits)
+    assert two >= 2
