@@ -73,7 +73,8 @@ def cmd_run(args) -> int:
     t0 = time.time()
     status = "done"
     with folder as out:
-        if args.hardware or scenario.plant_scene.kind == "procedural" and not args.scripted:
+        if args.hardware or (scenario.plant_scene.kind in ("procedural", "multi")
+                             and not args.scripted):
             from lmap_drake.episode import RunLmapEpisode
             files, status = RunLmapEpisode(scenario, out, progress=_stage,
                                            hardware=args.hardware, plan_only=plan_only,

@@ -217,6 +217,9 @@ class SimWorld:
         planner saw, and after the action), shape errors."""
         from lmap_drake.plants.outcome import ShapeErrors, Summarize
         sim = self.sim
+        if getattr(sim, "multi", False):
+            self._ScoreMulti(record, views, st)
+            return
         if views and views[0].label is not None:     # what the planner saw
             self.vis_initial = sim.Visibility(views[0].label)
         if len(views) >= 2 and views[-1].label is not None:   # after the last motion
@@ -238,6 +241,68 @@ class SimWorld:
         record["plant"] = {"occlusion_requested": self.model.occlusion_requested,
                            "occlusion_predicted": self.model.occlusion_predicted,
                            "occlusion_clamped": self.model.occlusion_clamped}
+        record["simulated_seconds"] = sim.time
+
+
+    def _ScoreMulti(self, record: dict, views, st) -> None:
+        """Several fruits: the plant-level outcome over the whole episode
+        (every grasp, motion, release and retreat) and one ``fruits`` entry
+        per ground-truth fruit: its visibility in the first view and after
+        its reveal (in the view observed after its last motion; unchanged
+        when it was not moved for), the shape metrics of its estimate before
+        and after, and the target record (leaf chosen, why, motions)."""
+        from lmap_drake.plants.outcome import FruitShapeErrors, Summarize
+        sim, model = self.sim, self.model
+        label = [v.label for v in views]
+
+        def vis(i, k):
+            return sim.Visibility(label[k], fruit=i) if 0 <= k < len(label) and \
+                label[k] is not None else sim.Visibility(fruit=i)
+        targets = {}
+        for t in st.targets:
+            if t.get("target"):
+                c = np.asarray(t["target"]["center_W"], float)
+                i = int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits]))
+                targets.setdefault(i, t)
+        fruits = []
+        for i, f in enumerate(model.fruits):
+            t = targets.get(i)
+            v0 = vis(i, 0)
+            entry = {"fruit": i, "occlusion_requested": f.occlusion_requested,
+                     "visibility_initial": v0, "visibility_final": v0,
+                     "targeted": t is not None, "shape_initial": None, "shape_final": None,
+                     "action": None, "motions": [], "leaf_id": None, "why": "",
+                     "outcome": "not planned for (predicted visible, or not seen)"}
+            if t is not None:
+                ini = t["initial_estimate"].fruit if t["initial_estimate"] else None
+                fin = t["final_estimate"].fruit if t["final_estimate"] else None
+                plans = ([t["plan"]] if t["plan"] is not None else []) + t["continuations"]
+                entry.update(
+                    visibility_initial=vis(i, t["view_plan"]),
+                    visibility_final=(vis(i, t["view_after"]) if t["view_after"] is not None
+                                      else vis(i, t["view_plan"])),
+                    shape_initial=FruitShapeErrors(ini, f.mesh_W, f.peduncle_axis_W),
+                    shape_final=FruitShapeErrors(fin or ini, f.mesh_W, f.peduncle_axis_W),
+                    action=(t["plan"].chosen.Row() if t["plan"] is not None
+                            and t["plan"].chosen is not None else None),
+                    motions=[p.chosen.Row() for p in plans if p.chosen is not None
+                             ][:t["motions"]],
+                    leaf_id=t["target"].get("leaf_id"), why=t["target"].get("why", ""),
+                    outcome=t["outcome"])
+            fruits.append(entry)
+        record["fruits"] = fruits
+        cfg = self.scenario.plant_scene.outcome
+        v0 = [e["visibility_initial"] for e in fruits]
+        v1 = [e["visibility_final"] for e in fruits]
+        record["outcome"] = Summarize(sim.samples, cfg, float(np.mean(v0)),
+                                      float(np.mean(v1))).to_dict()
+        record["outcome"]["fruits_revealed"] = int(sum(v >= 0.9 for v in v1))
+        shapes = [(e["shape_initial"], e["shape_final"]) for e in fruits if e["shape_final"]]
+        mean = (lambda rows: None if not rows else
+                {k: float(np.mean([r[k] for r in rows])) for k in rows[0]})
+        record["shape_initial"] = mean([a for a, _ in shapes if a])
+        record["shape_final"] = mean([b for _, b in shapes])
+        record["plant"] = {"fruits": len(model.fruits), "leaves": len(model.leaves)}
         record["simulated_seconds"] = sim.time
 
 
@@ -495,8 +560,11 @@ def RunSimEpisode(scenario: Scenario, meshcat=None,
                   progress: Callable[[str], None] | None = None, max_time: float = 60.0,
                   resources: EpisodeResources | None = None, plan_only: bool = False
                   ) -> EpisodeResult:
-    """One full episode on the simulated plant world (no confirmation)."""
+    """One full episode on the simulated plant world (no confirmation). A
+    plant with several fruits gets ``max_time`` per fruit."""
     progress = progress or (lambda m: None)
+    if scenario.plant_scene.kind == "multi":
+        max_time = max_time * max(1, len(scenario.plant_scene.multi.fruits))
     resources = resources or EpisodeResources.Make(scenario, progress)
     resources.progress = progress
     world = SimWorld(scenario, resources, ControllerOptionsFor(scenario, False, plan_only),

@@ -102,3 +102,14 @@ def ShapeErrors(estimate, model) -> dict | None:
     return {k: float(v) for k, v in ShapeMetrics(
         f.vertices_W, f.faces, f.peduncle_axis_W, np.asarray(gt.vertices),
         np.asarray(gt.faces), model.peduncle_axis_W, n=10000).items()}
+
+
+def FruitShapeErrors(fruit, gt_mesh, gt_axis) -> dict | None:
+    """Table I metrics of one ``FruitEstimate`` against a ground-truth fruit
+    mesh (W, m) and its peduncle axis; None without an estimate."""
+    from lmap_drake.shape.metrics import ShapeMetrics
+    if fruit is None:
+        return None
+    return {k: float(v) for k, v in ShapeMetrics(
+        fruit.vertices_W, fruit.faces, fruit.peduncle_axis_W, np.asarray(gt_mesh.vertices),
+        np.asarray(gt_mesh.faces), gt_axis, n=10000).items()}

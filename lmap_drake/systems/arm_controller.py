@@ -144,6 +144,7 @@ class ControllerStatus:
     # planner.targets: all -- one record per fruit handled (see _EndTarget)
     targets: list = dc.field(default_factory=list)
     t_target: float = 0.0               # when the current target's plan was requested
+    captures_plan: int = 0              # captures when it was planned (its view: this - 1)
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -378,7 +379,7 @@ class ArmController(LeafSystem):
                 self._enter(st, "capture", t)
         elif mode == "capture":
             if self._views_fused(context) >= max(st.captures, 1):
-                st.t_target = t
+                st.t_target, st.captures_plan = t, max(st.captures, 1)
                 self._enter(st, "plan_requested", t)
         elif mode == "plan_requested":
             self._Plan(context, st, t)
@@ -554,6 +555,8 @@ class ArmController(LeafSystem):
             "replan_log": list(st.replan_log), "replan_results": list(st.replan_results),
             "initial_estimate": st.initial_estimate, "final_estimate": st.final_estimate,
             "t_start": st.t_target, "t_end": t, "captures": st.captures,
+            "motions": len(st.motion_paths), "view_plan": st.captures_plan - 1,
+            "view_after": st.captures - 1 if st.motion_paths else None,
             "stage_seconds": dict(st.stage_seconds)}]
         st.continuations, st.replan_results, st.replan_log = [], [], []
         st.motion_paths, st.pull_path, st.segments = [], [], []
