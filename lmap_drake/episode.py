@@ -383,7 +383,10 @@ class LeafAnimator:
     def __init__(self, meshcat, world, period: float = 0.2):
         from lmap_drake.plants.leaf import BoundaryTriangles
         self.meshcat, self.world, self.period = meshcat, world, period
-        self.faces = np.asarray(BoundaryTriangles(world.model.leaf_tets), np.int32).T.copy()
+        model = world.model
+        tets = ([leaf.tets for leaf in model.leaves] if hasattr(model, "leaves")
+                else [model.leaf_tets])       # every leaf of a multi plant
+        self.faces = [np.asarray(BoundaryTriangles(t), np.int32).T.copy() for t in tets]
         self.k, self.next_time, self.previous = 0, 0.0, None
 
     def __call__(self) -> None:
@@ -392,9 +395,10 @@ class LeafAnimator:
         if self.meshcat is None or t < self.next_time:
             return
         path = f"/leaf_snapshots/{self.k:04d}"
-        V = np.asarray(self.world.LeafVertices().T, float, order="F")
-        self.meshcat.SetTriangleMesh(path, V, np.asfortranarray(self.faces),
-                                     Rgba(0.2, 0.6, 0.15, 1.0))
+        for j, faces in enumerate(self.faces):
+            V = np.asarray(self.world.LeafVertices(j).T, float, order="F")
+            self.meshcat.SetTriangleMesh(f"{path}/leaf_{j}", V, np.asfortranarray(faces),
+                                         Rgba(0.2, 0.6, 0.15, 1.0))
         self.meshcat.SetProperty(path, "visible", False, 0.0)
         self.meshcat.SetProperty(path, "visible", True, t)
         if self.previous is not None:
@@ -709,7 +713,7 @@ def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None
             meshcat = Meshcat()
             opts = ControllerOptionsFor(scenario, False, plan_only, confirm)
             world = SimWorld(scenario, resources, opts, meshcat, progress)
-            if world.model.occlusion_clamped:
+            if getattr(world.model, "occlusion_clamped", False):
                 m = world.model
                 progress(f"warning: the leaf hides at most {m.occlusion_predicted:.2f} of the "
                          f"fruit, not the requested plant_scene.occlusion "
@@ -726,7 +730,10 @@ def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None
         meshcat.StopRecording()
         meshcat.PublishRecording()
     files += SaveEpisode(result, out, clients if hardware else None)
-    if not hardware:
+    if not hardware and hasattr(world.model, "leaves"):
+        from lmap_drake.plants.multi import SaveMultiGroundTruth
+        files += SaveMultiGroundTruth(world.model, out)
+    elif not hardware:
         from lmap_drake.plants.generator import SaveGroundTruth
         files += SaveGroundTruth(world.model, out)
     files.append("diagram.svg" if WriteDiagramSvg(world.diagram, out / "diagram.svg")

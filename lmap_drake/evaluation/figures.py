@@ -94,6 +94,9 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
                                     cam.X_PB.GetDeterministicValue().GetAsMatrix4())).save(
             out / "plan_on_image.png")
         files.append("plan_on_image.png")
+    if getattr(st, "targets", None) or hasattr(model, "leaves"):
+        files += SavePlantFigure(result, out)
+        return files
     fig = plt.figure(figsize=(12, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     est = st.initial_estimate
@@ -212,3 +215,46 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
         draw.text((7, y + 1), text, fill=color)
         y += 16
     return np.asarray(img)
+
+
+def SavePlantFigure(result, out: Path) -> list[str]:
+    """Several fruits: the whole plant (observed leaves and branches of the
+    first view) with every fruit's ground truth (grey, simulation only) and
+    each handled fruit's estimate before (orange) and after its reveal
+    (blue), labelled with its fruit id, the leaf moved and the action."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    st = result.status
+    model = getattr(result.world, "model", None)
+    fig = plt.figure(figsize=(8, 7))
+    ax = fig.add_subplot(1, 1, 1, projection="3d")
+    first = st.targets[0]["initial_estimate"] if st.targets else st.initial_estimate
+    if first is not None:
+        sem = first.semantic
+        ax.scatter(*np.asarray(sem.branch_points_W).reshape(-1, 3).T, s=1, c="saddlebrown")
+        ax.scatter(*np.vstack([np.asarray(sem.leaf_points_W).reshape(-1, 3),
+                               np.asarray(getattr(first, "other_leaves_W",
+                                                  np.zeros((0, 3)))).reshape(-1, 3)]).T,
+                   s=1, c="green", alpha=0.3)
+    for f in getattr(model, "fruits", []):
+        ax.plot_trisurf(*np.asarray(f.mesh_W.vertices).T, triangles=np.asarray(f.mesh_W.faces),
+                        color="gray", alpha=0.2)
+    for t in st.targets:
+        for key, color in (("initial_estimate", "orange"), ("final_estimate", "blue")):
+            e = t.get(key)
+            if e is not None and e.fruit is not None:
+                ax.scatter(*e.fruit.vertices_W[::4].T, s=1, c=color)
+        tg = t.get("target") or {}
+        plan = t.get("plan")
+        what = (plan.chosen.action.Describe() if plan is not None and plan.chosen is not None
+                else t["outcome"].split(":")[0])
+        if tg.get("center_W") is not None:
+            ax.text(*np.asarray(tg["center_W"]) + [0, 0, 0.05],
+                    f"fruit {tg.get('fruit_id')}: leaf {tg.get('leaf_id')}, {what}", fontsize=7)
+    ax.set_title("plant: ground truth (grey), estimates before (orange) / after (blue)")
+    _EqualAxes(ax)
+    fig.tight_layout()
+    fig.savefig(out / "plant_estimates.png", dpi=110)
+    plt.close(fig)
+    return ["plant_estimates.png"]

@@ -361,9 +361,45 @@ def Table5(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dict:
     return out
 
 
+def FruitTable(records: list[dict], revealed: float = 0.9) -> dict | None:
+    """Plants with several fruits (records with a ``fruits`` list), per
+    method: unsafe episodes (the plant-level flags over the whole episode),
+    fruits whose final visibility reaches ``revealed``, the mean initial and
+    final visibility and shape metrics per fruit, wall seconds per episode
+    by number of fruits. None when no record has ``fruits``."""
+    multi = [r for r in _valid(records) if r.get("fruits")]
+    if not multi:
+        return None
+    out = {}
+    for (m, d), rs in _group(multi).items():
+        fruits = [f for r in rs for f in r["fruits"]]
+        walls: dict = {}
+        for r in rs:
+            walls.setdefault(str(len(r["fruits"])), []).append(r.get("wall_seconds"))
+        out.setdefault(m, {})[d] = {
+            "episodes": len(rs), "unsafe": sum(not IsSafe(r) for r in rs),
+            "fruits": len(fruits),
+            "revealed": sum(f["visibility_final"] >= revealed for f in fruits),
+            "revealed_fraction": (sum(f["visibility_final"] >= revealed for f in fruits)
+                                  / max(1, len(fruits))),
+            "visibility_initial": _mean_std(f["visibility_initial"] for f in fruits),
+            "visibility_final": _mean_std(f["visibility_final"] for f in fruits),
+            "shape_initial": {k: _mean_std((f["shape_initial"] or {}).get(k) for f in fruits)
+                              for k in SHAPE_KEYS},
+            "shape_final": {k: _mean_std((f["shape_final"] or {}).get(k) for f in fruits)
+                            for k in SHAPE_KEYS},
+            "wall_seconds_by_fruits": {k: _mean_std(v) for k, v in sorted(walls.items())},
+            "revealed_threshold": revealed}
+    return out
+
+
 def AllTables(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dict:
-    return {"table2": Table2(records), "table3": Table3(records),
-            "table4": Table4(records), "table5": Table5(records, threshold)}
+    out = {"table2": Table2(records), "table3": Table3(records),
+           "table4": Table4(records), "table5": Table5(records, threshold)}
+    fruits = FruitTable(records)
+    if fruits is not None:
+        out["fruits"] = fruits
+    return out
 
 
 # ---------------------------------------------------------------- output
@@ -525,11 +561,32 @@ def WriteTables(records: list[dict], out: Path, threshold: float = VISIBILITY_SU
     for k, v in tables.items():
         (out / f"{k}.json").write_text(json.dumps(v, indent=2))
         files.append(f"{k}.json")
-    (out / "tables.md").write_text(Markdown(tables, notes=notes))
+    text = Markdown(tables, notes=notes)
+    if "fruits" in tables:
+        text += FruitMarkdown(tables["fruits"])
+    (out / "tables.md").write_text(text)
     files.append("tables.md")
     if plots:
         files += SavePlots(tables, out)
     return files
+
+
+def FruitMarkdown(t: dict) -> str:
+    L = ["", "## Plants with several fruits (per fruit)", "",
+         "| Method | Move distance | Episodes | Unsafe | Fruits | Revealed (final vis >= "
+         "0.9) | Visibility initial → final | Chamfer initial → final (cm) | Wall s / "
+         "episode (by fruits) |", "|---|---|---|---|---|---|---|---|---|"]
+    for m, rows in t.items():
+        for d, r in rows.items():
+            walls = ", ".join(f"{k}: {_f(v['mean'], '{:.0f}')}"
+                              for k, v in r["wall_seconds_by_fruits"].items())
+            L.append(f"| {m} | {d} | {r['episodes']} | {r['unsafe']} | {r['fruits']} | "
+                     f"{r['revealed']} ({_f(r['revealed_fraction'])}) | "
+                     f"{_f(r['visibility_initial']['mean'])} → "
+                     f"{_f(r['visibility_final']['mean'])} | "
+                     f"{_f(r['shape_initial']['chamfer_cm']['mean'])} → "
+                     f"{_f(r['shape_final']['chamfer_cm']['mean'])} | {walls} |")
+    return "\n".join(L) + "\n"
 
 
 def RepairLog(path: Path) -> int:

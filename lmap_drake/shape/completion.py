@@ -6,6 +6,7 @@ on every fruit instance (``CompletePlant``).
 """
 from __future__ import annotations
 
+import dataclasses as dc
 import time
 
 import numpy as np
@@ -103,10 +104,13 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                   params: SscParams | None = None, method: str = "ssc",
                   free_space_voxel: float = 0.003,
                   branch_params: BranchCompletionParams | None = None,
-                  min_fruit_points: int = 30, timings: dict | None = None) -> PlantEstimate:
+                  min_fruit_points: int = 30, timings: dict | None = None,
+                  merge_distance: float = 0.006) -> PlantEstimate:
     """Every fruit instance (``FruitInstances``) completed on its own, the
     other fruits' points counted as outside it (paper Sec. III-F: one
-    estimate per fruit), and the branches completed once."""
+    estimate per fruit), and the branches completed once. Fragments of one
+    fruit (split by a leaf across it) are merged when one lies within
+    ``merge_distance`` (m, median) of the other's completed surface."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     P = params or SscParams()
@@ -121,9 +125,44 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     if "no_fruit_in_view" in semantic.flags:
         return out
     pts, inst = np.asarray(semantic.fruit_points_W, float), np.asarray(semantic.fruit_instance)
-    for i in FruitInstances(semantic, min_fruit_points):
-        est = _CompleteFruit(semantic, pts[inst == i], pts[inst != i], out.branch, decoder,
-                             mean_latent, P, method, free_space_voxel, timings)
-        out.fruits.append(est)
-        out.fruit_ids.append(i)
+    groups = [[i] for i in FruitInstances(semantic, min_fruit_points)]
+
+    def complete(g):
+        mine = np.isin(inst, g)
+        return _CompleteFruit(semantic, pts[mine], pts[~mine], out.branch, decoder,
+                              mean_latent, P, method, free_space_voxel, timings)
+    ests = [complete(g) for g in groups]
+    # A leaf across a fruit splits its visible part into fragments that
+    # cluster apart: fragments lying on one another's completed surface are
+    # one fruit, completed again from all of them.
+    merged = True
+    while merged and len(groups) > 1:
+        merged = False
+        for a in range(len(groups)):
+            for b in range(a + 1, len(groups)):
+                if _SameFruit(ests[a], pts[np.isin(inst, groups[b])], merge_distance) or \
+                        _SameFruit(ests[b], pts[np.isin(inst, groups[a])], merge_distance):
+                    groups[a] = groups[a] + groups.pop(b)
+                    ests.pop(b)
+                    ests[a] = complete(groups[a])
+                    merged = True
+                    break
+            if merged:
+                break
+    out.fruits = ests
+    out.fruit_ids = [g[0] for g in groups]
+    if any(len(g) > 1 for g in groups):
+        # the merged fragments carry the id of their largest part
+        inst = inst.copy()
+        for g in groups:
+            inst[np.isin(inst, g)] = g[0]
+        out.semantic = dc.replace(semantic, fruit_instance=inst)
     return out
+
+
+def _SameFruit(est, points: np.ndarray, distance: float) -> bool:
+    """``points`` (another fragment's) lie on ``est``'s completed surface:
+    their median |SDF| is below ``distance`` (m)."""
+    if est is None or est.sdf_W is None or len(points) == 0:
+        return False
+    return float(np.median(np.abs(np.asarray(est.sdf_W(points), float)))) < distance

@@ -342,16 +342,18 @@ class TargetReestimate(LeafSystem):
 
 
 def HeldLeaf(semantic: SemanticScene, p_WT: np.ndarray, radius: float = 0.04) -> int:
-    """The leaf instance with the most points within ``radius`` (m) of the
-    TCP at ``p_WT``: the leaf in the gripper (the largest instance when none
-    is that close; -1 without leaf points)."""
+    """The leaf in the gripper: the instance with the most points within
+    ``radius`` (m) of the TCP at ``p_WT``, else (the pads hide the leaf
+    there, and the robot self-filter drops what is next to them) the
+    instance of the leaf point nearest the TCP; -1 without leaf points."""
     pts = np.asarray(semantic.leaf_points_W, float).reshape(-1, 3)
     ids = np.asarray(semantic.leaf_instance)
-    if len(pts) == 0 or len(ids) != len(pts):
+    if len(pts) == 0 or len(ids) != len(pts) or not np.any(ids >= 0):
         return -1
-    near = np.linalg.norm(pts - p_WT, axis=1) < radius
-    pool = ids[near & (ids >= 0)] if np.any(near & (ids >= 0)) else ids[ids >= 0]
-    if len(pool) == 0:
-        return -1
-    u, n = np.unique(pool, return_counts=True)
-    return int(u[np.argmax(n)])
+    pts, ids = pts[ids >= 0], ids[ids >= 0]
+    d = np.linalg.norm(pts - p_WT, axis=1)
+    near = d < radius
+    if near.any():
+        u, n = np.unique(ids[near], return_counts=True)
+        return int(u[np.argmax(n)])
+    return int(ids[np.argmin(d)])

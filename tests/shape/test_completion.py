@@ -45,3 +45,27 @@ def test_background_rays_keep_the_estimate_inside_the_silhouette(decoder):
     # Measured: 4 of these points inside the estimate with the background
     # rays, 83 without.
     assert without >= 20 and with_bg <= without / 4, (with_bg, without)
+
+
+def test_complete_plant_merges_fragments_of_one_fruit(decoder):
+    """A leaf across a fruit splits its visible points in two clusters: they
+    are one fruit; a second fruit 15 cm away stays its own."""
+    from lmap_drake.shape.completion import CompletePlant
+    dec, mean = decoder
+    case = MakeSyntheticCase(0, occluded=False)
+    sem = case.semantic
+    f = np.asarray(sem.fruit_points_W, float)
+    mid = np.median(f[:, 2])
+    keep = np.abs(f[:, 2] - mid) > 0.008             # a 16 mm strip hidden by a leaf
+    f = f[keep]
+    frag = np.where(f[:, 2] > mid, 0, 1)
+    other = f[frag == 0] + [0.15, 0.0, 0.0]           # a second fruit's visible top
+    pts = np.vstack([f, other])
+    ids = np.r_[frag, np.full(len(other), 2)]
+    plant = CompletePlant(dc.replace(sem, fruit_points_W=pts, fruit_instance=ids), dec, mean,
+                          SscParams(iterations=100), "ssc")
+    assert len(plant.fruits) == 2, plant.fruit_ids
+    assert sorted(len(np.flatnonzero(plant.semantic.fruit_instance == i))
+                  for i in plant.fruit_ids) == sorted([len(f), len(other)])
+    c = [e.center_W for e in plant.fruits]
+    assert abs(np.linalg.norm(c[0] - c[1]) - 0.15) < 0.03
