@@ -86,12 +86,8 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     ``with_leaf=False`` leaves the leaf out (for the unoccluded view).
     Returns handles: ``branch_body``, ``leaf_body_id``, ``leaf_geometry_id``,
     ``fruit_geometry_ids``."""
-    from pydrake.geometry import (AddContactMaterial, CollisionFilterDeclaration,
-                                  GeometrySet)
-    from pydrake.multibody.fem import DeformableBodyConfig
+    from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
     from pydrake.multibody.tree import SpatialInertia
-
-    from lmap_drake.plants.leaf import TetMeshToVtk
 
     world = plant.world_body()
     instance = plant.AddModelInstance("plant_world")
@@ -132,38 +128,10 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     if not with_leaf:
         return {"branch_body": branch_body, "leaf_body_id": None, "leaf_geometry_id": None,
                 "fruit_geometry_ids": fruit_ids}
-    leaf_cfg = cfg.leaf
-    vtk = InMemoryMesh()
-    vtk.mesh_file = MemoryFile(TetMeshToVtk(model.leaf_rest_W, model.leaf_tets), ".vtk",
-                               "leaf.vtk")
-    gi = GeometryInstance(RigidTransform(), Mesh(vtk), "leaf")
-    prox = ProximityProperties()
-    AddContactMaterial(friction=CoulombFriction(0.8, 0.8), properties=prox)
-    gi.set_proximity_properties(prox)
-    ill = IllustrationProperties()
-    ill.AddProperty("phong", "diffuse", leaf_cfg.color)
-    gi.set_illustration_properties(ill)
-    per = PerceptionProperties()
-    per.AddProperty("phong", "diffuse", leaf_cfg.color)
-    per.AddProperty("label", "id", RenderLabel(EncodeLabel(LEAF, 0)))
-    gi.set_perception_properties(per)
-    body_cfg = DeformableBodyConfig()
-    body_cfg.set_youngs_modulus(leaf_cfg.youngs_modulus)
-    body_cfg.set_poissons_ratio(leaf_cfg.poissons_ratio)
-    body_cfg.set_mass_density(leaf_cfg.mass_density)
-    body_cfg.set_stiffness_damping_coefficient(leaf_cfg.stiffness_damping)
-    body_cfg.set_mass_damping_coefficient(leaf_cfg.mass_damping)
-    dm = plant.mutable_deformable_model()
-    leaf_id = dm.RegisterDeformableBody(gi, body_cfg, 1.0)
-    fixed = model.leaf_rest_W[model.leaf_fixed]
-    center = fixed.mean(axis=0)
-    radius = float(np.linalg.norm(fixed - center, axis=1).max()) + 2e-4
-    from pydrake.geometry import Sphere
-    # The branch is welded to the world (identity), so fix the petiole to the
-    # world body: Drake rejects constraints to a welded body's zero-dof clique.
-    dm.AddFixedConstraint(leaf_id, world, RigidTransform(), Sphere(radius),
-                          RigidTransform(center))
-    leaf_gid = dm.GetGeometryId(leaf_id)
+    # (the branch is welded to the world, so the petiole is fixed to the world
+    # body: Drake rejects constraints to a welded body's zero-dof clique)
+    leaf_id, leaf_gid = AddFemLeaf(plant, "leaf", model.leaf_rest_W, model.leaf_tets,
+                                   model.leaf_fixed, cfg.leaf, EncodeLabel(LEAF, 0))
     branch_gids = plant.GetCollisionGeometriesForBody(branch_body)
     scene_graph.collision_filter_manager().Apply(
         CollisionFilterDeclaration().ExcludeBetween(GeometrySet(leaf_gid),

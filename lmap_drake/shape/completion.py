@@ -46,17 +46,24 @@ def CompleteScene(semantic: SemanticScene, decoder=None, mean_latent=None,
     P = params or SscParams()
     timings = {} if timings is None else timings
     cam = np.asarray(semantic.X_WC, float)[:3, 3]
-    out = SceneEstimate(semantic=semantic)
-    t0 = time.time()
-    if len(semantic.branch_points_W) >= 10:
-        out.branch = CompleteBranches(semantic.branch_points_W, semantic.branch_instance, cam,
-                                      branch_params)
-    timings["branch_s"] = time.time() - t0
+    out = SceneEstimate(semantic=semantic, branch=_Branches(semantic, cam, branch_params,
+                                                            timings))
     fruit = LargestInstance(semantic.fruit_points_W, semantic.fruit_instance)
     if len(fruit) < 10 or "no_fruit_in_view" in semantic.flags:
         return out
     out.fruit = _CompleteFruit(semantic, fruit, np.zeros((0, 3)), out.branch, decoder,
                                mean_latent, P, method, free_space_voxel, timings)
+    return out
+
+
+def _Branches(semantic: SemanticScene, cam: np.ndarray, branch_params, timings: dict):
+    """Every branch instance completed (None with fewer than 10 points)."""
+    t0 = time.time()
+    out = None
+    if len(semantic.branch_points_W) >= 10:
+        out = CompleteBranches(semantic.branch_points_W, semantic.branch_instance, cam,
+                               branch_params)
+    timings["branch_s"] = time.time() - t0
     return out
 
 
@@ -116,12 +123,8 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     P = params or SscParams()
     timings = {} if timings is None else timings
     cam = np.asarray(semantic.X_WC, float)[:3, 3]
-    out = PlantEstimate(semantic=semantic)
-    t0 = time.time()
-    if len(semantic.branch_points_W) >= 10:
-        out.branch = CompleteBranches(semantic.branch_points_W, semantic.branch_instance, cam,
-                                      branch_params)
-    timings["branch_s"] = time.time() - t0
+    out = PlantEstimate(semantic=semantic, branch=_Branches(semantic, cam, branch_params,
+                                                            timings))
     if "no_fruit_in_view" in semantic.flags:
         return out
     pts, inst = np.asarray(semantic.fruit_points_W, float), np.asarray(semantic.fruit_instance)
