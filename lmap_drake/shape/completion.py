@@ -117,7 +117,8 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     other fruits' points counted as outside it (paper Sec. III-F: one
     estimate per fruit), and the branches completed once. Fragments of one
     fruit (split by a leaf across it) are merged when one lies within
-    ``merge_distance`` (m, median) of the other's completed surface."""
+    ``merge_distance`` (m, median) of the other's completed surface, or when
+    the two completed shapes overlap (``_Overlap``)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     P = params or SscParams()
@@ -143,7 +144,8 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
         merged = False
         for a in range(len(groups)):
             for b in range(a + 1, len(groups)):
-                if _SameFruit(ests[a], pts[np.isin(inst, groups[b])], merge_distance) or \
+                if _Overlap(ests[a], ests[b]) or \
+                        _SameFruit(ests[a], pts[np.isin(inst, groups[b])], merge_distance) or \
                         _SameFruit(ests[b], pts[np.isin(inst, groups[a])], merge_distance):
                     groups[a] = groups[a] + groups.pop(b)
                     ests.pop(b)
@@ -161,6 +163,16 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
             inst[np.isin(inst, g)] = g[0]
         out.semantic = dc.replace(semantic, fruit_instance=inst)
     return out
+
+
+def _Overlap(a, b, fraction: float = 0.6) -> bool:
+    """Two estimates whose centres are closer than ``fraction`` of the sum of
+    their mean radii: two real fruits cannot interpenetrate that much, two
+    fragments of one fruit complete to overlapping shapes."""
+    if a is None or b is None:
+        return False
+    r = [float(np.mean(np.linalg.norm(e.vertices_W - e.center_W, axis=1))) for e in (a, b)]
+    return float(np.linalg.norm(a.center_W - b.center_W)) < fraction * (r[0] + r[1])
 
 
 def _SameFruit(est, points: np.ndarray, distance: float) -> bool:
