@@ -55,12 +55,17 @@ PREDICTED = ("energy_per_node", "planner_energy_per_node", "petiole_stretch",
 MEASURED = ("petiole_force_max_N", "strain_percentile_max")
 
 
-def PlannerEnergy(a, p, hinge, weight: float) -> dict:
+def PlannerEnergy(a, p, hinge, weight: float, torsion_ratio: float | None = None) -> dict:
     """The ARAP energy per leaf node and the planner's predicted energy per
-    node (ARAP plus the petiole bending term)."""
-    from lmap_drake.planning.lmap import HingeRotationDeg, PetioleBendingEnergy
+    node (ARAP plus the petiole term on the equivalent turn: bending, and a
+    twist's torsion by ``planner.petiole_torsion_ratio``)."""
+    from lmap_drake.planning.lmap import (EquivalentTurnDeg, HingeRotationDeg,
+                                          PetioleBendingEnergy)
+    from lmap_drake.scenario import PlannerConfig
+    ratio = PlannerConfig().petiole_torsion_ratio if torsion_ratio is None else torsion_ratio
     e = p.energy / max(1, int((p.node_kind == 0).sum()))
-    deg = HingeRotationDeg(hinge, a.p_WG, a.p_WG + a.dp_W)
+    deg = EquivalentTurnDeg(HingeRotationDeg(hinge, a.p_WG, a.p_WG + a.dp_W),
+                            abs(a.angle) if a.family == "twist" else 0.0, ratio)
     return {"energy_per_node": e, "hinge_deg": deg,
             "planner_energy_per_node": e + PetioleBendingEnergy(deg, weight)}
 
