@@ -71,6 +71,18 @@ def test_bad_values_are_rejected():
         LoadScenario(scenario_text="{planner: {method: upward, force_action: [3, 2, 0.04]}}")
     ok = LoadScenario(scenario_text="{planner: {force_action: [3, 2, 0.04]}}")
     assert list(ok.planner.force_action) == [3, 2, 0.04]
+    # this session's keys: twists, the torsion ratio, targets, the self-filter
+    for text, key in (("{planner: {twist_angles_deg: [200]}}", r"planner\.twist_angles_deg"),
+                      ("{planner: {petiole_torsion_ratio: -1}}",
+                       r"planner\.petiole_torsion_ratio"),
+                      ("{planner: {action_families: [pull, screw]}}",
+                       r"planner\.action_families"),
+                      ("{planner: {targets: some}}", r"planner\.targets"),
+                      ("{planner: {min_usable_grasps: -1}}", r"planner\.min_usable_grasps"),
+                      ("{perception: {robot_filter_distance: -0.1}}",
+                       r"perception\.robot_filter_distance")):
+        with pytest.raises(ScenarioError, match=key):
+            LoadScenario(scenario_text=text)
 
 
 def test_dump_round_trips(tmp_path):
