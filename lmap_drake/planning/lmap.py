@@ -161,10 +161,6 @@ class PlanningContext:
         self.p_WC = np.asarray(self.X_WC, float)[:3, 3]
 
 
-def _FruitSurface(scene: SceneEstimate) -> np.ndarray:
-    return FruitSurfaceSamples(scene.fruit)
-
-
 def FruitSurfaceSamples(f) -> np.ndarray:
     """Even samples of a ``FruitEstimate``'s surface plus its vertices (W, m)."""
     import trimesh
@@ -443,7 +439,7 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
                             message="the fruit estimate is empty or not finite")
     t0 = time.perf_counter()
-    vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel,
+    vis = VisibilityModel(ctx.X_WC, FruitSurfaceSamples(ctx.scene.fruit), cfg.visibility_voxel,
                           ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W]))
     timings["visibility_s"] += time.perf_counter() - t0
@@ -810,7 +806,7 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
                             message="no fruit estimate: nothing to reveal")
     t0 = time.perf_counter()
-    vis = VisibilityModel(ctx.X_WC, _FruitSurface(ctx.scene), cfg.visibility_voxel,
+    vis = VisibilityModel(ctx.X_WC, FruitSurfaceSamples(ctx.scene.fruit), cfg.visibility_voxel,
                           ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W,
                                     ctx.robot.SurfacePoints(ctx.q_current)]))

@@ -134,14 +134,15 @@ class TargetPlan:
 
 def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current: np.ndarray,
                cfg, dcfg, image_tan: tuple | None = None, max_leaves: int = 2,
-               progress=None) -> TargetPlan:
+               progress=None, occluders: dict | None = None) -> TargetPlan:
     """Plans the reveal of fruit ``k``: for each of its (at most
     ``max_leaves``) occluding leaves, the single-fruit LMAP planner on
     ``TargetScene`` (the rest of the plant as obstacles and occluders);
-    ``ChooseLeafPlan`` picks the leaf."""
+    ``ChooseLeafPlan`` picks the leaf. ``occluders``: fruit ``k``'s
+    ``OccludingLeaves``, when already computed (``FruitOrder``)."""
     from lmap_drake.planning.lmap import PlanLmap, PlanningContext
-    fruit = plant.fruits[k]
-    occ = OccludingLeaves(fruit, plant, X_WC, cfg.visibility_voxel, image_tan)
+    occ = occluders or OccludingLeaves(plant.fruits[k], plant, X_WC, cfg.visibility_voxel,
+                                       image_tan)
     out = TargetPlan(k, plant.fruit_ids[k], occ["visible"], occ["leaves"])
     if occ["visible"] >= cfg.early_stop_fraction:
         out.why = f"already {occ['visible']:.0%} visible: no action needed"
@@ -158,9 +159,9 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
 
 
 def FruitOrder(plant: PlantEstimate, X_WC: np.ndarray, cfg, image_tan: tuple | None = None
-               ) -> tuple[list[int], list[float]]:
+               ) -> tuple[list[int], list[dict]]:
     """The fruits' reveal order (``OrderTargets``: least visible first, the
-    ones already visible left out) and every fruit's visible fraction."""
-    vis = [OccludingLeaves(f, plant, X_WC, cfg.visibility_voxel, image_tan)["visible"]
+    ones already visible left out) and every fruit's ``OccludingLeaves``."""
+    occ = [OccludingLeaves(f, plant, X_WC, cfg.visibility_voxel, image_tan)
            for f in plant.fruits]
-    return OrderTargets(vis, cfg.early_stop_fraction), vis
+    return OrderTargets([o["visible"] for o in occ], cfg.early_stop_fraction), occ

@@ -63,7 +63,7 @@ from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, HeldGras
                                       PlanResult, SelectFromPredictions)
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
-from lmap_drake.types import SceneEstimate, SemanticScene
+from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
 
 def _ScenarioCameraPose(scenario: Scenario) -> np.ndarray:
@@ -238,7 +238,6 @@ class PlantPlanning(LeafSystem):
         self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
         self._X_WC = _ScenarioCameraPose(scenario)
         self._image_tan = _ImageTangents(scenario)
-        from lmap_drake.types import PlantEstimate
         self._plant = self.DeclareAbstractInputPort(
             "plant_estimate", AbstractValue.Make(PlantEstimate(SemanticScene())))
         self._q = self.DeclareVectorInputPort("ur5.position", 6)
@@ -265,7 +264,8 @@ class PlantPlanning(LeafSystem):
         if not plant.fruits:
             return PlanResult("no_fruit", cfg.method, message="no fruit seen")
         handled = _Handled(plant, status)
-        order, visible = FruitOrder(plant, self._X_WC, cfg, self._image_tan)
+        order, occ = FruitOrder(plant, self._X_WC, cfg, self._image_tan)
+        visible = [o["visible"] for o in occ]
         order = [k for k in order if not handled[k]]
         if not order:
             n = sum(handled)
@@ -275,7 +275,7 @@ class PlantPlanning(LeafSystem):
                                       f"{', '.join(f'{v:.2f}' for v in visible)})")
         k = order[0]
         t = PlanTarget(plant, k, self._X_WC, self._robot, self._q.Eval(context), cfg, dcfg,
-                       self._image_tan)
+                       self._image_tan, occluders=occ[k])
         info = {"fruit_index": k, "fruit_id": t.fruit_id,
                 "center_W": np.round(plant.fruits[k].center_W, 4).tolist(),
                 "visible_predicted": round(t.visible, 3), "leaf_id": t.leaf_id,
@@ -316,7 +316,6 @@ class TargetReestimate(LeafSystem):
     def __init__(self, scenario: Scenario, robot: RobotModel | None = None):
         super().__init__()
         self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
-        from lmap_drake.types import PlantEstimate
         self._plant = self.DeclareAbstractInputPort(
             "plant_estimate", AbstractValue.Make(PlantEstimate(SemanticScene())))
         self._q = self.DeclareVectorInputPort("ur5.position", 6)

@@ -116,7 +116,8 @@ def test_plan_target_weighs_both_leaves_over_one_fruit():
                         fruit_points_W=fruit_pts, fruit_instance=ids, X_WC=X)
     plant = PlantEstimate(semantic=sem, branch=one.branch, fruits=[one.fruit, B],
                           fruit_ids=[0, 1])
-    order, vis = FruitOrder(plant, X, s.planner)
+    order, occ = FruitOrder(plant, X, s.planner)
+    vis = [o["visible"] for o in occ]
     assert order == [0] and vis[1] > 0.95 > vis[0]      # B is in the open
     t = PlanTarget(plant, 0, X, robot, np.asarray(s.robot.initial_q), s.planner, s.deformation)
     assert {j for j, _ in t.options} == {0, 1}
