@@ -169,6 +169,18 @@ def FruitSurfaceSamples(f) -> np.ndarray:
     return np.vstack([pts, f.vertices_W])
 
 
+def _RobotPoseReason(robot, q: np.ndarray, half_open: float, points_W: np.ndarray,
+                     ctx: PlanningContext, cfg: PlannerConfig) -> str:
+    """'' if the robot at ``q`` (surface samples ``points_W``) is clear of
+    itself (arm against gripper or arm) and keeps the margin from the fruit
+    and the branch, else the reason."""
+    pair = robot.SelfCollision(q, half_open)
+    if pair:
+        return f"robot self-collision ({pair})"
+    return RobotCollisionReason(points_W, ctx.fruit_sdf, ctx.branch_distance,
+                                cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+
+
 def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_open: float
                        ) -> str:
     """Robot checks along the whole approach: the joint move from the current
@@ -193,8 +205,7 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
             (approach.to_grasp, "during the approach", " (leaf not between the pads)")):
         for q in path:
             pts = robot.SurfacePoints(q, half_open)
-            why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
-                                       cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+            why = _RobotPoseReason(robot, q, half_open, pts, ctx, cfg)
             if why:
                 return f"{why} {when}"
             if leaf_tree is not None:
@@ -282,9 +293,8 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
                 r, pose_why = solved[key]
             else:
                 r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
-                pose_why = "" if not r.success else RobotCollisionReason(
-                    robot.SurfacePoints(r.q, 0.0), ctx.fruit_sdf, ctx.branch_distance,
-                    cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+                pose_why = "" if not r.success else _RobotPoseReason(
+                    robot, r.q, 0.0, robot.SurfacePoints(r.q, 0.0), ctx, cfg)
                 if key is not None:
                     solved[key] = (r, pose_why)
             if not r.success:

@@ -111,12 +111,18 @@ def PlanActionPath(robot, action, q_start: np.ndarray, step: float = 0.01
                    ) -> list[np.ndarray]:
     """Joint waypoints for an action's motion from the grasp (gripper
     closed): the straight pull or the arc about the hinge
-    (``Action.Poses``), each IK warm-started from the previous."""
+    (``Action.Poses``), each IK warm-started from the previous. Raises
+    ``MotionError`` when a waypoint has no IK solution or the arm would hit
+    itself there."""
     out, seed = [], q_start
     for p, R in action.Poses(step):
         r = robot.Ik(RigidTransform(RotationMatrix(R), p), seed, 0.0)
         if not r.success:
             raise MotionError(f"IK failed along the {action.family} at {np.round(p, 3)}")
+        pair = robot.SelfCollision(r.q)
+        if pair:
+            raise MotionError(f"the robot would hit itself ({pair}) along the "
+                              f"{action.family} at {np.round(p, 3)}")
         out.append(r.q)
         seed = r.q
     return out

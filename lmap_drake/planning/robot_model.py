@@ -1,12 +1,14 @@
 """The planner's robot: the UR5 + 2F-85 controller MultibodyPlant (with its
-SceneGraph) used for IK, forward kinematics and surface samples of the
-robot's collision geometry (for SDF collision checks and visibility)."""
+SceneGraph) used for IK, forward kinematics, self-collision queries and
+surface samples of the robot's collision geometry (for SDF collision checks
+and visibility)."""
 from __future__ import annotations
 
 import numpy as np
-from pydrake.geometry import Box, Capsule, Cylinder, Role, SceneGraph
+from pydrake.geometry import Box, Capsule, Cylinder, Role
 from pydrake.math import RigidTransform
-from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+from pydrake.systems.framework import DiagramBuilder
 
 from lmap_drake.planning.ik import (IkResult, NewtonTcpIk, SolveTcpIk,
                                    SolveTcpIkMultiStart)
@@ -68,12 +70,13 @@ class RobotModel:
         """Collision surfaces are sampled every ``spacing`` (m) on the arm and
         every ``gripper_spacing`` on the gripper (the part that comes close
         to the leaf and fruit)."""
-        self.plant = MultibodyPlant(0.0)
-        self.scene_graph = SceneGraph()
-        self.plant.RegisterAsSourceForSceneGraph(self.scene_graph)
+        builder = DiagramBuilder()
+        self.plant, self.scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
         self.ur5, self.gripper = AddUr5AndGripper(self.plant, X_WB)
         self.plant.Finalize()
-        self.context = self.plant.CreateDefaultContext()
+        self._diagram = builder.Build()
+        self._diagram_context = self._diagram.CreateDefaultContext()
+        self.context = self.plant.GetMyMutableContextFromRoot(self._diagram_context)
         self._ik_context = self.plant.CreateDefaultContext()
         self.tcp = self.plant.GetFrameByName("tcp")
         inspector = self.scene_graph.model_inspector()
@@ -90,6 +93,13 @@ class RobotModel:
             self._bodies.append(body)
             self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
         self.num_points = int(sum(len(p) for p in self._points))
+        # Self-collision pairs worth reporting: the gripper's own parts touch
+        # each other by design (pads closing on nothing), the rest is the
+        # plant's filtering (bodies joined by a joint).
+        self._gripper_geoms = {
+            gid for gid in inspector.GetAllGeometryIds(Role.kProximity)
+            if self.plant.GetBodyFromFrameId(inspector.GetFrameId(gid)).model_instance()
+            == self.gripper}
 
     def SetQ(self, q: np.ndarray, half_opening: float = 0.0) -> None:
         self.plant.SetPositions(self.context, np.r_[np.asarray(q, float),
@@ -103,6 +113,22 @@ class RobotModel:
             X = self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
             out.append(p @ X[:3, :3].T + X[:3, 3])
         return np.vstack(out)
+
+    def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0) -> str:
+        """'' if the arm and gripper at ``q`` do not interpenetrate, else the
+        first offending pair, e.g. 'ur5::forearm /
+        robotiq_2f85::body' (the gripper's own parts against each other are
+        not counted; bodies joined by a joint are filtered by the plant)."""
+        self.SetQ(q, half_opening)
+        query = self.scene_graph.get_query_output_port().Eval(
+            self.scene_graph.GetMyContextFromRoot(self._diagram_context))
+        inspector = query.inspector()
+        for pair in query.ComputePointPairPenetration():
+            a, b = pair.id_A, pair.id_B
+            if a in self._gripper_geoms and b in self._gripper_geoms:
+                continue
+            return f"{inspector.GetName(a)} / {inspector.GetName(b)}"
+        return ""
 
     def TcpPose(self, q: np.ndarray, half_opening: float = 0.0) -> RigidTransform:
         self.SetQ(q, half_opening)

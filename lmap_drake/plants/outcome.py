@@ -17,6 +17,7 @@ class OutcomeSample:
     petiole_force: float
     fruit_penetration: float      # max depth (m) of leaf vertices / robot inside the fruit
     fruit_contact_force: float    # N, contact force on the fruit geometry
+    robot_contact_force: float = 0.0   # N, largest robot-robot or robot-branch contact
 
 
 @dc.dataclass
@@ -32,6 +33,7 @@ class Outcome:
     max_petiole_force: float
     max_fruit_penetration: float
     max_fruit_contact_force: float
+    max_robot_contact_force: float = 0.0   # diagnostic (no flag): arm on itself or a branch
 
     def to_dict(self) -> dict:
         return {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
@@ -82,12 +84,13 @@ def Summarize(samples: list[OutcomeSample], cfg, visibility_initial: float,
     f = max((x.petiole_force for x in samples), default=0.0)
     pen = max((x.fruit_penetration for x in samples), default=0.0)
     fc = max((x.fruit_contact_force for x in samples), default=0.0)
+    rc = max((x.robot_contact_force for x in samples), default=0.0)
     return Outcome(
         leaf_damage=s > cfg.tear_stretch, plant_hazard=f > cfg.petiole_max_force,
         fruit_collision=(pen > cfg.fruit_penetration) or (fc > cfg.fruit_contact_force),
         visibility_initial=visibility_initial, visibility_final=visibility_final,
         max_strain_percentile=s, max_petiole_force=f, max_fruit_penetration=pen,
-        max_fruit_contact_force=fc)
+        max_fruit_contact_force=fc, max_robot_contact_force=rc)
 
 
 def ShapeErrors(estimate, model) -> dict | None:

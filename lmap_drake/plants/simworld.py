@@ -280,7 +280,8 @@ class PlantWorldSim:
         else:
             pen = max(pen, -float(MeshSignedDistance(self.model.fruit_mesh_W, Vs[0]).min()))
         pen = max(pen, self._RobotFruitPenetration())
-        return OutcomeSample(strain, force, pen, self._FruitContactForce())
+        return OutcomeSample(strain, force, pen, self._FruitContactForce(),
+                             self._RobotContactForce())
 
     def _fruit_ids(self) -> set:
         inspector = self.scene_graph.model_inspector()
@@ -323,6 +324,32 @@ class PlantWorldSim:
             if ids & fruit:
                 total += float(np.linalg.norm(info.F_Ac_W().translational()))
         return total
+
+    def _RobotContactForce(self) -> float:
+        """Largest rigid contact force (N) of the arm or gripper on itself or
+        on a branch (a planned motion should have neither)."""
+        results = self.plant.get_contact_results_output_port().Eval(self.plant_context)
+        inspector = self.scene_graph.model_inspector()
+
+        def kind(gid) -> str:
+            name = inspector.GetName(gid)
+            if name.startswith(("ur5::", "robotiq_2f85::")):
+                return "robot"
+            return "branch" if "branch" in name.split("::")[-1] else ""
+        worst = 0.0
+        pairs = [(results.point_pair_contact_info(i).point_pair().id_A,
+                  results.point_pair_contact_info(i).point_pair().id_B,
+                  np.linalg.norm(results.point_pair_contact_info(i).contact_force()))
+                 for i in range(results.num_point_pair_contacts())]
+        pairs += [(results.hydroelastic_contact_info(i).contact_surface().id_M(),
+                   results.hydroelastic_contact_info(i).contact_surface().id_N(),
+                   np.linalg.norm(results.hydroelastic_contact_info(i).F_Ac_W().translational()))
+                  for i in range(results.num_hydroelastic_contacts())]
+        for a, b, f in pairs:
+            kinds = {kind(a), kind(b)}
+            if kinds in ({"robot"}, {"robot", "branch"}):
+                worst = max(worst, float(f))
+        return worst
 
     # --- acting -----------------------------------------------------------
     def AdvanceTo(self, t: float, q_traj: PiecewisePolynomial | None = None,

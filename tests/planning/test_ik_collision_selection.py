@@ -103,3 +103,30 @@ def test_newton_ik_agrees_with_drake_ik_and_respects_limits(robot):
     q_out[0] = lo[0] - 0.2
     r = NewtonTcpIk(robot.plant, context, robot.TcpPose(q_out), np.r_[lo[0] + 0.01, q0[1:]])
     assert not r.success or np.all(r.q >= lo)
+
+
+def test_self_collision_names_the_pair(robot):
+    """The arm folded onto the gripper is a self-collision (the planner's
+    plant and SceneGraph), the ready pose is not; the gripper's own parts
+    never count."""
+    home = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
+    assert robot.SelfCollision(home) == ""
+    assert robot.SelfCollision(home, half_opening=0.0) == ""   # pads closed on nothing
+    folded = np.array([0.0, -1.57, 1.57, 0.5, 3.0, 0.0])
+    pair = robot.SelfCollision(folded)
+    assert "forearm" in pair and "robotiq_2f85" in pair
+
+
+def test_planner_rejects_a_self_colliding_pose(robot):
+    """A pose whose joints fold the wrist into the forearm is refused with
+    the pair named, even far from the fruit and the branch."""
+    from types import SimpleNamespace
+    from lmap_drake.planning.lmap import _RobotPoseReason
+    from lmap_drake.scenario import PlannerConfig
+    ctx = SimpleNamespace(fruit_sdf=None, branch_distance=None, fruit_box=None, branch_box=None)
+    home = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
+    folded = np.array([0.0, -1.57, 1.57, 0.5, 3.0, 0.0])
+    cfg = PlannerConfig()
+    assert _RobotPoseReason(robot, home, 0.0, robot.SurfacePoints(home), ctx, cfg) == ""
+    why = _RobotPoseReason(robot, folded, 0.0, robot.SurfacePoints(folded), ctx, cfg)
+    assert why.startswith("robot self-collision") and "forearm" in why
