@@ -441,12 +441,16 @@ class ShapeConfig:
     ``init_scale_bounds``: the start scale and centre from the observed
     points). ``branch_*``: branch completion (slab
     thickness, radius factor, cylinder mesh resolution, ARAP match distance;
-    metres)."""
+    metres). ``leaf_split_angle_deg`` (plants with several fruits): touching leaves
+    (one cluster of points) are told apart where their surfaces meet at more
+    than this angle (``perception.points.SplitTouchingLeaves``; 0 = leaf
+    instances as clustered)."""
     weights_file: str = "models/deepsdf/pepper_decoder.pt"
     mean_latent_file: str = ""
     method: str = "ssc"
     latent_size: int = 32
     free_space_voxel: float = 0.003
+    leaf_split_angle_deg: float = 15.0
     w_sur: float = 1.0
     w_neg: float = 2.0
     w_ped: float = 0.1
@@ -910,6 +914,7 @@ _RULES = {
     "perception.no_return_free_range": ">=0",
     "shape.latent_size": ">=1",
     "shape.free_space_voxel": ">0",
+    "shape.leaf_split_angle_deg": ">=0",
     "shape.w_sur": ">=0",
     "shape.w_neg": ">=0",
     "shape.w_ped": ">=0",

@@ -327,3 +327,60 @@ def RemovePointsNear(scene: SemanticScene, points_W: np.ndarray, distance: float
             if len(getattr(out, f"{name}_points_W")) == 0 and flag not in out.flags:
                 out.flags.append(flag)
     return out, dropped
+
+
+
+def SplitTouchingLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray, p_WC: np.ndarray,
+                        max_angle_deg: float = 15.0, link: float = 0.0075,
+                        normal_radius: float = 0.012, min_fraction: float = 0.2,
+                        min_points: int = 30) -> np.ndarray:
+    """Leaf instance ids (N,) with touching leaves told apart. Leaves that
+    touch (two blades over one fruit, opposite leaves at a node) are one
+    DBSCAN cluster and, where the depth does not jump, one image region; but
+    a blade is smooth and two blades meet at an angle. Within each instance,
+    points ``link`` m apart are linked when their normals (estimated within
+    ``normal_radius`` m, oriented toward the camera at ``p_WC``) differ by
+    less than ``max_angle_deg``; every linked part holding at least
+    ``min_fraction`` of the instance (and ``min_points``) becomes a leaf, the
+    other points join the part nearest them. Noise (-1) stays noise, the
+    largest part keeps the instance's id, new ids are appended."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+    import open3d as o3d
+    leaf_W = np.asarray(leaf_W, float).reshape(-1, 3)
+    ids = np.asarray(leaf_instance, np.int64).copy()
+    if len(leaf_W) < 2 * min_points:
+        return ids
+    cloud = _o3d_cloud(leaf_W)
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=40))
+    cloud.orient_normals_towards_camera_location(np.asarray(p_WC, float).reshape(3))
+    normals = np.asarray(cloud.normals)
+    cos_max = np.cos(np.deg2rad(max_angle_deg))
+    next_id = int(ids.max()) + 1
+    for j in np.unique(ids[ids >= 0]):
+        mine = np.flatnonzero(ids == j)
+        if len(mine) < 2 * min_points:
+            continue
+        pairs = cKDTree(leaf_W[mine]).query_pairs(link, output_type="ndarray")
+        if len(pairs) == 0:
+            continue
+        smooth = np.abs(np.einsum("ij,ij->i", normals[mine[pairs[:, 0]]],
+                                  normals[mine[pairs[:, 1]]])) >= cos_max
+        pairs = pairs[smooth]
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                           shape=(len(mine), len(mine)))
+        _, part = connected_components(graph, directed=False)
+        sizes = np.bincount(part)
+        big = np.flatnonzero(sizes >= max(min_points, min_fraction * len(mine)))
+        if len(big) < 2:
+            continue
+        big = big[np.argsort(-sizes[big], kind="stable")]
+        anchors = np.isin(part, big)
+        owner = part[anchors][cKDTree(leaf_W[mine[anchors]]).query(leaf_W[mine])[1]]
+        new_of = {int(big[0]): int(j)}
+        for b in big[1:]:
+            new_of[int(b)] = next_id
+            next_id += 1
+        ids[mine] = [new_of[int(o)] for o in owner]
+    return ids

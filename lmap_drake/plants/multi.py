@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from lmap_drake.plants.generator import (OCCLUSION_CLAMP, OCCLUSION_TOLERANCE,
+from lmap_drake.plants.generator import (OCCLUSION_CLAMP, OCCLUSION_TOLERANCE, SIGN_RAYS,
                                          BranchCenterline, BranchPointsAtHeights,
                                          OffsetBesideBranch, PlantGenerationError,
                                          _leaf_vertices, _rot_about, _unit)
@@ -244,7 +244,7 @@ def SurfaceDistance(meshes: list, points: np.ndarray) -> np.ndarray:
     if not meshes:
         return np.full(len(points), np.inf)
     q = o3d.core.Tensor(np.asarray(points, np.float32))
-    return _o3d_scene(meshes).compute_signed_distance(q).numpy().astype(float)
+    return _o3d_scene(meshes).compute_signed_distance(q, nsamples=SIGN_RAYS).numpy().astype(float)
 
 
 def MeshesCross(a: trimesh.Trimesh, b: trimesh.Trimesh) -> bool:

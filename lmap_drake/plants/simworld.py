@@ -22,7 +22,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.trajectories import PiecewisePolynomial
 
-from lmap_drake.plants.generator import MeshSignedDistance
+from lmap_drake.plants.generator import SIGN_RAYS, MeshSignedDistance
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
                                        StrainPercentile, VisibilityFraction)
 from lmap_drake.scenario import Scenario
@@ -275,7 +275,7 @@ class PlantWorldSim:
                 self._fruits_sdf = _o3d_scene([f.mesh_W for f in self.model.fruits])
             import open3d as o3d
             d = self._fruits_sdf.compute_signed_distance(
-                o3d.core.Tensor(np.vstack(Vs).astype(np.float32))).numpy()
+                o3d.core.Tensor(np.vstack(Vs).astype(np.float32)), nsamples=SIGN_RAYS).numpy()
             pen = max(pen, -float(d.min()))
         else:
             pen = max(pen, -float(MeshSignedDistance(self.model.fruit_mesh_W, Vs[0]).min()))

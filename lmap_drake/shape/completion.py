@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from lmap_drake.perception.points import SplitTouchingLeaves
 from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
 from lmap_drake.shape.branch import BranchCompletionParams, CompleteBranches
 from lmap_drake.shape.free_space import FreeSpacePoints
@@ -112,13 +113,16 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                   free_space_voxel: float = 0.003,
                   branch_params: BranchCompletionParams | None = None,
                   min_fruit_points: int = 30, timings: dict | None = None,
-                  merge_distance: float = 0.006) -> PlantEstimate:
+                  merge_distance: float = 0.006,
+                  leaf_split_angle_deg: float = 15.0) -> PlantEstimate:
     """Every fruit instance (``FruitInstances``) completed on its own, the
     other fruits' points counted as outside it (paper Sec. III-F: one
     estimate per fruit), and the branches completed once. Fragments of one
     fruit (split by a leaf across it) are merged when one lies within
     ``merge_distance`` (m, median) of the other's completed surface, or when
-    the two completed shapes overlap (``_Overlap``)."""
+    the two completed shapes overlap (``_Overlap``). Touching leaves are
+    told apart (``SplitTouchingLeaves`` at ``leaf_split_angle_deg``; 0 =
+    not)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     P = params or SscParams()
@@ -126,6 +130,9 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     cam = np.asarray(semantic.X_WC, float)[:3, 3]
     out = PlantEstimate(semantic=semantic, branch=_Branches(semantic, cam, branch_params,
                                                             timings))
+    if leaf_split_angle_deg > 0 and len(semantic.leaf_points_W):
+        semantic = out.semantic = dc.replace(semantic, leaf_instance=SplitTouchingLeaves(
+            semantic.leaf_points_W, semantic.leaf_instance, cam, leaf_split_angle_deg))
     if "no_fruit_in_view" in semantic.flags:
         return out
     pts, inst = np.asarray(semantic.fruit_points_W, float), np.asarray(semantic.fruit_instance)

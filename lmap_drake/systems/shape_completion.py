@@ -92,6 +92,6 @@ class ShapeCompletion(LeafSystem):
         timings = {}
         est = CompletePlant(sem, self.decoder, self.mean_latent, self.params(re), self.method,
                             self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg),
-                            timings=timings)
+                            timings=timings, leaf_split_angle_deg=self.cfg.leaf_split_angle_deg)
         self.last_timings = timings
         output.set_value(est)

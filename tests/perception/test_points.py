@@ -236,3 +236,45 @@ def test_robot_self_filter_drops_points_on_the_robot_only():
     assert len(scene.fruit_points_W) == 100                      # the input is not changed
     same, n = RemovePointsNear(scene, robot.SurfacePoints(q), 0.0)   # 0 = off
     assert n == 0 and same is scene
+
+
+def _Patch(origin, u_axis, v_axis, size_u, size_v, spacing=0.003):
+    u, v = np.meshgrid(np.arange(0, size_u, spacing), np.arange(0, size_v, spacing))
+    return (np.asarray(origin, float) + u.reshape(-1, 1) * np.asarray(u_axis, float)
+            + v.reshape(-1, 1) * np.asarray(v_axis, float))
+
+
+def test_touching_leaves_are_split_where_their_blades_meet_at_an_angle():
+    """A 6 x 5 cm blade whose edge rests on another blade at 50 degrees
+    (one cluster) comes apart into two leaves, each with at least 85 % of
+    its points (the points at the contact have blended normals)."""
+    from lmap_drake.perception.points import SplitTouchingLeaves
+    a = _Patch([0, 0, 0], [1, 0, 0], [0, 1, 0], 0.08, 0.05)
+    t = np.deg2rad(50)
+    b = _Patch([0.04, 0, 0.003], [np.cos(t), 0, np.sin(t)], [0, 1, 0], 0.06, 0.05)
+    pts = np.vstack([a, b])
+    truth = np.r_[np.zeros(len(a), int), np.ones(len(b), int)]
+    ids = SplitTouchingLeaves(pts, np.zeros(len(pts), np.int64), p_WC=[0.0, -0.1, 0.5])
+    assert len(np.unique(ids)) == 2
+    major = []
+    for k in (0, 1):
+        vals, counts = np.unique(ids[truth == k], return_counts=True)
+        assert counts.max() >= 0.85 * (truth == k).sum()
+        major.append(vals[np.argmax(counts)])
+    assert major[0] != major[1]
+    # noise stays noise, other instances keep their ids
+    ids2 = SplitTouchingLeaves(pts, np.r_[np.full(len(a), 3), np.full(len(b), -1)], [0, -0.1, 0.5])
+    assert set(np.unique(ids2)) == {-1, 3}
+
+
+def test_one_curved_blade_is_not_split():
+    """A blade bent on a 6 cm radius (more than a leaf bends) and a flat
+    blade 2 cm away stay as they were."""
+    from lmap_drake.perception.points import SplitTouchingLeaves
+    th, y = np.meshgrid(np.linspace(0, 1.2, 25), np.arange(0, 0.05, 0.003))
+    curved = np.c_[0.06 * np.sin(th.ravel()), y.ravel(), 0.06 * (1 - np.cos(th.ravel()))]
+    flat = _Patch([0, 0.07, 0], [1, 0, 0], [0, 1, 0], 0.05, 0.04)
+    pts = np.vstack([curved, flat])
+    inst = np.r_[np.zeros(len(curved), int), np.ones(len(flat), int)]
+    ids = SplitTouchingLeaves(pts, inst, p_WC=[0.0, 0.0, 0.5])
+    assert np.array_equal(ids, inst)
