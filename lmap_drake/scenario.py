@@ -292,7 +292,16 @@ class PlantSceneConfig:
     placeholder`` is a cheap rigid scene (branch cylinder, leaf plate,
     pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
     on side shoots and several FEM leaves (``multi``,
-    ``lmap_drake/plants/multi.py``). World frame, metres."""
+    ``lmap_drake/plants/multi.py``). World frame, metres.
+
+    ``sleep_distance`` / ``sleep_speed``: a leaf at rest (every vertex
+    slower than ``sleep_speed``, m/s), not held and farther than
+    ``sleep_distance`` (m) from the robot's collision surfaces is frozen
+    (Drake's ``DeformableModel.Disable``: its FEM is not computed) and woken
+    as soon as the robot comes within that distance or it is grasped, as a
+    physics engine puts bodies to sleep (``PlantWorldSim``; 0 = every leaf
+    always simulated). Leaf-leaf contact (``multi.leaf_leaf_contact``)
+    keeps every leaf awake."""
     kind: str = "placeholder"
     name: str = ""
     p_W_branch_base: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
@@ -304,6 +313,8 @@ class PlantSceneConfig:
     pull: ScriptedPullConfig = dc.field(default_factory=ScriptedPullConfig)
     outcome: OutcomeConfig = dc.field(default_factory=OutcomeConfig)
     multi: MultiPlantConfig = dc.field(default_factory=MultiPlantConfig)
+    sleep_distance: float = 0.08
+    sleep_speed: float = 0.002
     # placeholder-only fields
     branch_length: float = 0.5
     branch_radius: float = 0.006
@@ -604,7 +615,17 @@ class PlannerConfig:
     geometric mean of the bounds the FEM world gave on two random suites
     (seeds 157 and 211): 45-degree arcs followed by 30-degree twists loaded
     the petiole 7.3-11.7 N (12 episodes: allowed needs ratio <= 0.53), by
-    60-degree twists 11.5-15.6 N (3: rejected needs ratio > 0.13)."""
+    60-degree twists 11.5-15.6 N (3: rejected needs ratio > 0.13).
+
+    ``max_tether_elongation`` (m): no action (with the motions before it)
+    may end the grasp farther than this beyond its starting distance from
+    the estimated attachment (0 = no limit). The petiole is stiff along its
+    axis: of 160 straight pulls executed in four suite scenes
+    (``scripts/eval_hazard_prediction.py``), those lengthening that
+    distance by more than 2 cm loaded the petiole past 15 N 33 times in 37,
+    by 1.5-2 cm 4 in 12, by at most 1.5 cm 15 in 111 (arcs and twists keep
+    it); two straight 8 cm lifts on multi-fruit plants loaded it 19.7 and
+    23.6 N."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -636,6 +657,7 @@ class PlannerConfig:
     hinge_bending_weight: float = 3.0e-7
     max_hinge_deg: float = 50.0
     petiole_torsion_ratio: float = 0.25
+    max_tether_elongation: float = 0.015
 
 
 @dc.dataclass
@@ -891,6 +913,8 @@ _RULES = {
     "plant_scene.outcome.fruit_penetration": ">=0",
     "plant_scene.outcome.fruit_contact_force": ">=0",
     "plant_scene.outcome.sample_period": ">0",
+    "plant_scene.sleep_distance": ">=0",
+    "plant_scene.sleep_speed": ">=0",
     "plant_scene.branch_length": ">0",
     "plant_scene.branch_radius": ">0",
     "plant_scene.fruit_center_W": "3xfinite",
@@ -990,6 +1014,7 @@ _RULES = {
     "planner.min_branch_distance": ">=0",
     "planner.min_usable_grasps": ">=0",
     "planner.petiole_torsion_ratio": ">=0",
+    "planner.max_tether_elongation": ">=0",
     "planner.visibility_voxel": ">0",
     "planner.collision_margin": ">=0",
     "planner.energy_weight": ">=0",

@@ -645,6 +645,14 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         if np.isfinite(c.hinge_deg) and c.hinge_deg > cfg.max_hinge_deg:
             c.reason = (f"turns the leaf {c.hinge_deg:.0f} deg about its petiole attachment "
                         f"(max_hinge_deg {cfg.max_hinge_deg:g})")
+        elif cset.hinge_W is not None and cfg.max_tether_elongation > 0:
+            # the petiole is stiff along its axis: pulling the grasp away
+            # from the attachment loads it, whatever the blade does
+            tether = float(np.linalg.norm(c.action.p_WG + c.action.dp_W - cset.hinge_W)
+                           - np.linalg.norm(ref - cset.hinge_W))
+            if tether > cfg.max_tether_elongation:
+                c.reason = (f"pulls the grasp {tether * 100:.1f} cm farther from the petiole "
+                            f"attachment (max_tether_elongation {cfg.max_tether_elongation:g} m)")
         c.deformed_leaf_W = np.asarray(p.leaf_points_W)[:n_leaf]
     vis, seen_init, n_max = cset.visibility, cset.seen_init_mask, result.seen_max
     t0 = time.perf_counter()

@@ -18,6 +18,7 @@ import dataclasses as dc
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.trajectories import PiecewisePolynomial
@@ -128,6 +129,7 @@ class PlantWorldSim:
         self.q_cmd = np.asarray(scenario.robot.initial_q, float)
         self.width_cmd = float(scenario.robot.initial_gripper_width)
         self.samples: list[OutcomeSample] = []
+        self._asleep_measures: dict[int, tuple[float, float]] = {}   # frozen leaves
         self.grasp_state: GraspState | None = None
         self._unoccluded: dict = {}
         self.leaf_refs = _LeafRefs(self.model)
@@ -257,18 +259,28 @@ class PlantWorldSim:
         cfg = self.scenario.plant_scene
         strain = force = pen = 0.0
         Vs = []
+        ctx = self.plant_context
         for j, ref in enumerate(self.leaf_refs):
             V = self.LeafVertices(j)
-            constrained = np.flatnonzero(ref.fixed)
-            if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
-                constrained = np.union1d(constrained, self.grasp_state.vertices)
-            strain = max(strain, StrainPercentile(
-                ref.rest_W, V, ref.tets, ConstrainedTetMask(ref.tets, constrained),
-                cfg.outcome.strain_percentile))
-            force = max(force, PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
-                                            cfg.leaf.youngs_modulus,
-                                            cfg.leaf.petiole_width * cfg.leaf.thickness))
             Vs.append(V)
+            asleep = not self.deformable.is_enabled(self.leaf_ids[j], ctx)
+            if asleep and j in self._asleep_measures:     # frozen: as last measured
+                s_j, f_j = self._asleep_measures[j]
+            else:
+                constrained = np.flatnonzero(ref.fixed)
+                if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
+                    constrained = np.union1d(constrained, self.grasp_state.vertices)
+                s_j = StrainPercentile(ref.rest_W, V, ref.tets,
+                                       ConstrainedTetMask(ref.tets, constrained),
+                                       cfg.outcome.strain_percentile)
+                f_j = PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
+                                   cfg.leaf.youngs_modulus,
+                                   cfg.leaf.petiole_width * cfg.leaf.thickness)
+                if asleep:
+                    self._asleep_measures[j] = (s_j, f_j)
+                else:
+                    self._asleep_measures.pop(j, None)
+            strain, force = max(strain, s_j), max(force, f_j)
         if self.multi:      # one ray-casting scene of every fruit, built once
             if getattr(self, "_fruits_sdf", None) is None:
                 from lmap_drake.plants.multi import _o3d_scene
@@ -366,9 +378,41 @@ class PlantWorldSim:
                 self.q_cmd = q_traj.value(t_next).ravel()
                 self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
             self.simulator.AdvanceTo(t_next)
+            self._UpdateSleep()
             if self.time >= next_sample - 1e-9:
                 self.samples.append(self.Sample())
                 next_sample = self.time + period
+
+    def _UpdateSleep(self) -> None:
+        """Freezes the leaves at rest far from the robot and wakes the ones
+        it comes near or holds (``plant_scene.sleep_distance``)."""
+        cfg = self.scenario.plant_scene
+        d_max = cfg.sleep_distance
+        if d_max <= 0 or (self.multi and cfg.multi.leaf_leaf_contact):
+            return
+        ctx = self.plant.GetMyMutableContextFromRoot(self.context)
+        robot = None
+        for j, lid in enumerate(self.leaf_ids):
+            enabled = self.deformable.is_enabled(lid, ctx)
+            if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
+                if not enabled:
+                    self.deformable.Enable(lid, ctx)
+                continue
+            if enabled and np.abs(self.deformable.GetVelocities(ctx, lid)).max() >= \
+                    cfg.sleep_speed:
+                continue        # still moving: stays awake
+            if robot is None:
+                robot = self.robot.SurfacePoints(self.q(), 0.5 * self.GripperWidth())
+            V = self.LeafVertices(j)
+            # robot samples in the leaf's box grown by the distance, then exact
+            box = robot[np.all((robot >= V.min(axis=0) - d_max)
+                               & (robot <= V.max(axis=0) + d_max), axis=1)]
+            near = len(box) > 0 and bool(np.any(cKDTree(V).query(
+                box, distance_upper_bound=d_max)[0] < d_max))
+            if enabled and not near:
+                self.deformable.Disable(lid, ctx)
+            elif not enabled and near:
+                self.deformable.Enable(lid, ctx)
 
     def Hold(self, duration: float) -> None:
         self.AdvanceTo(self.time + duration)

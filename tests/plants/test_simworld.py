@@ -86,3 +86,35 @@ def test_leaf_holds_its_shape_under_gravity():
     world.Hold(0.5)
     sag = np.linalg.norm(world.LeafVertices() - world.model.leaf_rest_W, axis=1).max()
     assert sag < 0.01
+
+
+def test_leaves_at_rest_far_from_the_robot_sleep_and_wake_when_it_comes():
+    """A settled leaf the robot is far from is frozen (its FEM not
+    computed) and does not move while asleep; bringing the open gripper to
+    the pre-grasp pose next to it wakes it before anything touches it."""
+    from lmap_drake.plants.simworld import TipGraspPose, _LeafNormal
+    from lmap_drake.planning.motion import PlanApproach
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    world = PlantWorldSim(scenario)
+
+    def enabled():
+        return world.deformable.is_enabled(world.leaf_id,
+                                           world.plant.GetMyContextFromRoot(world.context))
+    world.Hold(1.0)
+    assert not enabled()
+    frozen = world.LeafVertices()
+    world.Hold(0.2)
+    assert np.array_equal(world.LeafVertices(), frozen)
+    pull = scenario.plant_scene.pull
+    plan = PlanApproach(world.robot, TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v),
+                        world.q_cmd, _LeafNormal(world, 0), pull.pregrasp_distance,
+                        pull.pregrasp_opening)
+    world.SetGripper(pull.pregrasp_opening, 0.0)
+    world.MoveJoints([plan.via] + list(plan.to_ready) + list(plan.to_pregrasp), 0.8)
+    assert enabled()
+    # with sleeping off every leaf is always simulated
+    scenario.plant_scene.sleep_distance = 0.0
+    awake = PlantWorldSim(scenario)
+    awake.Hold(1.0)
+    assert awake.deformable.is_enabled(awake.leaf_id,
+                                       awake.plant.GetMyContextFromRoot(awake.context))

@@ -164,6 +164,17 @@ def test_plan_offers_hinge_arcs_with_the_petiole_term():
     # An arc keeps the grasp's distance to the hinge; its turn is its angle.
     a = next(c for c in arcs if c.feasible)
     assert np.isclose(a.hinge_deg, np.rad2deg(a.action.angle), atol=0.5)
+    # No action may pull the grasp farther from the hinge than the limit:
+    # some pulls are refused for it, no arc is, and nothing chosen does it.
+    tight = _plan(_scene(), max_energy=0.0, planner={"max_tether_elongation": 0.01,
+                                                     "max_hinge_deg": 90.0})
+
+    def tether(c):
+        return (np.linalg.norm(c.action.p_WG + c.action.dp_W - tight.hinge_W)
+                - np.linalg.norm(c.action.p_WG - tight.hinge_W))
+    pulled = [c for c in tight.candidates if "max_tether_elongation 0.01" in c.reason]
+    assert pulled and all(c.action.family == "pull" and tether(c) > 0.01 for c in pulled)
+    assert tight.status != "ok" or tether(tight.chosen) <= 0.01
 
 
 def HeldAfterShortPull():
