@@ -111,7 +111,10 @@ def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True)
         if spec.get("scenario_hash"):
             continue
         try:
-            spec["scenario_hash"] = ScenarioHash(_LoadSpec(spec, str(suite_file), suite_text))
+            scenario = _LoadSpec(spec, str(suite_file), suite_text)
+            spec["scenario_hash"] = ScenarioHash(scenario)
+            if scenario.plant_scene.kind == "multi" and scenario.planner.targets == "all":
+                spec["targets"] = len(scenario.plant_scene.multi.fruits)   # for the estimate
         except Exception:
             if strict:
                 raise

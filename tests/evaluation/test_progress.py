@@ -36,6 +36,22 @@ def test_estimate_from_the_constants_and_from_recorded_medians():
                            f"~{P.Duration(1000 * lmap / 64)} on 64 ray slot(s)")
 
 
+def test_estimate_counts_each_fruit_of_a_multi_fruit_plant():
+    """ResolveSpecs marks a multi-fruit scene revealing every fruit with its
+    number of targets; the estimate charges each of them."""
+    from lmap_drake.evaluation.run_eval import ResolveSpecs
+    specs = T.EpisodeSpecs(["three_fruits_default", "two_fruits_two_leaves_heavy"], ["lmap"])
+    for s in specs:
+        s["scenario_text"] = "{planner: {targets: all}}"
+    ResolveSpecs(specs, DIAGRAMS_DIR / "multi_suite.yaml")
+    assert [s["targets"] for s in specs] == [3, 2]
+    est = P.Estimate(specs, slots=2)
+    assert abs(est["core_seconds"] - 5 * P.MULTI_CORE_SECONDS_PER_TARGET) < 1e-9
+    one = T.EpisodeSpecs(["three_fruits_default"], ["lmap"])     # the largest fruit only
+    ResolveSpecs(one, DIAGRAMS_DIR / "multi_suite.yaml")
+    assert "targets" not in one[0]
+
+
 def test_eta_and_durations():
     assert P.EtaSeconds(0, 10, 5.0) is None
     assert P.EtaSeconds(2, 10, 30.0) == 120.0 and P.EtaSeconds(10, 10, 99.0) == 0.0
