@@ -217,6 +217,7 @@ class SimWorld:
         planner saw, and after the action), shape errors."""
         from lmap_drake.plants.outcome import ShapeErrors, Summarize
         sim = self.sim
+        record["robot_contact"] = dict(sim.worst_robot_contact)   # what touched, if anything
         if getattr(sim, "multi", False):
             self._ScoreMulti(record, views, st)
             return

@@ -130,6 +130,8 @@ class PlantWorldSim:
         self.width_cmd = float(scenario.robot.initial_gripper_width)
         self.samples: list[OutcomeSample] = []
         self._asleep_measures: dict[int, tuple[float, float]] = {}   # frozen leaves
+        # the largest robot-robot / robot-branch contact so far, and what touched
+        self.worst_robot_contact = {"force_N": 0.0, "t": None, "pair": ""}
         self.grasp_state: GraspState | None = None
         self._unoccluded: dict = {}
         self.leaf_refs = _LeafRefs(self.model)
@@ -361,6 +363,10 @@ class PlantWorldSim:
             kinds = {kind(a), kind(b)}
             if kinds in ({"robot"}, {"robot", "branch"}):
                 worst = max(worst, float(f))
+                if f > self.worst_robot_contact["force_N"]:
+                    self.worst_robot_contact = {
+                        "force_N": float(f), "t": round(self.time, 3),
+                        "pair": f"{inspector.GetName(a)} / {inspector.GetName(b)}"}
         return worst
 
     # --- acting -----------------------------------------------------------
@@ -483,6 +489,8 @@ class PlantWorldSim:
         other.simulator = Simulator(self.diagram, other.context)
         other.simulator.set_target_realtime_rate(0.0)
         other.samples = list(self.samples)
+        other._asleep_measures = dict(self._asleep_measures)
+        other.worst_robot_contact = dict(self.worst_robot_contact)
         other.q_cmd = self.q_cmd.copy()
         other.simulator.Initialize()
         return other

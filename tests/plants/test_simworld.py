@@ -118,3 +118,22 @@ def test_leaves_at_rest_far_from_the_robot_sleep_and_wake_when_it_comes():
     awake.Hold(1.0)
     assert awake.deformable.is_enabled(awake.leaf_id,
                                        awake.plant.GetMyContextFromRoot(awake.context))
+
+
+def test_robot_contact_is_reported_with_the_pair():
+    """The outcome's robot-contact diagnostic sees the wrist folded into
+    the forearm (a pose the planner refuses) and names what touched
+    (``worst_robot_contact``)."""
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    world = PlantWorldSim(scenario)
+    world.Hold(0.1)
+    assert world.worst_robot_contact["force_N"] == 0.0
+    folded = np.array(world.q_cmd, float)
+    folded[3:5] = [0.5, 3.0]
+    assert world.robot.SelfCollision(folded)
+    world.MoveJoints([folded], speed_fraction=0.3)
+    out = _outcome(world)
+    assert out.max_robot_contact_force > 1.0
+    assert world.worst_robot_contact["pair"].count("ur5::") + \
+        world.worst_robot_contact["pair"].count("robotiq_2f85::") == 2
+    assert world.worst_robot_contact["force_N"] == pytest.approx(out.max_robot_contact_force)
