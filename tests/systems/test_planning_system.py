@@ -43,6 +43,7 @@ def _X_WC():
 
 def _plan(scene, energy_weight=1.0, max_energy=None, force_action=None, planner=None):
     s = Scenario()
+    s.planner.action_families = ["pull", "arc", "twist"]   # every family (default: no pulls)
     for k, v in (planner or {}).items():
         setattr(s.planner, k, v)
     if force_action is not None:
@@ -191,6 +192,7 @@ def HeldAfterShortPull():
     key = [short.action.grasp_id, short.action.direction_id, short.action.distance]
     first = _plan(_scene(), max_energy=0.0, force_action=key)
     s = Scenario()
+    s.planner.action_families = ["pull", "arc", "twist"]
     s.planner.distances = [0.04, 0.08]
     s.planner.max_energy_per_node = 0.0
     scene = _scene()
