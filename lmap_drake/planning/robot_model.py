@@ -8,11 +8,16 @@ import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Role
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+from pydrake.multibody.tree import JointIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from lmap_drake.planning.ik import (IkResult, NewtonTcpIk, SolveTcpIk,
                                    SolveTcpIkMultiStart)
 from lmap_drake.station.robot import AddUr5AndGripper
+
+
+# Clearance (m) kept between arm links three or more joints apart.
+SELF_MARGIN = 0.01
 
 
 def _SampleShape(shape, spacing: float) -> np.ndarray:
@@ -100,6 +105,23 @@ class RobotModel:
             gid for gid in inspector.GetAllGeometryIds(Role.kProximity)
             if self.plant.GetBodyFromFrameId(inspector.GetFrameId(gid)).model_instance()
             == self.gripper}
+        # Moving joints from the world to each body: links three or more
+        # joints apart must keep ``self_margin`` from each other (closer ones,
+        # e.g. the forearm and the wrist 2 housing, are close by design).
+        parent = {}
+        for j in range(self.plant.num_joints()):
+            joint = self.plant.get_joint(JointIndex(j))
+            parent[joint.child_body().index()] = (joint.parent_body().index(),
+                                                  0 if joint.num_velocities() == 0 else 1)
+
+        def depth(b):
+            n = 0
+            while b in parent:
+                b, moving = parent[b]
+                n += moving
+            return n
+        self._depth = {gid: depth(self.plant.GetBodyFromFrameId(inspector.GetFrameId(gid)).index())
+                       for gid in inspector.GetAllGeometryIds(Role.kProximity)}
 
     def SetQ(self, q: np.ndarray, half_opening: float = 0.0) -> None:
         self.plant.SetPositions(self.context, np.r_[np.asarray(q, float),
@@ -114,20 +136,27 @@ class RobotModel:
             out.append(p @ X[:3, :3].T + X[:3, 3])
         return np.vstack(out)
 
-    def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0) -> str:
-        """'' if the arm and gripper at ``q`` do not interpenetrate, else the
-        first offending pair, e.g. 'ur5::forearm /
-        robotiq_2f85::body' (the gripper's own parts against each other are
-        not counted; bodies joined by a joint are filtered by the plant)."""
+    def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
+                      margin: float = SELF_MARGIN) -> str:
+        """'' if the arm and gripper at ``q`` do not interpenetrate and links
+        three or more joints apart keep ``margin`` (m) from each other, else
+        the first offending pair, e.g. 'ur5::forearm / robotiq_2f85::body'
+        (the gripper's own parts against each other are not counted; bodies
+        joined by a joint are filtered by the plant). The margin covers what
+        the checked poses do not: the path between them and the arm's
+        tracking error (the upper arm met the wrist 2 housing between checked
+        approach poses in the FEM world)."""
         self.SetQ(q, half_opening)
         query = self.scene_graph.get_query_output_port().Eval(
             self.scene_graph.GetMyContextFromRoot(self._diagram_context))
         inspector = query.inspector()
-        for pair in query.ComputePointPairPenetration():
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max(margin, 0.0)):
             a, b = pair.id_A, pair.id_B
             if a in self._gripper_geoms and b in self._gripper_geoms:
                 continue
-            return f"{inspector.GetName(a)} / {inspector.GetName(b)}"
+            if pair.distance < 0.0 or (pair.distance < margin
+                                       and abs(self._depth[a] - self._depth[b]) >= 3):
+                return f"{inspector.GetName(a)} / {inspector.GetName(b)}"
         return ""
 
     def TcpPose(self, q: np.ndarray, half_opening: float = 0.0) -> RigidTransform:
