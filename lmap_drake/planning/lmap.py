@@ -20,7 +20,7 @@ from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
 from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
                                            RobotCollisionReason)
-from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.planning.robot_model import SELF_MARGIN, RobotModel
 from lmap_drake.planning.visibility import CountNewlySeen, VisibilityModel
 from lmap_drake.scenario import DeformationConfig, PlannerConfig
 from lmap_drake.types import SceneEstimate
@@ -170,11 +170,12 @@ def FruitSurfaceSamples(f) -> np.ndarray:
 
 
 def _RobotPoseReason(robot, q: np.ndarray, half_open: float, points_W: np.ndarray,
-                     ctx: PlanningContext, cfg: PlannerConfig) -> str:
+                     ctx: PlanningContext, cfg: PlannerConfig, self_margin: float = 0.0
+                     ) -> str:
     """'' if the robot at ``q`` (surface samples ``points_W``) is clear of
-    itself (arm against gripper or arm) and keeps the margin from the fruit
-    and the branch, else the reason."""
-    pair = robot.SelfCollision(q, half_open)
+    itself (arm against gripper or arm; distant links by ``self_margin``)
+    and keeps the margin from the fruit and the branch, else the reason."""
+    pair = robot.SelfCollision(q, half_open, self_margin)
     if pair:
         return f"robot self-collision ({pair})"
     return RobotCollisionReason(points_W, ctx.fruit_sdf, ctx.branch_distance,
@@ -205,7 +206,9 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
             (approach.to_grasp, "during the approach", " (leaf not between the pads)")):
         for q in path:
             pts = robot.SurfacePoints(q, half_open)
-            why = _RobotPoseReason(robot, q, half_open, pts, ctx, cfg)
+            # the approach's joint moves are fast and sampled: distant
+            # links also keep SELF_MARGIN there
+            why = _RobotPoseReason(robot, q, half_open, pts, ctx, cfg, SELF_MARGIN)
             if why:
                 return f"{why} {when}"
             if leaf_tree is not None:

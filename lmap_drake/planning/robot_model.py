@@ -16,7 +16,8 @@ from lmap_drake.planning.ik import (IkResult, NewtonTcpIk, SolveTcpIk,
 from lmap_drake.station.robot import AddUr5AndGripper
 
 
-# Clearance (m) kept between arm links three or more joints apart.
+# Clearance (m) kept between arm links three or more joints apart along the
+# approach and retreat (``RobotModel.SelfCollision``).
 SELF_MARGIN = 0.01
 
 
@@ -137,15 +138,16 @@ class RobotModel:
         return np.vstack(out)
 
     def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
-                      margin: float = SELF_MARGIN) -> str:
+                      margin: float = 0.0) -> str:
         """'' if the arm and gripper at ``q`` do not interpenetrate and links
         three or more joints apart keep ``margin`` (m) from each other, else
         the first offending pair, e.g. 'ur5::forearm / robotiq_2f85::body'
         (the gripper's own parts against each other are not counted; bodies
-        joined by a joint are filtered by the plant). The margin covers what
-        the checked poses do not: the path between them and the arm's
-        tracking error (the upper arm met the wrist 2 housing between checked
-        approach poses in the FEM world)."""
+        joined by a joint are filtered by the plant). The planner asks for
+        ``SELF_MARGIN`` along the approach: its fast joint moves are checked
+        at samples, and the arm's tracking error adds to the path between
+        them (the upper arm met the wrist 2 housing between checked approach
+        poses in the FEM world)."""
         self.SetQ(q, half_opening)
         query = self.scene_graph.get_query_output_port().Eval(
             self.scene_graph.GetMyContextFromRoot(self._diagram_context))

@@ -118,16 +118,16 @@ def test_self_collision_names_the_pair(robot):
 
 
 def test_self_collision_keeps_a_margin_between_distant_links(robot):
-    """Links three or more joints apart must keep ``SELF_MARGIN``: some
-    poses that do not interpenetrate are refused for it; the ready pose
-    keeps it."""
+    """With ``SELF_MARGIN`` (the approach's check) links three or more
+    joints apart must keep it: some poses that do not interpenetrate are
+    refused for it; the ready pose keeps it."""
     from lmap_drake.planning.robot_model import SELF_MARGIN
     assert SELF_MARGIN > 0
     rng = np.random.default_rng(0)
     close = [q for q in rng.uniform(-np.pi, np.pi, (300, 6))
-             if robot.SelfCollision(q, margin=0.0) == "" and robot.SelfCollision(q)]
+             if robot.SelfCollision(q) == "" and robot.SelfCollision(q, margin=SELF_MARGIN)]
     assert close
-    assert robot.SelfCollision(np.array(RobotConfig().initial_q)) == ""
+    assert robot.SelfCollision(np.array(RobotConfig().initial_q), margin=SELF_MARGIN) == ""
 
 
 def test_planner_rejects_a_self_colliding_pose(robot):
