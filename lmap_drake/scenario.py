@@ -567,14 +567,13 @@ class PlannerConfig:
     100 + axis) and 'twist' (ours: the gripper turns by each of
     ``twist_angles_deg``, both senses, about the attachment-grasp line, so
     the blade turns toward edge-on about it; direction ids 200, 201).
-    ``force_action`` names an arc by its chord (m). The default leaves the
-    paper's pulls out: in the FEM world they are the motions that overload
-    the petiole (of 160 executed from one grasp in four suite scenes, 44
-    passed 15 N; of 14 chosen by the planner on random suites, all 2 cm
-    continuations after an arc, 2 did, 15.3 and 17.4 N; on multi-fruit
-    plants three lifts of a low leaf did, 17-24 N), while no arc or twist
-    the planner chose did once the robot's self-collisions were checked.
-    ``[pull, arc, twist]`` gives the planner all three.
+    ``force_action`` names an arc by its chord (m).
+    ``continuation_families``: the families a re-plan from the held leaf
+    may use (those also in ``action_families``). Pulls are left out by
+    default: a straight pull from a leaf already turned is what overloaded
+    the petiole among the planner's continuations (2 cm pulls after an
+    arc, 2 of 12 past 15 N on random suites: 15.3 and 17.4 N), while the
+    arcs and twists it chose there stayed below 13 N.
 
     ``targets``: ``largest`` reveals the most-seen fruit (the paper's
     single-fruit episode); ``all`` reveals every fruit of the plant in turn
@@ -655,7 +654,8 @@ class PlannerConfig:
     method: str = "lmap"  # lmap | random | upward | min_overlap
     speed_scale: float = 1.0
     release_and_retreat: bool = True
-    action_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
+    action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
+    continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
     arc_angles_deg: list[float] = dc.field(default_factory=lambda: [15.0, 30.0, 45.0])
     twist_angles_deg: list[float] = dc.field(default_factory=lambda: [30.0, 60.0])
     num_arc_axes: int = 8
@@ -1231,6 +1231,10 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
          "planner.action_families",
          f"must be a non-empty list of distinct families of 'pull', 'arc', 'twist', "
          f"got {fams}")
+    cont = list(s.planner.continuation_families)
+    need(all(f in ("pull", "arc", "twist") for f in cont) and len(set(cont)) == len(cont),
+         "planner.continuation_families",
+         f"must be a list of distinct families of 'pull', 'arc', 'twist', got {cont}")
     need(all(0 < a < 180 for a in s.planner.arc_angles_deg), "planner.arc_angles_deg",
          f"must be angles in (0, 180) degrees, got {list(s.planner.arc_angles_deg)}")
     need(all(0 < a < 180 for a in s.planner.twist_angles_deg), "planner.twist_angles_deg",

@@ -848,18 +848,19 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
     t0 = time.perf_counter()
     p, R = held.p_WG, held.R_WG
     actions = []
-    if "pull" in cfg.action_families:
+    families = [f for f in cfg.action_families if f in cfg.continuation_families]
+    if "pull" in families:
         dirs, ids = DirectionsForGrasp(p, ctx.branch_all_W, cfg.max_branch_angle_deg,
                                        PullDirections()[:cfg.num_directions])
         actions += [Action(p, R, s * u, grasp_id=0, direction_id=int(j))
                     for u, j in zip(dirs, ids) for s in cfg.distances]
     if held.hinge_W is not None and np.linalg.norm(p - held.hinge_W) > 0.02:
-        if "arc" in cfg.action_families:
+        if "arc" in families:
             actions += MakeArcActions(p, R, held.hinge_W, HingeAxes(p, held.hinge_W,
                                                                     cfg.num_arc_axes),
                                       np.deg2rad(np.asarray(cfg.arc_angles_deg, float)),
                                       grasp_id=0)
-        if "twist" in cfg.action_families:
+        if "twist" in families:
             actions += MakeTwistActions(p, R, held.hinge_W,
                                         np.deg2rad(np.asarray(cfg.twist_angles_deg, float)),
                                         grasp_id=0)

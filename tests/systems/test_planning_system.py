@@ -43,7 +43,6 @@ def _X_WC():
 
 def _plan(scene, energy_weight=1.0, max_energy=None, force_action=None, planner=None):
     s = Scenario()
-    s.planner.action_families = ["pull", "arc", "twist"]   # every family (default: no pulls)
     for k, v in (planner or {}).items():
         setattr(s.planner, k, v)
     if force_action is not None:
@@ -192,7 +191,7 @@ def HeldAfterShortPull():
     key = [short.action.grasp_id, short.action.direction_id, short.action.distance]
     first = _plan(_scene(), max_energy=0.0, force_action=key)
     s = Scenario()
-    s.planner.action_families = ["pull", "arc", "twist"]
+    s.planner.continuation_families = ["pull", "arc", "twist"]
     s.planner.distances = [0.04, 0.08]
     s.planner.max_energy_per_node = 0.0
     scene = _scene()
@@ -221,6 +220,12 @@ def test_continuation_from_the_held_leaf():
     for c in cont.candidates:
         assert np.allclose(c.action.p_WG, held.p_WG) and np.allclose(c.action.R_WG, held.R_WG)
         assert c.approach is None
+    assert {c.action.family for c in cont.candidates} == {"pull", "arc", "twist"}
+    # by default a re-plan only turns the held leaf (no straight pulls)
+    turns = PlanContinuation(ctx, dc.replace(s.planner, continuation_families=["arc", "twist"]),
+                             s.deformation, held)
+    assert turns.candidates and {c.action.family for c in turns.candidates} <= {"arc", "twist"}
+    assert Scenario().planner.continuation_families == ["arc", "twist"]
     gain = s.planner.min_replan_gain * cont.seen_max
     assert all(c.seen >= cont.seen_init + gain for c in cont.candidates if c.feasible)
     assert any("not above the current" in c.reason for c in cont.candidates)
