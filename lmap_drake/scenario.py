@@ -447,7 +447,8 @@ class ShapeConfig:
     HortiMapping-style checkpoint. ``method``: ssc | homa | supeps. SSC
     losses measure lengths in ``loss_length_unit`` (m; 0.01 = cm); see
     ``lmap_drake/shape/ssc.py`` (also for ``peduncle_huber`` (m),
-    ``peduncle_moves_scale``, ``peduncle_follow_axis``, ``peduncle_slide``:
+    ``peduncle_moves_scale``, ``peduncle_follow_axis``, ``peduncle_slide``,
+    ``peduncle_base_distance`` (m):
     the robust peduncle term, and ``init_from_observation`` /
     ``init_scale_bounds``: the start scale and centre from the observed
     points). ``branch_*``: branch completion (slab
@@ -470,7 +471,7 @@ class ShapeConfig:
     reestimate_w_ped: float = 0.01
     reestimate_w_neg_completed_branch: float = 0.01
     learning_rate: float = 0.01
-    iterations: int = 300
+    iterations: int = 250
     num_peduncle_points: int = 10
     loss_length_unit: float = 0.01
     push_from_camera: float = 0.01
@@ -484,6 +485,7 @@ class ShapeConfig:
     peduncle_moves_scale: bool = False
     peduncle_follow_axis: bool = False
     peduncle_slide: bool = True
+    peduncle_base_distance: float = 0.01
     init_from_observation: bool = False
     w_rot: float = 0.0
     init_scale_bounds: list[float] = dc.field(default_factory=lambda: [0.5, 2.0])
@@ -964,6 +966,7 @@ _RULES = {
     "shape.peduncle_max_distance": ">0",
     "shape.peduncle_cone_deg": "(0,180]",
     "shape.peduncle_huber": ">=0",
+    "shape.peduncle_base_distance": ">=0",
     "shape.w_rot": ">=0",
     "shape.init_scale_bounds": "2x>0",
     "shape.refresh_every": ">=1",

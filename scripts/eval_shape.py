@@ -59,7 +59,7 @@ from lmap_drake.shape import benchmark
 from lmap_drake.shape.completion import CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints
-from lmap_drake.shape.metrics import ShapeMetrics
+from lmap_drake.shape.metrics import MeshVolume, ShapeMetrics
 from lmap_drake.shape.ssc import SscParams
 
 METRICS = ("chamfer_cm", "volume_err_cm3", "center_err_cm", "angle_err_deg", "seconds")
@@ -203,6 +203,8 @@ def main(argv=None):
     ap.add_argument("--fruit_mesh_dir", default=None,
                     help="evaluate the pepper meshes DIR/NAME.{obj,ply,stl} (+ NAME.peduncle.*) "
                          "in the suite's scenes instead of the procedural peppers")
+    ap.add_argument("--conditions", default=",".join(CONDITIONS),
+                    help="comma-separated: initial_occlusion, without_occlusion")
     ap.add_argument("--scenario_names", default=None,
                     help="comma-separated suite scenes (default: the first --num_cases)")
     a = ap.parse_args(argv)
@@ -219,6 +221,11 @@ def main(argv=None):
     names = a.scenario_names.split(",") if a.scenario_names else None
     torch.set_num_threads(a.threads)
     methods = a.methods.split(",")
+    conditions = a.conditions.split(",")
+    bad = [c for c in conditions if c not in CONDITIONS]
+    if bad:
+        from lmap_drake.errors import InputError
+        raise InputError(f"--conditions: unknown {bad[0]!r} (choose from {', '.join(CONDITIONS)})")
     cfg = yaml_load_typed(schema=ShapeConfig, data=a.shape_text, defaults=ShapeConfig())
     dec, mean, _ = LoadDecoder(cfg.weights_file, getattr(cfg, "mean_latent_file", "") or None)
     P = SscParams.FromConfig(cfg)
@@ -231,14 +238,14 @@ def main(argv=None):
     for src, name, fruit, make in Cases(a.source, a.num_cases, fruit_files, names):
         source = src
         try:
-            cases = {cond: make(cond == "initial_occlusion") for cond in CONDITIONS}
+            cases = {cond: make(cond == "initial_occlusion") for cond in conditions}
         except PlantGenerationError as err:
             if fruit_files is None:
                 raise
             skipped.append({"case": name, "fruit": fruit, "reason": str(err)})
             print(f"{name:28s} skipped: {err}", flush=True)
             continue
-        for cond in CONDITIONS:
+        for cond in conditions:
             case = cases[cond]
             sem = case.semantic
             negatives = None
@@ -254,7 +261,11 @@ def main(argv=None):
                              branch_seconds=tm.get("branch_s", 0.0), case=case.name,
                              condition=cond, method=m, seed=seed, fruit=fruit,
                              visible_fraction=case.visible_fraction,
-                             num_fruit_points=int(len(sem.fruit_points_W)))
+                             num_fruit_points=int(len(sem.fruit_points_W)),
+                             volume_cm3=abs(MeshVolume(f.vertices_W, f.faces)) * 1e6,
+                             gt_volume_cm3=abs(MeshVolume(case.gt_vertices_W,
+                                                          case.gt_faces)) * 1e6,
+                             scale=float(np.cbrt(abs(np.linalg.det(f.X_WO[:3, :3])))))
                     if m != "supeps":
                         if negatives is None:
                             negatives = SceneNegatives(sem, cfg.free_space_voxel)

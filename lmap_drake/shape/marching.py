@@ -112,14 +112,40 @@ def MarchingTetrahedra(values: np.ndarray, origin, spacing, level: float = 0.0):
 
 
 def ExtractIsoSurface(fn: Callable[[np.ndarray], np.ndarray], lo, hi, spacing: float,
-                      level: float = 0.0):
+                      level: float = 0.0, band: float = 0.0):
     """Samples ``fn`` ((N,3) -> (N,)) on a grid covering the box [lo, hi]
     (padded by one cell so a closed surface stays closed) and returns the
-    marching-tetrahedra mesh ``(vertices, faces)``."""
+    marching-tetrahedra mesh ``(vertices, faces)``.
+
+    ``band`` > 0 (for ``fn`` a distance, e.g. an SDF in the grid's units):
+    ``fn`` is first sampled on every second node; fine nodes whose coarse
+    neighbours are all farther than ``band`` from the level take the value
+    of the coarse node at or below them (its sign is theirs when ``band``
+    exceeds the distance between them, spacing * sqrt(3), times the
+    function's slope), the rest are sampled. Same mesh, about a quarter of
+    the samples."""
     lo = np.asarray(lo, float) - spacing
     hi = np.asarray(hi, float) + spacing
     n = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
+    if band > 0:
+        n = n + (n % 2 == 0)                # odd: the coarse nodes are fine nodes
     axes = [lo[i] + spacing * np.arange(n[i]) for i in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    vals = np.asarray(fn(grid), float).reshape(n)
+    if band <= 0 or n.min() < 5:
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        vals = np.asarray(fn(grid), float).reshape(n)
+        return MarchingTetrahedra(vals, lo, spacing, level)
+    from scipy.ndimage import binary_dilation
+    cax = [a[::2] for a in axes]
+    nc = np.array([len(a) for a in cax])
+    cgrid = np.stack(np.meshgrid(*cax, indexing="ij"), -1).reshape(-1, 3)
+    cv = np.asarray(fn(cgrid), float).reshape(nc)
+    near = binary_dilation(np.abs(cv - level) < band, np.ones((3, 3, 3), bool))
+    fi = [np.arange(k) // 2 for k in n]           # coarse node at or below
+    ix = np.ix_(*fi)
+    vals = cv[ix].copy()
+    need = near[ix]
+    idx = np.nonzero(need)
+    if len(idx[0]):
+        pts = np.stack([axes[i][idx[i]] for i in range(3)], -1)
+        vals[idx] = np.asarray(fn(pts), float)
     return MarchingTetrahedra(vals, lo, spacing, level)

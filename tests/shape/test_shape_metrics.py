@@ -60,3 +60,25 @@ def test_box_volume_centroid_and_marching_is_watertight():
     assert m.is_watertight and m.is_winding_consistent
     assert abs(MeshVolume(v, f) / (4 / 3 * np.pi * 0.03 ** 3) - 1) < 0.01
     assert m.volume > 0  # outward winding
+
+
+def test_narrow_band_extraction_gives_the_same_mesh_from_fewer_samples():
+    """``band``: coarse samples first, fine ones only near the surface; the
+    mesh equals the full grid's (two spheres, one cut into the other)."""
+    def sdf(p):
+        a = np.linalg.norm(p - [0.01, 0, 0], axis=1) - 0.03
+        b = np.linalg.norm(p - [-0.025, 0.01, 0.02], axis=1) - 0.012
+        return np.maximum(a, -b)
+    calls = []
+
+    def counted(p):
+        calls.append(len(p))
+        return sdf(p)
+    lo, hi, h = [-0.045, -0.05, -0.05], [0.06, 0.05, 0.05], 0.0021   # 1.5 cm margin
+    v_full, f_full = ExtractIsoSurface(counted, lo, hi, h, band=1e9)
+    n_full = sum(calls)
+    calls.clear()
+    v, f = ExtractIsoSurface(counted, lo, hi, h, band=4 * h)
+    np.testing.assert_array_equal(f, f_full)
+    np.testing.assert_array_equal(v, v_full)
+    assert sum(calls) < 0.6 * n_full, (sum(calls), n_full)

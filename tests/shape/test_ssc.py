@@ -144,7 +144,10 @@ def test_visible_curved_peduncle_does_not_inflate_the_fruit(template):
     top_W = s_true * R @ top_O + gt.X_WO[:3, 3]
     stalk = _arc_stalk(top_W - 0.004 * axis, axis)
     stalk = stalk[np.linalg.norm(stalk - top_W, axis=1) > 0.015]    # its base is hidden
-    est = OptimizeShape(dec, mean, obs, CAM, [(stalk, 1.0)], stalk, SscParams())
+    # Without the base gate (``peduncle_base_distance`` 0), so the visible
+    # upper stalk does reach the term.
+    est = OptimizeShape(dec, mean, obs, CAM, [(stalk, 1.0)], stalk,
+                        SscParams(peduncle_base_distance=0.0))
     tr = [r for r in est.loss_trace if r["it"] >= 0]
     assert sum(r["ped"] > 0 for r in tr) > 100        # the peduncle term was active
     s_est = float(np.cbrt(abs(np.linalg.det(est.X_WO[:3, :3]))))
@@ -181,3 +184,53 @@ def test_initial_pose_from_observation(template):
     assert s3 == 1.0
     np.testing.assert_allclose(t3, small.mean(0) + 0.01 * (small.mean(0) - CAM) /
                                np.linalg.norm(small.mean(0) - CAM))
+
+
+def _stalk_case(dec, lat, hide_base: bool):
+    """A fruit (12 deg tilt) with its right half in view and a curved stalk
+    (50 deg bend over 6 cm) leaving its top; ``hide_base``: the stalk's
+    first 1.5 cm is hidden (as behind a leaf)."""
+    gt, R = _gt(dec, lat[5], s=0.85)
+    obs = _visible_points(gt, keep_right_half=True)
+    axis = R[:, 2]
+    from lmap_drake.shape.ssc import PeduncleTemplatePoints
+    top_O = PeduncleTemplatePoints(dec, torch.as_tensor(lat[5]), 10).mean(0)
+    top_W = 0.85 * R @ top_O + gt.X_WO[:3, 3]
+    stalk = _arc_stalk(top_W - 0.004 * axis, axis)
+    if hide_base:
+        stalk = stalk[np.linalg.norm(stalk - top_W, axis=1) > 0.015]
+    return gt, axis, obs, stalk
+
+
+def test_peduncle_base_gate_uses_only_the_stalk_where_it_meets_the_fruit(template):
+    """``peduncle_base_distance``: only branch samples on the current fruit
+    surface pull the template's top. A stalk seen from its base keeps the
+    term active; a stalk whose base is hidden leaves it (almost) idle, so
+    the curved, visible part cannot tilt the fruit."""
+    dec, mean, lat = template
+    P = SscParams(peduncle_base_distance=0.01)
+    ped = {}
+    for hide in (False, True):
+        gt, axis, obs, stalk = _stalk_case(dec, lat, hide)
+        est = OptimizeShape(dec, mean, obs, CAM, [(stalk, 1.0)], stalk, P)
+        tr = [r for r in est.loss_trace if r["it"] >= 0]
+        ped[hide] = sum(r["ped"] > 0 for r in tr)
+        ang = np.degrees(np.arccos(np.clip(est.peduncle_axis_W @ axis, -1, 1)))
+        assert ang < 12.0, (hide, ang)
+    assert ped[False] > 150, ped
+    assert ped[True] < ped[False] / 2, ped
+
+
+def test_rotation_prior_keeps_the_axis_near_the_start(template):
+    """``w_rot`` pulls R toward its start (upright: peppers hang). Half of
+    a fruit tilted 12 deg in view: without the prior the fit turns toward
+    the tilt; with a strong prior it stays near upright."""
+    dec, mean, lat = template
+    gt, axis, obs, stalk = _stalk_case(dec, lat, True)
+    turn = {}
+    for w_rot in (0.0, 3.0):
+        est = OptimizeShape(dec, mean, obs, CAM, [(stalk, 1.0)], None,
+                            SscParams(w_rot=w_rot, w_ped=0.0))
+        turn[w_rot] = np.degrees(np.arccos(np.clip(est.peduncle_axis_W[2], -1, 1)))
+    assert turn[3.0] < turn[0.0], turn
+    assert turn[3.0] < 8.0, turn
