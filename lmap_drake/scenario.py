@@ -471,7 +471,7 @@ class ShapeConfig:
     reestimate_w_ped: float = 0.01
     reestimate_w_neg_completed_branch: float = 0.01
     learning_rate: float = 0.01
-    iterations: int = 250
+    iterations: int = 300
     num_peduncle_points: int = 10
     loss_length_unit: float = 0.01
     push_from_camera: float = 0.01

@@ -7,11 +7,11 @@ The paper's T_{w->o} is T_WO^{-1}. ``X_WO`` (4x4) holds ``s R`` in its
 rotation block and ``t`` in its translation. The decoder is queried at
 ``p_O``; the world-frame signed distance is ``s * D(p_O, z)`` (m).
 
-Optimised with Adam (lr ``learning_rate``, ``iterations`` steps, 250 by
-default: against 300, the 12 family suite scenes over 3 optimiser seeds gave
-0.260 / 29.0 / 0.435 / 6.7 against 0.264 / 28.3 / 0.461 / 7.1 and the 31
-external cases 0.503 / 49.0 / 0.874 / 12.9 against 0.501 / 48.4 / 0.868 /
-13.2, for 0.15-0.25 s less per fruit): the latent ``z`` (init: mean
+Optimised with Adam (lr ``learning_rate``, ``iterations`` steps; 300: at
+250 the 12 family suite scenes over 3 optimiser seeds gave 0.260 / 29.0 /
+0.435 / 6.7 against 0.264 / 28.3 / 0.461 / 7.1 and 0.15 s less per fruit,
+but the default episode's re-estimate after the action, on the fused views,
+went 0.12 -> 0.18 cm Chamfer): the latent ``z`` (init: mean
 training latent), ``log s``, a rotation vector ``w`` with ``R = exp([w]_x)``
 (init 0, R = I) and ``t``. Start (``InitialPose``): by default (the
 paper's) s = 1 and t = the centroid of the fruit points pushed
