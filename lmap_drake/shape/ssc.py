@@ -352,7 +352,8 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
     use_ped = branch_samples_W is not None and len(branch_samples_W) > 0 and P.w_ped > 0
     if use_ped:
         branch_all = np.asarray(branch_samples_W, float).reshape(-1, 3)
-        branch_all = branch_all[np.linalg.norm(branch_all - t0, axis=1) < reach]
+        if P.peduncle_base_distance > 0:    # the gate's candidates near the fruit
+            branch_all = branch_all[np.linalg.norm(branch_all - t0, axis=1) < reach]
         use_ped = len(branch_all) > 0
     ped_B = branch_all if use_ped else None
     btree = all_tree = cKDTree(ped_B) if use_ped else None
