@@ -239,6 +239,24 @@ def _SweepSpecs(specs: list[dict], sweep, points: list[dict], labels: list[str],
     return out
 
 
+def _CheckOverride(text: str) -> None:
+    """Fails fast on an eval-wide ``--scenario_text`` that no plant kind can
+    take (unknown keys, wrong types, bad values). An override that is only
+    valid with a suite's own entries (e.g. ``plant_scene.fruit.mesh_file``,
+    which needs ``kind: procedural``) passes here; every episode's full
+    scenario is checked before anything runs (``ResolveSpecs``)."""
+    from lmap_drake.scenario import LoadScenario
+    first = None
+    for kind in ("procedural", None, "multi"):
+        base = [] if kind is None else ["{plant_scene: {kind: %s}}" % kind]
+        try:
+            LoadScenario(scenario_text=base + [text])
+            return
+        except Exception as err:  # noqa: BLE001 - the first error is the one to show
+            first = first or err
+    raise first
+
+
 def cmd_eval(args) -> int:
     from lmap_drake.evaluation import tables as T
     from lmap_drake.evaluation.run_eval import ResolveSpecs, RunEvaluation, RunSweep
@@ -246,7 +264,7 @@ def cmd_eval(args) -> int:
     from lmap_drake.scenario import LoadScenario, _RawYaml, _ReadScenarioFile
 
     methods, distances = _CheckEvalArgs(args)
-    LoadScenario(scenario_text=args.scenario_text)      # fail now on a bad override
+    _CheckOverride(args.scenario_text)      # fail now on a bad override
     sweep = points = labels = None
     if args.sweep:
         from lmap_drake.evaluation import sweep as S

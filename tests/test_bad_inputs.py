@@ -299,6 +299,25 @@ def test_eval_bad_counts_exit_2(capsys, tmp_path, argv, match):
     assert not (tmp_path / "e" / "episodes.jsonl").exists()
 
 
+def test_eval_takes_a_file_fruit_for_the_suite_and_names_a_missing_one(capsys, tmp_path):
+    """``plant_scene.fruit.mesh_file`` needs ``kind: procedural``, which the
+    suite's entries give and the bare override does not: the eval's early
+    check must accept it (every episode's scenario is checked in full by
+    ``ResolveSpecs``), and still name a file that is not there."""
+    import trimesh
+    from lmap_drake.cli import _CheckOverride
+    f = tmp_path / "round.obj"
+    trimesh.creation.icosphere(subdivisions=3, radius=0.035).export(f)
+    text = "{plant_scene: {fruit: {mesh_file: %s}}}" % f
+    _CheckOverride(text)
+    spec = _specs(text)[0]
+    assert "mesh_file" in spec["scenario_text"]
+    code, err = _run(capsys, "eval", "--output", str(tmp_path / "e"), "--methods", "lmap",
+                     "--scenario_text", "{plant_scene: {fruit: {mesh_file: /nope/x.obj}}}")
+    assert code == EXIT_BAD_INPUT and "/nope/x.obj" in err and "not found" in err, err
+    assert not (tmp_path / "e").exists()
+
+
 def test_torn_lines_are_set_aside_and_rerun(tmp_path):
     from lmap_drake.evaluation import tables as T
     good = {"status": "done", "eval": {"episode_id": "a|lmap|adaptive|s0|1234abcd"}}
