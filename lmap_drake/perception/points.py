@@ -329,7 +329,6 @@ def RemovePointsNear(scene: SemanticScene, points_W: np.ndarray, distance: float
     return out, dropped
 
 
-
 def SplitTouchingLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray, p_WC: np.ndarray,
                         max_angle_deg: float = 15.0, link: float = 0.0075,
                         normal_radius: float = 0.012, min_fraction: float = 0.2,

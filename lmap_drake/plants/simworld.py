@@ -351,14 +351,15 @@ class PlantWorldSim:
                 return "robot"
             return "branch" if "branch" in name.split("::")[-1] else ""
         worst = 0.0
-        pairs = [(results.point_pair_contact_info(i).point_pair().id_A,
-                  results.point_pair_contact_info(i).point_pair().id_B,
-                  np.linalg.norm(results.point_pair_contact_info(i).contact_force()))
-                 for i in range(results.num_point_pair_contacts())]
-        pairs += [(results.hydroelastic_contact_info(i).contact_surface().id_M(),
-                   results.hydroelastic_contact_info(i).contact_surface().id_N(),
-                   np.linalg.norm(results.hydroelastic_contact_info(i).F_Ac_W().translational()))
-                  for i in range(results.num_hydroelastic_contacts())]
+        pairs = []
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            pairs.append((info.point_pair().id_A, info.point_pair().id_B,
+                          np.linalg.norm(info.contact_force())))
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            pairs.append((info.contact_surface().id_M(), info.contact_surface().id_N(),
+                          np.linalg.norm(info.F_Ac_W().translational())))
         for a, b, f in pairs:
             kinds = {kind(a), kind(b)}
             if kinds in ({"robot"}, {"robot", "branch"}):
