@@ -137,17 +137,35 @@ def _RandomScene(rng) -> PlantSceneConfig:
     return cfg
 
 
-def SuiteYaml(suite: dict[str, PlantSceneConfig], header: str = "") -> str:
-    """A scenario file: one named scenario per plant scene."""
+def SuiteYaml(suite: dict[str, PlantSceneConfig], header: str = "", extra: str = "") -> str:
+    """A scenario file: one named scenario per plant scene; ``extra`` (YAML
+    of other scenario sections, top level) is added to every scene."""
     lines = [header] if header else []
+    more = "".join(f"  {line}\n" for line in extra.splitlines())
     for name, cfg in suite.items():
         body = _PlantSceneYaml(cfg)
         lines.append(f"{name}:\n  plant_scene:\n" + "".join(
-            f"    {line}\n" for line in body.splitlines()))
+            f"    {line}\n" for line in body.splitlines()) + more)
     return "\n".join(lines)
 
 
 # --- multi-fruit plants (plant_scene.kind: multi) ----------------------------
+
+# What every multi-fruit scene sets besides its plant: every fruit is revealed
+# in turn, and the arm stands in the aisle with the camera, 25 cm in front of
+# the plant row and 10 cm along it, instead of in the row itself (the single
+# plant's mount, 0.5 m beside the stem). Side shoots spread the plant along
+# the row: from inside the row the arm reaches the fruits on the far side of
+# the stem only through the near leaves. From the first view of the six
+# scenes (scripts/plan_plant.py), 5 of the 15 fruits to reveal had no
+# feasible action (every candidate refused for robot-leaf contact on the way
+# to the pre-grasp, IK or self-collision); from the aisle 1 of 15.
+MULTI_SCENE_EXTRA = """planner: {targets: all}
+robot:
+  X_WB:
+    translation: [0.1, -0.25, 0.0]
+    rotation: !Rpy { deg: [0.0, 0.0, 180.0] }
+"""
 
 def _multi_fruit(height, side, occlusion, leaves, pepper="round_red", size=None, **fruit):
     from lmap_drake.scenario import MultiFruitConfig
