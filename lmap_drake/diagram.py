@@ -58,7 +58,8 @@ def AddPlanningStages(b: DiagramBuilder, scenario: Scenario, resources: EpisodeR
     shape = b.AddNamedSystem("shape_completion", ShapeCompletion(
         scenario.shape, resources.decoder, resources.mean_latent))
     reest = b.AddNamedSystem("shape_reestimation", ShapeCompletion(
-        scenario.shape, resources.decoder, resources.mean_latent, reestimate=True))
+        scenario.shape, resources.decoder, resources.mean_latent, reestimate=True,
+        focus_port=scenario.planner.targets == "all"))
     b.Connect(perception.GetOutputPort("semantic_scene"), shape.GetInputPort("semantic_scene"))
     b.Connect(perception.GetOutputPort("fused_semantic_scene"),
               reest.GetInputPort("semantic_scene"))
@@ -108,7 +109,7 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station:
     if scenario.planner.targets == "all":
         # Several fruits: PlantPlanning plans the next fruit on the newest
         # view; TargetReestimate hands the current fruit's re-estimate on.
-        from lmap_drake.systems.planning import PlantPlanning, TargetReestimate
+        from lmap_drake.systems.planning import PlantPlanning, TargetFocus, TargetReestimate
         plant = b.AddNamedSystem("plant_planning", PlantPlanning(scenario, resources.robot))
         b.Connect(stages["shape_completion"].GetOutputPort("plant_estimate"),
                   plant.GetInputPort("plant_estimate"))
@@ -121,6 +122,11 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station:
                                                                          resources.robot))
         b.Connect(stages["shape_reestimation"].GetOutputPort("plant_estimate"),
                   target.GetInputPort("plant_estimate"))
+        # the re-estimate completes only the fruit being revealed
+        focus = b.AddNamedSystem("target_focus", TargetFocus())
+        b.Connect(controller.GetOutputPort("status"), focus.GetInputPort("status"))
+        b.Connect(focus.GetOutputPort("target_center"),
+                  stages["shape_reestimation"].GetInputPort("target_center"))
         b.Connect(views.GetOutputPort("ur5.position"), target.GetInputPort("ur5.position"))
         b.Connect(controller.GetOutputPort("status"), target.GetInputPort("status"))
         reestimate = target.GetOutputPort("scene_estimate")

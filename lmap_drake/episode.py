@@ -290,6 +290,13 @@ class SimWorld:
                              ][:t["motions"]],
                     leaf_id=t["target"].get("leaf_id"), why=t["target"].get("why", ""),
                     outcome=t["outcome"])
+                # the petiole load while this fruit was handled (any leaf), N
+                during = [s for s in sim.samples
+                          if t["t_start"] - 1e-9 <= s.t <= t.get("t_end", np.inf) + 1e-9]
+                if during:
+                    worst = max(during, key=lambda s: s.petiole_force)
+                    entry.update(max_petiole_force=float(worst.petiole_force),
+                                 max_petiole_force_t=float(worst.t))
             fruits.append(entry)
         record["fruits"] = fruits
         cfg = self.scenario.plant_scene.outcome
@@ -470,6 +477,8 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
         c = world.diagram.GetSubsystemByName("arm_controller")
         return c, c.GetMyContextFromRoot(world.context)
     step_wall = 0.0
+    mode_wall: dict[str, float] = {}     # wall seconds of the steps begun in each mode
+    mode = "idle"
     error = ""
     dt = 0.05
     try:
@@ -478,8 +487,10 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
             t0 = time.perf_counter()
             world.Step(dt)
             step_wall += time.perf_counter() - t0
+            mode_wall[mode] = mode_wall.get(mode, 0.0) + time.perf_counter() - t0
             c, cctx = controller()
             st = c.Status(cctx)
+            mode = st.mode
             if st.finished:
                 break
             # While the pads close, the grasp is made at the first 10 ms tick
@@ -559,6 +570,7 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
         "stage_seconds": st.stage_seconds,
         "simulated_seconds": world.time,
         "simulation_wall_seconds": step_wall,
+        "mode_wall_seconds": {k: round(v, 2) for k, v in mode_wall.items()},
         "wall_seconds": None,
         "mode_log": st.mode_log,
     }

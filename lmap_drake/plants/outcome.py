@@ -18,6 +18,7 @@ class OutcomeSample:
     fruit_penetration: float      # max depth (m) of leaf vertices / robot inside the fruit
     fruit_contact_force: float    # N, contact force on the fruit geometry
     robot_contact_force: float = 0.0   # N, largest robot-robot or robot-branch contact
+    t: float = 0.0                # s, simulated time of the sample
 
 
 @dc.dataclass

@@ -129,7 +129,7 @@ class PlantWorldSim:
         self.q_cmd = np.asarray(scenario.robot.initial_q, float)
         self.width_cmd = float(scenario.robot.initial_gripper_width)
         self.samples: list[OutcomeSample] = []
-        self._asleep_measures: dict[int, tuple[float, float]] = {}   # frozen leaves
+        self._asleep_measures: dict[int, tuple] = {}   # frozen leaves: (strain, force, pen)
         # the largest robot-robot / robot-branch contact so far, and what touched
         self.worst_robot_contact = {"force_N": 0.0, "t": None, "pair": ""}
         self.grasp_state: GraspState | None = None
@@ -257,45 +257,55 @@ class PlantWorldSim:
                          max(self._unoccluded[fruit], 1)))
 
     def Sample(self) -> OutcomeSample:
-        """Ground-truth measures now (see ``OutcomeConfig``)."""
+        """Ground-truth measures now (see ``OutcomeConfig``). A frozen leaf
+        (asleep) keeps the measures taken when it fell asleep."""
         cfg = self.scenario.plant_scene
         strain = force = pen = 0.0
-        Vs = []
         ctx = self.plant_context
+        fresh: dict[int, np.ndarray] = {}      # leaf -> vertices, for the leaves measured now
+        measured: dict[int, tuple] = {}        # leaf -> (strain, force, asleep)
         for j, ref in enumerate(self.leaf_refs):
-            V = self.LeafVertices(j)
-            Vs.append(V)
             asleep = not self.deformable.is_enabled(self.leaf_ids[j], ctx)
             if asleep and j in self._asleep_measures:     # frozen: as last measured
-                s_j, f_j = self._asleep_measures[j]
+                s_j, f_j, p_j = self._asleep_measures[j]
+                strain, force, pen = max(strain, s_j), max(force, f_j), max(pen, p_j)
+                continue
+            V = fresh[j] = self.LeafVertices(j)
+            constrained = np.flatnonzero(ref.fixed)
+            if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
+                constrained = np.union1d(constrained, self.grasp_state.vertices)
+            s_j = StrainPercentile(ref.rest_W, V, ref.tets,
+                                   ConstrainedTetMask(ref.tets, constrained),
+                                   cfg.outcome.strain_percentile)
+            f_j = PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
+                               cfg.leaf.youngs_modulus,
+                               cfg.leaf.petiole_width * cfg.leaf.thickness)
+            strain, force = max(strain, s_j), max(force, f_j)
+            measured[j] = (s_j, f_j, asleep)
+        if fresh:
+            leaves = list(fresh)
+            if self.multi:      # one ray-casting scene of every fruit, built once
+                if getattr(self, "_fruits_sdf", None) is None:
+                    from lmap_drake.plants.multi import _o3d_scene
+                    self._fruits_sdf = _o3d_scene([f.mesh_W for f in self.model.fruits])
+                import open3d as o3d
+                d = self._fruits_sdf.compute_signed_distance(
+                    o3d.core.Tensor(np.vstack([fresh[j] for j in leaves]).astype(np.float32)),
+                    nsamples=SIGN_RAYS).numpy()
             else:
-                constrained = np.flatnonzero(ref.fixed)
-                if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
-                    constrained = np.union1d(constrained, self.grasp_state.vertices)
-                s_j = StrainPercentile(ref.rest_W, V, ref.tets,
-                                       ConstrainedTetMask(ref.tets, constrained),
-                                       cfg.outcome.strain_percentile)
-                f_j = PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
-                                   cfg.leaf.youngs_modulus,
-                                   cfg.leaf.petiole_width * cfg.leaf.thickness)
+                d = MeshSignedDistance(self.model.fruit_mesh_W, fresh[leaves[0]])
+            ends = np.cumsum([len(fresh[j]) for j in leaves])
+            for j, part in zip(leaves, np.split(np.asarray(d, float), ends[:-1])):
+                p_j = max(0.0, -float(part.min()))
+                pen = max(pen, p_j)
+                s_j, f_j, asleep = measured[j]
                 if asleep:
-                    self._asleep_measures[j] = (s_j, f_j)
+                    self._asleep_measures[j] = (s_j, f_j, p_j)
                 else:
                     self._asleep_measures.pop(j, None)
-            strain, force = max(strain, s_j), max(force, f_j)
-        if self.multi:      # one ray-casting scene of every fruit, built once
-            if getattr(self, "_fruits_sdf", None) is None:
-                from lmap_drake.plants.multi import _o3d_scene
-                self._fruits_sdf = _o3d_scene([f.mesh_W for f in self.model.fruits])
-            import open3d as o3d
-            d = self._fruits_sdf.compute_signed_distance(
-                o3d.core.Tensor(np.vstack(Vs).astype(np.float32)), nsamples=SIGN_RAYS).numpy()
-            pen = max(pen, -float(d.min()))
-        else:
-            pen = max(pen, -float(MeshSignedDistance(self.model.fruit_mesh_W, Vs[0]).min()))
         pen = max(pen, self._RobotFruitPenetration())
         return OutcomeSample(strain, force, pen, self._FruitContactForce(),
-                             self._RobotContactForce())
+                             self._RobotContactForce(), t=self.time)
 
     def _fruit_ids(self) -> set:
         inspector = self.scene_graph.model_inspector()

@@ -114,7 +114,9 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                   branch_params: BranchCompletionParams | None = None,
                   min_fruit_points: int = 30, timings: dict | None = None,
                   merge_distance: float = 0.006,
-                  leaf_split_angle_deg: float = 15.0) -> PlantEstimate:
+                  leaf_split_angle_deg: float = 15.0,
+                  focus_W: np.ndarray | None = None,
+                  focus_radius: float = 0.08) -> PlantEstimate:
     """Every fruit instance (``FruitInstances``) completed on its own, the
     other fruits' points counted as outside it (paper Sec. III-F: one
     estimate per fruit), and the branches completed once. Fragments of one
@@ -122,7 +124,9 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     ``merge_distance`` (m, median) of the other's completed surface, or when
     the two completed shapes overlap (``_Overlap``). Touching leaves are
     told apart (``SplitTouchingLeaves`` at ``leaf_split_angle_deg``; 0 =
-    not)."""
+    not). ``focus_W`` (W, m): only the instances whose points' centroid lies
+    within ``focus_radius`` of it are completed (the re-estimate of the fruit
+    being revealed; every fruit's points still count as outside the others)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     P = params or SscParams()
@@ -137,6 +141,10 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
         return out
     pts, inst = np.asarray(semantic.fruit_points_W, float), np.asarray(semantic.fruit_instance)
     groups = [[i] for i in FruitInstances(semantic, min_fruit_points)]
+    if focus_W is not None:
+        focus = np.asarray(focus_W, float).reshape(3)
+        groups = [g for g in groups
+                  if np.linalg.norm(pts[np.isin(inst, g)].mean(axis=0) - focus) <= focus_radius]
 
     def complete(g):
         mine = np.isin(inst, g)

@@ -340,6 +340,24 @@ class TargetReestimate(LeafSystem):
                                                             self._q.Eval(context)).translation())))
 
 
+class TargetFocus(LeafSystem):
+    """The fruit being revealed, for its re-estimate. Input ``status`` (the
+    ``ArmController``'s); output ``target_center`` (abstract: the centre of
+    the current plan's target fruit, W, m, shape (3,); None without a
+    target)."""
+
+    def __init__(self):
+        super().__init__()
+        self._status = self.DeclareAbstractInputPort("status", AbstractValue.Make(object()))
+        self.DeclareAbstractOutputPort("target_center", lambda: AbstractValue.Make(object()),
+                                       self._calc)
+
+    def _calc(self, context, output) -> None:
+        target = getattr(getattr(self._status.Eval(context), "plan", None), "target", None)
+        c = None if not target or target.get("center_W") is None else target["center_W"]
+        output.set_value(None if c is None else np.asarray(c, float).reshape(3))
+
+
 def HeldLeaf(semantic: SemanticScene, p_WT: np.ndarray, radius: float = 0.04) -> int:
     """The leaf in the gripper: the instance with the most points within
     ``radius`` (m) of the TCP at ``p_WT``, else (the pads hide the leaf

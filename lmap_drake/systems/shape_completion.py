@@ -20,6 +20,12 @@ Output ports:
   outside it) and the branches; for plants with several fruits
   (``planner.targets: all``). Computed only when evaluated.
 
+With ``focus_port=True`` an input ``target_center`` (abstract: the centre
+of the fruit being revealed, W, m, shape (3,), or None) restricts
+``plant_estimate`` to the fruit instances within 8 cm of it (the
+re-estimate of the target; ``CompletePlant``'s ``focus_W``); None completes
+every fruit.
+
 The DeepSDF decoder is loaded once in the constructor (from
 ``ShapeConfig.weights_file``, or passed in) and kept as an attribute, not
 Context state. ``reestimate=True`` (or the flag ``"reestimate"`` in the
@@ -29,6 +35,8 @@ input's ``flags``) uses the re-estimation weights after the leaf action
 from __future__ import annotations
 
 import dataclasses as dc
+
+import numpy as np
 
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
@@ -54,7 +62,8 @@ class ShapeCompletion(LeafSystem):
     """SemanticScene -> SceneEstimate; see the module docstring."""
 
     def __init__(self, cfg: ShapeConfig | None = None, decoder=None, mean_latent=None,
-                 reestimate: bool = False, method: str | None = None):
+                 reestimate: bool = False, method: str | None = None,
+                 focus_port: bool = False):
         super().__init__()
         self.cfg = cfg or ShapeConfig()
         if decoder is None and (method or getattr(self.cfg, "method", "ssc")) != "supeps":
@@ -70,9 +79,18 @@ class ShapeCompletion(LeafSystem):
         self.DeclareAbstractOutputPort(
             "scene_estimate", lambda: AbstractValue.Make(SceneEstimate(SemanticScene())),
             self._calc, prerequisites_of_calc={self._in.ticket()})
+        plant_deps = {self._in.ticket()}
+        self._focus = None
+        if focus_port:
+            self._focus = self.DeclareAbstractInputPort("target_center",
+                                                        AbstractValue.Make(object()))
+            plant_deps.add(self._focus.ticket())
+        # the focus comes from the controller's state, which changes every
+        # tick: the last result is kept for an unchanged view and focus
+        self._plant_memo: tuple | None = None
         self.DeclareAbstractOutputPort(
             "plant_estimate", lambda: AbstractValue.Make(PlantEstimate(SemanticScene())),
-            self._calc_plant, prerequisites_of_calc={self._in.ticket()})
+            self._calc_plant, prerequisites_of_calc=plant_deps)
 
     def params(self, reestimate: bool) -> SscParams:
         return SscParams.FromConfig(self.cfg, reestimate=reestimate)
@@ -88,10 +106,21 @@ class ShapeCompletion(LeafSystem):
 
     def _calc_plant(self, context, output):
         sem: SemanticScene = self._in.Eval(context)
+        focus = None
+        if self._focus is not None and self._focus.HasValue(context):
+            value = self._focus.Eval(context)
+            if value is not None and np.size(value) == 3:
+                focus = np.asarray(value, float).reshape(3)
+        key = (id(sem), None if focus is None else tuple(np.round(focus, 4)))
+        if self._plant_memo is not None and self._plant_memo[0] == key:
+            output.set_value(self._plant_memo[1])
+            return
         re = self.reestimate or "reestimate" in sem.flags
         timings = {}
         est = CompletePlant(sem, self.decoder, self.mean_latent, self.params(re), self.method,
                             self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg),
-                            timings=timings, leaf_split_angle_deg=self.cfg.leaf_split_angle_deg)
+                            timings=timings, leaf_split_angle_deg=self.cfg.leaf_split_angle_deg,
+                            focus_W=focus)
         self.last_timings = timings
+        self._plant_memo = (key, est)
         output.set_value(est)

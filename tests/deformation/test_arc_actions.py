@@ -192,3 +192,25 @@ def test_equivalent_turn_counts_twist_by_the_torsion_ratio():
     arc = MakeArcActions(p, R_GRASP, np.zeros(3), HingeAxes(p, np.zeros(3), 4)[:1], [0.5])[0]
     plans = [PlanResult("ok", "lmap", chosen=Candidate(a, 0)) for a in (arc, tw[1])]
     assert np.isclose(HeldGrasp.After(plans).twist_rad, np.deg2rad(30))
+
+
+def test_motions_in_turn_compound_their_energy():
+    """Two motions loading the leaf: the bound (sqrt E1 + sqrt E2)^2, never
+    below their sum; equal to it when either is zero; the held state chains
+    it over the executed motions."""
+    from lmap_drake.planning.lmap import (Candidate, CompoundEnergyPerNode, HeldGrasp,
+                                          PlanResult)
+    close = (lambda a, b: np.isclose(a, b, rtol=1e-9, atol=0.0))
+    assert close(CompoundEnergyPerNode(0.0, 3e-7), 3e-7)
+    assert close(CompoundEnergyPerNode(1e-7, 4e-7), 9e-7)
+    assert CompoundEnergyPerNode(2e-7, 2e-7) >= 4e-7
+    assert close(CompoundEnergyPerNode(-1.0, 1e-7), 1e-7)        # no negative energies
+    p = np.array([0.1, 0.0, 0.0])
+    arcs = MakeArcActions(p, R_GRASP, np.zeros(3), HingeAxes(p, np.zeros(3), 4)[:1], [0.3, 0.5])
+    plans = []
+    for a, e in zip(arcs, (1e-4, 4e-4)):
+        c = Candidate(a, 0)
+        c.arap_energy, c.num_leaf_nodes = e, 1000
+        plans.append(PlanResult("ok", "lmap", chosen=c))
+    assert close(HeldGrasp.After(plans).energy_per_node, 9e-7)
+    assert close(HeldGrasp.After(plans[:1]).energy_per_node, 1e-7)

@@ -69,3 +69,23 @@ def test_complete_plant_merges_fragments_of_one_fruit(decoder):
                   for i in plant.fruit_ids) == sorted([len(f), len(other)])
     c = [e.center_W for e in plant.fruits]
     assert abs(np.linalg.norm(c[0] - c[1]) - 0.15) < 0.03
+
+
+def test_complete_plant_with_a_focus_completes_only_the_fruit_there(decoder):
+    """The re-estimate of the fruit being revealed: with ``focus_W`` at one
+    fruit, the other (15 cm away) is not completed; without, both are."""
+    from lmap_drake.shape.completion import CompletePlant
+    dec, mean = decoder
+    sem = MakeSyntheticCase(0, occluded=False).semantic
+    f = np.asarray(sem.fruit_points_W, float)
+    pts = np.vstack([f, f + [0.15, 0.0, 0.0]])
+    ids = np.r_[np.zeros(len(f), int), np.ones(len(f), int)]
+    sem2 = dc.replace(sem, fruit_points_W=pts, fruit_instance=ids)
+    P = SscParams(iterations=30)
+    near_second = f.mean(axis=0) + [0.15, 0.0, 0.01]
+    focused = CompletePlant(sem2, dec, mean, P, "ssc", focus_W=near_second)
+    assert focused.fruit_ids == [1]
+    assert np.linalg.norm(focused.fruits[0].center_W - near_second) < 0.03
+    assert len(CompletePlant(sem2, dec, mean, P, "ssc").fruits) == 2
+    # a focus far from every fruit completes none
+    assert CompletePlant(sem2, dec, mean, P, "ssc", focus_W=near_second + 1.0).fruits == []

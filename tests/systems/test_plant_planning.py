@@ -97,3 +97,18 @@ def test_fruits_are_revealed_one_after_another():
     # the less visible fruit first
     vis = [t["target"]["visible_predicted"] for t in st.targets]
     assert vis[0] <= vis[1] + 1e-9
+
+
+def test_target_focus_is_the_current_targets_centre():
+    import types
+
+    from lmap_drake.systems.planning import TargetFocus
+    focus = TargetFocus()
+    ctx = focus.CreateDefaultContext()
+    port = focus.GetInputPort("status")
+    out = focus.GetOutputPort("target_center")
+    plan = types.SimpleNamespace(target={"center_W": [0.5, -0.01, 0.3]})
+    port.FixValue(ctx, AbstractValue.Make(types.SimpleNamespace(plan=plan)))
+    assert np.allclose(out.Eval(ctx), [0.5, -0.01, 0.3])
+    port.FixValue(ctx, AbstractValue.Make(types.SimpleNamespace(plan=None)))
+    assert out.Eval(ctx) is None
