@@ -815,6 +815,7 @@ class HeldGrasp:
     motions: int
     energy_per_node: float
     twist_rad: float = 0.0     # the executed twists' summed angle (rad)
+    families: tuple = ()       # the executed motions' families, in order
 
     @staticmethod
     def After(plans: list) -> "HeldGrasp":
@@ -829,7 +830,8 @@ class HeldGrasp:
         twist = sum(abs(p.chosen.action.angle) for p in plans
                     if p.chosen.action.family == "twist")
         return HeldGrasp(first.p_WG, first.R_WG, last.p_WG + last.dp_W, last.R_WG_end,
-                         plans[0].hinge_W, len(plans), e, twist)
+                         plans[0].hinge_W, len(plans), e, twist,
+                         tuple(p.chosen.action.family for p in plans))
 
 
 def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
@@ -898,6 +900,12 @@ def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformation
     compounded energy per node (``CompoundEnergyPerNode``). Never raises on
     a bad scene."""
     progress = progress or (lambda m: None)
+    if "pull" in held.families and not getattr(cfg, "continue_after_pull", True):
+        result = PlanResult("no_feasible_action", cfg.method,
+                            message="no further motion after a straight pull "
+                                    "(planner.continue_after_pull: false)")
+        progress(f"continuation: {result.status} ({result.message})")
+        return result
     # The pads hide the held leaf around the grasp from the camera: the
     # nearest observed leaf point can be up to about half a pad away.
     dcfg = dc.replace(dcfg, max_grasp_distance=dcfg.max_grasp_distance + HELD_LEAF_HIDDEN)

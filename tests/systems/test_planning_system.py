@@ -192,6 +192,7 @@ def HeldAfterShortPull():
     first = _plan(_scene(), max_energy=0.0, force_action=key)
     s = Scenario()
     s.planner.continuation_families = ["pull", "arc", "twist"]
+    s.planner.continue_after_pull = True
     s.planner.distances = [0.04, 0.08]
     s.planner.max_energy_per_node = 0.0
     scene = _scene()
@@ -226,6 +227,12 @@ def test_continuation_from_the_held_leaf():
                              s.deformation, held)
     assert turns.candidates and {c.action.family for c in turns.candidates} <= {"arc", "twist"}
     assert Scenario().planner.continuation_families == ["arc", "twist"]
+    # by default a straight pull is the last motion: nothing is planned after it
+    assert held.families == ("pull",) and not Scenario().planner.continue_after_pull
+    after_pull = PlanContinuation(ctx, dc.replace(s.planner, continue_after_pull=False),
+                                  s.deformation, held)
+    assert after_pull.status == "no_feasible_action" and not after_pull.candidates
+    assert "continue_after_pull" in after_pull.message
     gain = s.planner.min_replan_gain * cont.seen_max
     assert all(c.seen >= cont.seen_init + gain for c in cont.candidates if c.feasible)
     assert any("not above the current" in c.reason for c in cont.candidates)
