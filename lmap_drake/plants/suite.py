@@ -167,6 +167,7 @@ robot:
     rotation: !Rpy { deg: [0.0, 0.0, 180.0] }
 """
 
+
 def _multi_fruit(height, side, occlusion, leaves, pepper="round_red", size=None, **fruit):
     from lmap_drake.scenario import MultiFruitConfig
     f = MultiFruitConfig(height=height, side=side, occlusion=occlusion, num_leaves=leaves)

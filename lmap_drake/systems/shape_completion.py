@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses as dc
 
 import numpy as np
-
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
@@ -113,7 +112,7 @@ class ShapeCompletion(LeafSystem):
                 focus = np.asarray(value, float).reshape(3)
         key = (id(sem), None if focus is None else tuple(np.round(focus, 4)))
         if self._plant_memo is not None and self._plant_memo[0] == key:
-            output.set_value(self._plant_memo[1])
+            output.set_value(self._plant_memo[2])
             return
         re = self.reestimate or "reestimate" in sem.flags
         timings = {}
@@ -122,5 +121,5 @@ class ShapeCompletion(LeafSystem):
                             timings=timings, leaf_split_angle_deg=self.cfg.leaf_split_angle_deg,
                             focus_W=focus)
         self.last_timings = timings
-        self._plant_memo = (key, est)
+        self._plant_memo = (key, sem, est)     # (sem kept alive: its id stays unique)
         output.set_value(est)
