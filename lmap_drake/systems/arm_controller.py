@@ -519,6 +519,34 @@ class ArmController(LeafSystem):
             self._enter(st, "aborted", t, f"{plan.status}: {plan.message}")
             return
         c = plan.chosen
+        try:
+            approach = self._PathsFor(st, t, c)
+        except (MotionError, _Refused) as err:
+            if not (self._multi and plan.target is not None):
+                raise
+            # this fruit's chosen motion cannot be executed: recorded, on to
+            # the next fruit (nothing has moved)
+            st.final_estimate = st.initial_estimate
+            self._EndTarget(st, t, f"no_executable_path: {' '.join(str(err).split())}")
+            st.t_target = t
+            self._enter(st, "plan_requested", t, f"fruit {plan.target.get('fruit_id')}: the "
+                        f"chosen motion cannot be executed ({err}); planning the next fruit")
+            return
+        summary = (f"grasp {c.action.grasp_id}, direction {c.action.direction_id}, "
+                   f"{c.action.Describe()}")
+        if self._options.plan_only:
+            self._enter(st, "planned", t, f"plan only: {summary}; nothing moved")
+        elif self._options.confirm:
+            st.confirmed = None
+            self._enter(st, "confirm_wait", t, summary)
+        else:
+            self._StartMotion(st, t, summary)
+
+    def _PathsFor(self, st: ControllerStatus, t: float, c):
+        """The joint paths of candidate ``c`` from the held joints (approach,
+        action), stored in ``st`` and checked by timing them; raises
+        ``MotionError`` (no IK or self-collision along them) or ``_Refused``
+        (the trajectory check). Returns the approach."""
         X_WT = RigidTransform(RotationMatrix(c.action.R_WG), c.action.p_WG)
         normal = c.action.R_WG[:, 1]
         approach = c.approach or PlanApproach(self._robot, X_WT, st.q_hold, normal,
@@ -535,15 +563,7 @@ class ArmController(LeafSystem):
         app = self._TimePath(pre.end_time(), st.pregrasp_path[-1], approach.to_grasp, 0.15)
         self._TimePath(app.end_time(), approach.to_grasp[-1], st.pull_path, 0.3,
                        self._pull_duration(st))
-        summary = (f"grasp {c.action.grasp_id}, direction {c.action.direction_id}, "
-                   f"{c.action.Describe()}")
-        if self._options.plan_only:
-            self._enter(st, "planned", t, f"plan only: {summary}; nothing moved")
-        elif self._options.confirm:
-            st.confirmed = None
-            self._enter(st, "confirm_wait", t, summary)
-        else:
-            self._StartMotion(st, t, summary)
+        return approach
 
     def _EndTarget(self, st: ControllerStatus, t: float, outcome: str) -> None:
         """Closes the current fruit's record (``targets``: its plan and

@@ -112,3 +112,51 @@ def test_target_focus_is_the_current_targets_centre():
     assert np.allclose(out.Eval(ctx), [0.5, -0.01, 0.3])
     port.FixValue(ctx, AbstractValue.Make(types.SimpleNamespace(plan=None)))
     assert out.Eval(ctx) is None
+
+
+def test_a_fruit_whose_motion_cannot_be_executed_is_skipped(monkeypatch):
+    """The chosen motion of the first fruit has no joint path (IK fails
+    along it): that fruit is recorded as such and the other is revealed;
+    the episode is not aborted."""
+    import lmap_drake.systems.arm_controller as ac
+    from lmap_drake.planning.motion import MotionError
+    real = ac.PlanActionPath
+    calls = []
+
+    def first_fails(*args, **kw):
+        calls.append(1)
+        if len(calls) == 1:
+            raise MotionError("IK failed along the arc at [0.4 0.0 0.2]")
+        return real(*args, **kw)
+    monkeypatch.setattr(ac, "PlanActionPath", first_fails)
+    s = _Scenario()
+    plant = TwoFruitPlant()
+    b = DiagramBuilder()
+    planner = b.AddNamedSystem("plant_planning", PlantPlanning(s))
+    c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
+        grasp_ack_required=False)))
+    b.Connect(c.GetOutputPort("status"), planner.GetInputPort("status"))
+    b.Connect(planner.GetOutputPort("plan"), c.GetInputPort("plan"))
+    b.Connect(planner.GetOutputPort("scene_estimate"), c.GetInputPort("scene_estimate"))
+    d = b.Build()
+    sim = Simulator(d)
+    ctx = sim.get_mutable_context()
+    pc, cc = planner.GetMyMutableContextFromRoot(ctx), c.GetMyMutableContextFromRoot(ctx)
+    planner.GetInputPort("plant_estimate").FixValue(pc, AbstractValue.Make(plant))
+    planner.GetInputPort("ur5.position").FixValue(pc, s.robot.initial_q)
+    c.GetInputPort("semantic_scene").FixValue(cc, AbstractValue.Make(SemanticScene()))
+    c.GetInputPort("final_estimate").FixValue(cc, AbstractValue.Make(SceneEstimate(
+        SemanticScene())))
+    c.GetInputPort("ur5.state_estimated").FixValue(cc, np.r_[s.robot.initial_q, np.zeros(6)])
+    c.GetInputPort("gripper.state_measured").FixValue(cc, [0.003, 0.0, 1.0])
+    c.GetInputPort("views_fused").FixValue(cc, [10.0])
+    while sim.get_context().get_time() < 120.0 and not c.Status(cc).finished:
+        sim.AdvanceTo(sim.get_context().get_time() + 0.25)
+    st = c.Status(cc)
+    assert st.mode == "done", st.message
+    outcomes = [t["outcome"] for t in st.targets]
+    assert len(outcomes) == 2
+    assert outcomes[0].startswith("no_executable_path") and "IK failed" in outcomes[0]
+    assert outcomes[1].startswith("revealed")
+    modes = [m for _, m in st.mode_log]
+    assert modes.count("pull") == 1 and "aborted" not in modes
