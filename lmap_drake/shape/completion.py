@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from lmap_drake.perception.points import SplitTouchingLeaves
+from lmap_drake.perception.points import SplitOversizedLeaves, SplitTouchingLeaves
 from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
 from lmap_drake.shape.branch import BranchCompletionParams, CompleteBranches
 from lmap_drake.shape.free_space import FreeSpacePoints
@@ -124,7 +124,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     ``merge_distance`` (m, median) of the other's completed surface, or when
     the two completed shapes overlap (``_Overlap``). Touching leaves are
     told apart (``SplitTouchingLeaves`` at ``leaf_split_angle_deg``; 0 =
-    not). ``focus_W`` (W, m): only the instances whose points' centroid lies
+    not), and so are blades lying flush (``SplitOversizedLeaves``). ``focus_W`` (W, m): only the instances whose points' centroid lies
     within ``focus_radius`` of it are completed (the re-estimate of the fruit
     being revealed; every fruit's points still count as outside the others)."""
     if method not in METHODS:
@@ -135,8 +135,10 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     out = PlantEstimate(semantic=semantic, branch=_Branches(semantic, cam, branch_params,
                                                             timings))
     if leaf_split_angle_deg > 0 and len(semantic.leaf_points_W):
-        semantic = out.semantic = dc.replace(semantic, leaf_instance=SplitTouchingLeaves(
-            semantic.leaf_points_W, semantic.leaf_instance, cam, leaf_split_angle_deg))
+        ids = SplitTouchingLeaves(semantic.leaf_points_W, semantic.leaf_instance, cam,
+                                  leaf_split_angle_deg)
+        ids = SplitOversizedLeaves(semantic.leaf_points_W, ids)
+        semantic = out.semantic = dc.replace(semantic, leaf_instance=ids)
     if "no_fruit_in_view" in semantic.flags:
         return out
     pts, inst = np.asarray(semantic.fruit_points_W, float), np.asarray(semantic.fruit_instance)

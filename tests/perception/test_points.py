@@ -278,3 +278,27 @@ def test_one_curved_blade_is_not_split():
     inst = np.r_[np.zeros(len(curved), int), np.ones(len(flat), int)]
     ids = SplitTouchingLeaves(pts, inst, p_WC=[0.0, 0.0, 0.5])
     assert np.array_equal(ids, inst)
+
+
+def test_blades_lying_flush_are_split_by_size():
+    """Two 6 x 5 cm blades side by side in one plane (no angle to split
+    at) make an instance twice the size of the plant's other leaves: it is
+    cut in two along their boundary; leaves of the common size, noise and a
+    plant of too few leaves to know the size are left alone."""
+    from lmap_drake.perception.points import SplitOversizedLeaves
+    blade = lambda x, y: _Patch([x, y, 0.0], [1, 0, 0], [0, 1, 0], 0.06, 0.05)   # noqa: E731
+    flush = np.vstack([blade(0.0, 0.0), blade(0.06, 0.0)])
+    singles = [blade(0.0, 0.2), blade(0.1, 0.2), blade(0.2, 0.2)]
+    pts = np.vstack([flush] + singles + [[[1.0, 1.0, 1.0]]])
+    n = len(singles[0])
+    inst = np.r_[np.zeros(len(flush), int), np.repeat([1, 2, 3], n), -1]
+    ids = SplitOversizedLeaves(pts, inst)
+    left = pts[:, 0] < 0.06 - 1e-9
+    mine = np.arange(len(pts)) < len(flush)
+    a, b = np.unique(ids[mine & left]), np.unique(ids[mine & ~left])
+    assert len(a) == 1 and len(b) == 1 and a[0] != b[0]
+    assert 0 in (a[0], b[0]) and max(a[0], b[0]) == 4          # a new id for the other
+    assert np.array_equal(ids[~mine], inst[~mine])
+    # two instances are too few to know a leaf's size
+    few = np.r_[np.zeros(len(flush), int), np.ones(n, int)]
+    assert np.array_equal(SplitOversizedLeaves(np.vstack([flush, singles[0]]), few), few)
