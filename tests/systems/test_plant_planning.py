@@ -45,17 +45,10 @@ def _Scenario() -> Scenario:
     return s
 
 
-def test_held_leaf_is_the_instance_at_the_gripper():
-    plant = TwoFruitPlant()
-    leaf = plant.semantic.leaf_points_W
-    assert HeldLeaf(plant.semantic, leaf[-1]) == 1
-    assert HeldLeaf(plant.semantic, leaf[0]) == 0
-    assert HeldLeaf(SemanticScene(), leaf[0]) == -1
-
-
-def test_fruits_are_revealed_one_after_another():
-    s = _Scenario()
-    plant = TwoFruitPlant()
+def _RunToEnd(s: Scenario, plant: PlantEstimate):
+    """PlantPlanning + ArmController on the fixed ``plant`` estimate (no
+    station), simulated until the controller finishes (at most 120 s); its
+    final status."""
     b = DiagramBuilder()
     planner = b.AddNamedSystem("plant_planning", PlantPlanning(s))
     c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
@@ -78,6 +71,21 @@ def test_fruits_are_revealed_one_after_another():
     while sim.get_context().get_time() < 120.0 and not c.Status(cc).finished:
         sim.AdvanceTo(sim.get_context().get_time() + 0.25)
     st = c.Status(cc)
+    return st
+
+
+def test_held_leaf_is_the_instance_at_the_gripper():
+    plant = TwoFruitPlant()
+    leaf = plant.semantic.leaf_points_W
+    assert HeldLeaf(plant.semantic, leaf[-1]) == 1
+    assert HeldLeaf(plant.semantic, leaf[0]) == 0
+    assert HeldLeaf(SemanticScene(), leaf[0]) == -1
+
+
+def test_fruits_are_revealed_one_after_another():
+    s = _Scenario()
+    plant = TwoFruitPlant()
+    st = _RunToEnd(s, plant)
     assert st.mode == "done", st.message
     assert "every fruit is visible or handled" in st.message
     modes = [m for _, m in st.mode_log]
@@ -131,28 +139,7 @@ def test_a_fruit_whose_motion_cannot_be_executed_is_skipped(monkeypatch):
     monkeypatch.setattr(ac, "PlanActionPath", first_fails)
     s = _Scenario()
     plant = TwoFruitPlant()
-    b = DiagramBuilder()
-    planner = b.AddNamedSystem("plant_planning", PlantPlanning(s))
-    c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
-        grasp_ack_required=False)))
-    b.Connect(c.GetOutputPort("status"), planner.GetInputPort("status"))
-    b.Connect(planner.GetOutputPort("plan"), c.GetInputPort("plan"))
-    b.Connect(planner.GetOutputPort("scene_estimate"), c.GetInputPort("scene_estimate"))
-    d = b.Build()
-    sim = Simulator(d)
-    ctx = sim.get_mutable_context()
-    pc, cc = planner.GetMyMutableContextFromRoot(ctx), c.GetMyMutableContextFromRoot(ctx)
-    planner.GetInputPort("plant_estimate").FixValue(pc, AbstractValue.Make(plant))
-    planner.GetInputPort("ur5.position").FixValue(pc, s.robot.initial_q)
-    c.GetInputPort("semantic_scene").FixValue(cc, AbstractValue.Make(SemanticScene()))
-    c.GetInputPort("final_estimate").FixValue(cc, AbstractValue.Make(SceneEstimate(
-        SemanticScene())))
-    c.GetInputPort("ur5.state_estimated").FixValue(cc, np.r_[s.robot.initial_q, np.zeros(6)])
-    c.GetInputPort("gripper.state_measured").FixValue(cc, [0.003, 0.0, 1.0])
-    c.GetInputPort("views_fused").FixValue(cc, [10.0])
-    while sim.get_context().get_time() < 120.0 and not c.Status(cc).finished:
-        sim.AdvanceTo(sim.get_context().get_time() + 0.25)
-    st = c.Status(cc)
+    st = _RunToEnd(s, plant)
     assert st.mode == "done", st.message
     outcomes = [t["outcome"] for t in st.targets]
     assert len(outcomes) == 2
