@@ -260,11 +260,23 @@ class SimWorld:
             return sim.Visibility(label[k], fruit=i) if 0 <= k < len(label) and \
                 label[k] is not None else sim.Visibility(fruit=i)
         targets = {}
+        rows = []           # every target in turn, also a second one on the same fruit
         for t in st.targets:
             if t.get("target"):
                 c = np.asarray(t["target"]["center_W"], float)
                 i = int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits]))
                 targets.setdefault(i, t)
+                during = [s.petiole_force for s in sim.samples
+                          if t["t_start"] - 1e-9 <= s.t <= t["t_end"] + 1e-9]
+                plans = ([t["plan"]] if t["plan"] is not None else []) + t["continuations"]
+                rows.append({"fruit": i, "fruit_id": t["target"].get("fruit_id"),
+                             "center_W": t["target"]["center_W"],
+                             "leaf_id": t["target"].get("leaf_id"), "outcome": t["outcome"],
+                             "motions": [p.chosen.action.Describe() for p in plans
+                                         if p.chosen is not None][:t["motions"]],
+                             "t_start": t["t_start"], "t_end": t["t_end"],
+                             "max_petiole_force": max(during) if during else None})
+        record["targets"] = rows
         fruits = []
         for i, f in enumerate(model.fruits):
             t = targets.get(i)
