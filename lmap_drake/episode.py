@@ -259,6 +259,12 @@ class SimWorld:
         def vis(i, k):
             return sim.Visibility(label[k], fruit=i) if 0 <= k < len(label) and \
                 label[k] is not None else sim.Visibility(fruit=i)
+        def worst_load(t):
+            """The sample of largest petiole force (any leaf) while target
+            ``t`` was handled, or None."""
+            during = [s for s in sim.samples
+                      if t["t_start"] - 1e-9 <= s.t <= t["t_end"] + 1e-9]
+            return max(during, key=lambda s: s.petiole_force) if during else None
         targets = {}
         rows = []           # every target in turn, also a second one on the same fruit
         for t in st.targets:
@@ -266,8 +272,7 @@ class SimWorld:
                 c = np.asarray(t["target"]["center_W"], float)
                 i = int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits]))
                 targets.setdefault(i, t)
-                during = [s.petiole_force for s in sim.samples
-                          if t["t_start"] - 1e-9 <= s.t <= t["t_end"] + 1e-9]
+                worst = worst_load(t)
                 plans = ([t["plan"]] if t["plan"] is not None else []) + t["continuations"]
                 rows.append({"fruit": i, "fruit_id": t["target"].get("fruit_id"),
                              "center_W": t["target"]["center_W"],
@@ -275,7 +280,8 @@ class SimWorld:
                              "motions": [p.chosen.action.Describe() for p in plans
                                          if p.chosen is not None][:t["motions"]],
                              "t_start": t["t_start"], "t_end": t["t_end"],
-                             "max_petiole_force": max(during) if during else None})
+                             "max_petiole_force": (None if worst is None
+                                                   else float(worst.petiole_force))})
         record["targets"] = rows
         fruits = []
         for i, f in enumerate(model.fruits):
@@ -303,10 +309,8 @@ class SimWorld:
                     leaf_id=t["target"].get("leaf_id"), why=t["target"].get("why", ""),
                     outcome=t["outcome"])
                 # the petiole load while this fruit was handled (any leaf), N
-                during = [s for s in sim.samples
-                          if t["t_start"] - 1e-9 <= s.t <= t.get("t_end", np.inf) + 1e-9]
-                if during:
-                    worst = max(during, key=lambda s: s.petiole_force)
+                worst = worst_load(t)
+                if worst is not None:
                     entry.update(max_petiole_force=float(worst.petiole_force),
                                  max_petiole_force_t=float(worst.t))
             fruits.append(entry)
