@@ -124,10 +124,9 @@ def main() -> int:
     p.add_argument("--energy_weight", type=float, default=1.0)
     p.add_argument("--workers", type=int, default=2)
     a = p.parse_args()
-    import yaml
+    from lmap_drake.shape.benchmark import SuiteScenarioNames
     suite = str(Path(a.scenario_file).resolve())
-    names = [n for n in a.scenario_names.split(",") if n] or \
-        list(yaml.safe_load(Path(suite).read_text()).keys())
+    names = [n for n in a.scenario_names.split(",") if n] or SuiteScenarioNames(suite)
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     log = out.with_suffix(".episodes.jsonl")

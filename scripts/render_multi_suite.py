@@ -109,10 +109,9 @@ def MeasureScene(scenario, push: bool, out_png=None, push_speed: float = 1.5) ->
 
 
 def main() -> None:
-    import yaml
-
     from lmap_drake.paths import DIAGRAMS_DIR
     from lmap_drake.scenario import LoadScenario
+    from lmap_drake.shape.benchmark import SuiteScenarioNames
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--suite", default=str(DIAGRAMS_DIR / "multi_suite.yaml"))
@@ -122,7 +121,7 @@ def main() -> None:
     p.add_argument("--push_speed", type=float, default=1.5, help="m/s")
     p.add_argument("--only", default="", help="comma-separated scene names")
     a = p.parse_args()
-    names = list(yaml.safe_load(Path(a.suite).read_text()))
+    names = SuiteScenarioNames(a.suite)
     if a.only:
         names = [n for n in names if n in a.only.split(",")]
     out = Path(a.out)

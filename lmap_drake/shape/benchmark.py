@@ -232,9 +232,14 @@ SUITE_FILE = "diagrams/suite.yaml"
 
 
 def SuiteScenarioNames(suite_file) -> list[str]:
+    """The scenario names of a suite file, in order (its tags, e.g. a
+    robot mount's ``!Rpy``, are not resolved)."""
     import yaml
     from pathlib import Path
-    return list((yaml.safe_load(Path(suite_file).read_text()) or {}).keys())
+    root = yaml.compose(Path(suite_file).read_text(), Loader=yaml.SafeLoader)
+    if not isinstance(root, yaml.MappingNode):
+        return []
+    return [k.value for k, _ in root.value]
 
 
 def MakeSuiteCase(suite_file, scenario_name: str, occluded: bool = True,

@@ -41,13 +41,12 @@ def test_estimate_counts_each_fruit_of_a_multi_fruit_plant():
     number of targets; the estimate charges each of them."""
     from lmap_drake.evaluation.run_eval import ResolveSpecs
     specs = T.EpisodeSpecs(["three_fruits_default", "two_fruits_two_leaves_heavy"], ["lmap"])
-    for s in specs:
-        s["scenario_text"] = "{planner: {targets: all}}"
-    ResolveSpecs(specs, DIAGRAMS_DIR / "multi_suite.yaml")
+    ResolveSpecs(specs, DIAGRAMS_DIR / "multi_suite.yaml")     # the suite reveals every fruit
     assert [s["targets"] for s in specs] == [3, 2]
     est = P.Estimate(specs, slots=2)
     assert abs(est["core_seconds"] - 5 * P.MULTI_CORE_SECONDS_PER_TARGET) < 1e-9
     one = T.EpisodeSpecs(["three_fruits_default"], ["lmap"])     # the largest fruit only
+    one[0]["scenario_text"] = "{planner: {targets: largest}}"
     ResolveSpecs(one, DIAGRAMS_DIR / "multi_suite.yaml")
     assert "targets" not in one[0]
 

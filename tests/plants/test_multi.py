@@ -148,13 +148,13 @@ def test_multi_suite_file_is_the_multi_suite():
     """diagrams/multi_suite.yaml loads and holds MultiSuite() (regenerate it
     with scripts/make_suite.py --multi); building every scene is left to
     scripts/render_multi_suite.py (about 5 s each)."""
-    import yaml
     from pydrake.common.yaml import yaml_dump_typed
 
     from lmap_drake.paths import DIAGRAMS_DIR
     from lmap_drake.plants.suite import MultiSuite
+    from lmap_drake.shape.benchmark import SuiteScenarioNames
     path = DIAGRAMS_DIR / "multi_suite.yaml"
-    names = list(yaml.safe_load(path.read_text()))
+    names = SuiteScenarioNames(path)
     suite = MultiSuite()
     assert names == list(suite) and len(names) >= 6
     two = 0
@@ -164,4 +164,8 @@ def test_multi_suite_file_is_the_multi_suite():
         assert yaml_dump_typed(ps, schema=PlantSceneConfig) == \
             yaml_dump_typed(suite[name], schema=PlantSceneConfig)
         two += any(f.num_leaves == 2 for f in ps.multi.fruits)
+        # every scene reveals every fruit, with the arm in the aisle
+        s = LoadScenario(filename=path, scenario_name=name)
+        assert s.planner.targets == "all"
+        assert np.allclose(s.robot.X_WB.GetDeterministicValue().translation(), [0.1, -0.25, 0])
     assert two >= 2
