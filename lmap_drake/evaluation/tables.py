@@ -127,8 +127,8 @@ def ScenarioOverride(spec: dict) -> str:
 
 
 # Record fields that differ between two runs of the same episode: timings.
-VOLATILE_KEYS = ("wall_seconds", "cpu_seconds", "simulation_wall_seconds", "stage_seconds",
-                 "traceback")
+VOLATILE_KEYS = ("wall_seconds", "cpu_seconds", "simulation_wall_seconds", "mode_wall_seconds",
+                 "stage_seconds", "traceback")
 
 
 def Deterministic(record: dict) -> dict:
