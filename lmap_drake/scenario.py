@@ -579,10 +579,11 @@ class PlannerConfig:
     ``continue_after_pull``: whether a straight pull may be followed by a
     further motion. Off by default: a pull loads the petiole along its
     axis and a turn after it compounds that load. In the multi-fruit
-    plants, where the first motion is a pull more often, 5 of 7 reveals
-    that continued after a pull reached 13.0-17.6 N on the petiole, the 14
-    single motions at most 10.7 N; in the single-plant suites the first
-    motion was a pull in none of 113 episodes.
+    plants, where the first motion is a pull more often, 3 of 4 reveals
+    that turned the leaf after a pull reached 13.0-17.6 N on the petiole
+    (a fifth ended its episode at 15.4 N), 9 single-motion reveals at most
+    10.7 N; in the single-plant suites the first motion was a pull in none
+    of 113 episodes.
 
     ``targets``: ``largest`` reveals the most-seen fruit (the paper's
     single-fruit episode); ``all`` reveals every fruit of the plant in turn
