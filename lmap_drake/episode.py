@@ -502,8 +502,9 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
         while world.time < max_time:
             t0 = time.perf_counter()
             world.Step(dt)
-            step_wall += time.perf_counter() - t0
-            mode_wall[mode] = mode_wall.get(mode, 0.0) + time.perf_counter() - t0
+            took = time.perf_counter() - t0
+            step_wall += took
+            mode_wall[mode] = mode_wall.get(mode, 0.0) + took
             c, cctx = controller()
             st = c.Status(cctx)
             mode = st.mode

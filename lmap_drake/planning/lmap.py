@@ -901,7 +901,7 @@ def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformation
     compounded energy per node (``CompoundEnergyPerNode``). Never raises on
     a bad scene."""
     progress = progress or (lambda m: None)
-    if "pull" in held.families and not getattr(cfg, "continue_after_pull", True):
+    if "pull" in held.families and not cfg.continue_after_pull:
         result = PlanResult("no_feasible_action", cfg.method,
                             message="no further motion after a straight pull "
                                     "(planner.continue_after_pull: false)")

@@ -327,17 +327,22 @@ class TargetReestimate(LeafSystem):
     def _calc(self, context, output) -> None:
         from lmap_drake.planning.targets import TargetScene
         plant = self._plant.Eval(context)
-        status = self._status.Eval(context)
-        plan = getattr(status, "plan", None)
-        target = getattr(plan, "target", None)
-        if not plant.fruits or target is None:
+        c = TargetCenter(self._status.Eval(context))
+        if not plant.fruits or c is None:
             output.set_value(SceneEstimate(semantic=plant.semantic, branch=plant.branch))
             return
-        c = np.asarray(target["center_W"], float)
         k = int(np.argmin([np.linalg.norm(f.center_W - c) for f in plant.fruits]))
         output.set_value(TargetScene(plant, k, HeldLeaf(plant.semantic,
                                                         self._robot.TcpPose(
                                                             self._q.Eval(context)).translation())))
+
+
+def TargetCenter(status) -> np.ndarray | None:
+    """The centre (W, m, (3,)) of the fruit the ``ArmController`` status's
+    current plan targets; None without a target."""
+    target = getattr(getattr(status, "plan", None), "target", None)
+    c = None if not target else target.get("center_W")
+    return None if c is None else np.asarray(c, float).reshape(3)
 
 
 class TargetFocus(LeafSystem):
@@ -353,9 +358,7 @@ class TargetFocus(LeafSystem):
                                        self._calc)
 
     def _calc(self, context, output) -> None:
-        target = getattr(getattr(self._status.Eval(context), "plan", None), "target", None)
-        c = None if not target or target.get("center_W") is None else target["center_W"]
-        output.set_value(None if c is None else np.asarray(c, float).reshape(3))
+        output.set_value(TargetCenter(self._status.Eval(context)))
 
 
 def HeldLeaf(semantic: SemanticScene, p_WT: np.ndarray, radius: float = 0.04) -> int:
