@@ -118,7 +118,10 @@ def CarveFreeSpaceSamples(camera_W: np.ndarray, points_W: np.ndarray, grid: Voxe
     step = v / 4.0
     seg = (tb - ta) * np.linalg.norm(ends - o, axis=1)
     ns = np.ceil(seg / step).astype(np.int64) + 1
-    free = []
+    # Per-voxel sums over the whole (bounded) grid: bincount instead of
+    # sorting the sample keys (np.unique), the same sums in the same order.
+    size = int(np.prod(grid.shape))
+    sums, counts = np.zeros((size, 3)), np.zeros(size)
     # Process in chunks so memory stays bounded.
     start = 0
     while start < len(o):
@@ -133,16 +136,13 @@ def CarveFreeSpaceSamples(camera_W: np.ndarray, points_W: np.ndarray, grid: Voxe
         p = o[sl][rid] + t[:, None] * (ends[sl][rid] - o[sl][rid])
         ijk = grid.index(p)
         m = grid.inside(ijk)
-        f, inv = np.unique(grid.flat(ijk[m]), return_inverse=True)
-        pm = p[m]
-        sums = np.stack([np.bincount(inv, pm[:, j], minlength=len(f)) for j in range(3)], 1)
-        free.append((f, sums, np.bincount(inv, minlength=len(f)).astype(float)))
+        f, pm = grid.flat(ijk[m]), p[m]
+        for j in range(3):
+            sums[:, j] += np.bincount(f, pm[:, j], minlength=size)
+        counts += np.bincount(f, minlength=size)
         start = stop_i
-    f_all = np.concatenate([f for f, _, _ in free])
-    idx, inv = np.unique(f_all, return_inverse=True)
-    sums = np.zeros((len(idx), 3))
-    np.add.at(sums, inv, np.concatenate([s for _, s, _ in free]))
-    counts = np.bincount(inv, np.concatenate([c for _, _, c in free]), minlength=len(idx))
+    idx = np.flatnonzero(counts)
+    sums, counts = sums[idx], counts[idx]
     keep = ~np.isin(idx, _occupied(grid, points_W))
     return idx[keep], sums[keep] / counts[keep, None]
 
@@ -209,8 +209,11 @@ def FreeSpacePoints(camera_W: np.ndarray, points_W: np.ndarray, fruit_points_W: 
     # Rays ending in the same half-voxel cell are nearly identical: keep one
     # per cell (fused multi-view clouds can hold 10^5 points).
     pts = np.asarray(points_W, float)
-    _, first = np.unique(np.floor(pts / (0.5 * voxel)).astype(np.int64), axis=0,
-                         return_index=True)
+    cell = np.floor(pts / (0.5 * voxel)).astype(np.int64)
+    cell -= cell.min(axis=0)
+    dims = cell.max(axis=0) + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    _, first = np.unique(key, return_index=True)
     idx, means = CarveFreeSpaceSamples(camera_W, pts[np.sort(first)], grid)
     keep = ~np.isin(idx, _occupied(grid, pts))
     return means[keep]

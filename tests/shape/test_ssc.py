@@ -11,7 +11,7 @@ from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints
 from lmap_drake.shape.metrics import CenterErrorCm, MeshCentroid, MeshChamferCm
-from lmap_drake.shape.ssc import MakeFruitEstimate, OptimizeShape, SscParams
+from lmap_drake.shape.ssc import Adam, MakeFruitEstimate, OptimizeShape, SscParams
 
 CAM = np.array([0.5, -0.6, 0.47])
 
@@ -115,6 +115,28 @@ def test_params_from_config_reestimate():
     assert p.w_neg_completed_branch == 0.1
     assert q.w_ped == cfg.reestimate_w_ped == 0.01
     assert q.w_neg_completed_branch == 0.01
+    # the first estimate slows the rotation and runs fewer steps; the
+    # re-estimate after the action keeps plain Adam and 300 steps
+    assert (p.rotation_lr_scale, p.iterations) == (0.3, 250)
+    assert (q.rotation_lr_scale, q.iterations) == (1.0, 300)
+
+
+def test_adam_moves_a_weakly_observed_parameter_at_full_speed_unless_scaled():
+    """Why ``rotation_lr_scale``: Adam's step is about lr whatever the
+    gradient's size, so a parameter with a 1e6x weaker but steady gradient
+    drifts as fast as a well-observed one; its scale bounds that drift."""
+    moved = {}
+    for scale in (1.0, 0.3):
+        a, b = torch.zeros(1, requires_grad=True), torch.zeros(1, requires_grad=True)
+        opt = Adam([a, b], lr=0.01, scales=[1.0, scale])
+        for _ in range(50):
+            loss = 100 * (a - 1) ** 2 + 1e-4 * (b - 1) ** 2
+            opt.zero_grad()
+            loss.sum().backward()
+            opt.step()
+        moved[scale] = float(b.detach())
+    assert moved[1.0] > 0.45                      # ~50 full steps of 0.01
+    assert 0.13 < moved[0.3] <= 0.3 * 50 * 0.01 * 1.001
 
 
 def _arc_stalk(top, axis, length=0.06, angle_deg=50.0, radius=0.004, n=1500, seed=0):
