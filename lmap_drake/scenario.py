@@ -452,8 +452,8 @@ class ShapeConfig:
     the robust peduncle term, and ``init_from_observation`` /
     ``init_scale_bounds``: the start scale and centre from the observed
     points; ``rotation_lr_scale``: the rotation's share of the Adam step,
-    ``iterations`` its steps; the ``reestimate_*`` keys are the same for the
-    re-estimate after the action). ``branch_*``: branch completion (slab
+    ``reestimate_rotation_lr_scale`` the same for the re-estimate after the
+    action). ``branch_*``: branch completion (slab
     thickness, radius factor, cylinder mesh resolution, ARAP match distance;
     metres). ``leaf_split_angle_deg`` (plants with several fruits): touching leaves
     (one cluster of points) are told apart where their surfaces meet at more
@@ -475,8 +475,7 @@ class ShapeConfig:
     rotation_lr_scale: float = 0.3
     reestimate_rotation_lr_scale: float = 1.0
     learning_rate: float = 0.01
-    iterations: int = 250
-    reestimate_iterations: int = 300
+    iterations: int = 300
     num_peduncle_points: int = 10
     loss_length_unit: float = 0.01
     push_from_camera: float = 0.01
@@ -971,7 +970,6 @@ _RULES = {
     "shape.reestimate_w_neg_completed_branch": ">=0",
     "shape.learning_rate": ">0",
     "shape.iterations": ">=1",
-    "shape.reestimate_iterations": ">=1",
     "shape.num_peduncle_points": ">=1",
     "shape.loss_length_unit": ">0",
     "shape.max_surface_points": ">=1",

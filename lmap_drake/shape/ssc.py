@@ -7,16 +7,15 @@ The paper's T_{w->o} is T_WO^{-1}. ``X_WO`` (4x4) holds ``s R`` in its
 rotation block and ``t`` in its translation. The decoder is queried at
 ``p_O``; the world-frame signed distance is ``s * D(p_O, z)`` (m).
 
-Optimised with Adam (lr ``learning_rate``, ``iterations`` steps, 250; the
-re-estimate on the fused views after the action ``reestimate_iterations``,
-300): the latent ``z`` (init: mean training latent), ``log s``, a rotation
-vector ``w`` with ``R = exp([w]_x)`` (init 0, R = I; lr times
+Optimised with Adam (lr ``learning_rate``, ``iterations`` steps, 300): the
+latent ``z`` (init: mean training latent), ``log s``, a rotation vector
+``w`` with ``R = exp([w]_x)`` (init 0, R = I; lr times
 ``rotation_lr_scale``, 0.3; the re-estimate's ``reestimate_rotation_lr_scale``,
 1) and ``t``.
 
-Why these two departures from plain Adam. Adam moves every parameter by
-about ``lr`` per step whenever its gradient keeps its sign, however weak
-the gradient: under heavy occlusion the rotation is the least observed
+Why the rotation takes a smaller step. Adam moves every parameter by about
+``lr`` per step whenever its gradient keeps its sign, however weak the
+gradient: under heavy occlusion the rotation is the least observed
 parameter (in one traced fit its gradient was 100x below the
 translation's) and it drifted 10 -> 57 deg over 300 steps with the
 negative loss idle. At 0.3x the rotation step, SSC (heavy occlusion,
@@ -25,15 +24,14 @@ angle deg) went on the 12 family suite scenes 0.263 / 28.6 / 0.457 / 6.8 ->
 0.250 / 26.8 / 0.411 / 5.9, on 31 external development cases 0.501 / 48.4 /
 0.868 / 13.2 -> 0.481 / 47.0 / 0.815 / 11.6, and on 18 further external
 cases 0.393 / 37.3 / 0.589 / 10.1 -> 0.393 / 37.0 / 0.613 / 8.3 (0.1 and
-0.2 rotate too little: the fits stay near their upright start). The loss
-flattens after about 100 steps; 250 steps instead of 300 change those
-figures by less than their seed-to-seed noise (0.248 / 27.7 / 0.387 / 6.2
-on the family) and save 0.25 s per fruit. A stop on a flat loss (no 2-5 %
-gain over a 25-step window) saved 0.5 s but cost 0.02 cm Chamfer and
-0.03 cm centre, so the step count is fixed. The re-estimate after the
-action, where most of the fruit is in view, keeps the paper's plain Adam
-and 300 steps: at 250 steps its Chamfer in the default episode went 0.12 ->
-0.18 cm, and with 0.3x rotation 0.15 cm.
+0.2 rotate too little: the fits stay near their upright start). The
+re-estimate after the action, where most of the fruit is in view, keeps
+the paper's plain Adam: with 0.3x its Chamfer in the default episode went
+0.12 -> 0.15 cm. Fewer steps were tried and not kept: the loss flattens
+after about 100 steps but the slow changes after it still help (250 steps:
+0.2 s less per fruit, 3 cm^3 more volume error on 17 external cases; a
+stop on a flat loss, no 2-5 % gain over a 25-step window: 0.5 s less,
+0.02 cm more Chamfer and 0.03 cm more centre error).
 
 Start (``InitialPose``): by default (the
 paper's) s = 1 and t = the centroid of the fruit points pushed
@@ -180,7 +178,6 @@ class SscParams:
             p.w_ped = cfg.reestimate_w_ped
             p.w_neg_completed_branch = cfg.reestimate_w_neg_completed_branch
             p.rotation_lr_scale = cfg.reestimate_rotation_lr_scale
-            p.iterations = cfg.reestimate_iterations
         return p
 
 
