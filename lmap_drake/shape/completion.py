@@ -122,7 +122,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     estimate per fruit), and the branches completed once. Fragments of one
     fruit (split by a leaf across it) are merged when one lies within
     ``merge_distance`` (m, median) of the other's completed surface, or when
-    the two completed shapes overlap (``_Overlap``). Touching leaves are
+    the two completed shapes overlap (``FruitsOverlap``). Touching leaves are
     told apart (``SplitTouchingLeaves`` at ``leaf_split_angle_deg``; 0 =
     not), and so are blades lying flush (``SplitOversizedLeaves``). ``focus_W`` (W, m): only the instances whose points' centroid lies
     within ``focus_radius`` of it are completed (the re-estimate of the fruit
@@ -161,9 +161,9 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
         merged = False
         for a in range(len(groups)):
             for b in range(a + 1, len(groups)):
-                if _Overlap(ests[a], ests[b]) or \
-                        _SameFruit(ests[a], pts[np.isin(inst, groups[b])], merge_distance) or \
-                        _SameFruit(ests[b], pts[np.isin(inst, groups[a])], merge_distance):
+                if FruitsOverlap(ests[a], ests[b]) or \
+                        PointsOnFruit(ests[a], pts[np.isin(inst, groups[b])], merge_distance) or \
+                        PointsOnFruit(ests[b], pts[np.isin(inst, groups[a])], merge_distance):
                     groups[a] = groups[a] + groups.pop(b)
                     ests.pop(b)
                     ests[a] = complete(groups[a])
@@ -182,7 +182,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     return out
 
 
-def _Overlap(a, b, fraction: float = 0.6) -> bool:
+def FruitsOverlap(a, b, fraction: float = 0.6) -> bool:
     """Two estimates whose centres are closer than ``fraction`` of the sum of
     their mean radii: two real fruits cannot interpenetrate that much, two
     fragments of one fruit complete to overlapping shapes."""
@@ -192,7 +192,7 @@ def _Overlap(a, b, fraction: float = 0.6) -> bool:
     return float(np.linalg.norm(a.center_W - b.center_W)) < fraction * (r[0] + r[1])
 
 
-def _SameFruit(est, points: np.ndarray, distance: float) -> bool:
+def PointsOnFruit(est, points: np.ndarray, distance: float) -> bool:
     """``points`` (another fragment's) lie on ``est``'s completed surface:
     their median |SDF| is below ``distance`` (m)."""
     if est is None or est.sdf_W is None or len(points) == 0:

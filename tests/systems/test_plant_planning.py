@@ -107,6 +107,30 @@ def test_fruits_are_revealed_one_after_another():
     assert vis[0] <= vis[1] + 1e-9
 
 
+def test_a_fragment_of_a_handled_fruit_is_handled_too():
+    """A later view completes a fragment of a revealed fruit on its own:
+    its centre lies 4 cm from the target's (beyond ``SAME_FRUIT_DISTANCE``)
+    but its points lie on the target's re-estimate, so it is not targeted
+    again; the other fruit still is."""
+    import dataclasses as dc
+    import types
+
+    from lmap_drake.systems.planning import SAME_FRUIT_DISTANCE, _Handled
+    plant = TwoFruitPlant()
+    A, B = plant.fruits
+    record = {"target": {"center_W": A.center_W.tolist()},
+              "final_estimate": SceneEstimate(plant.semantic, fruit=A)}
+    status = types.SimpleNamespace(targets=[record])
+    shift = np.array([0.0, 0.04, 0.0])
+    assert np.linalg.norm(shift) > SAME_FRUIT_DISTANCE
+    fragment = dc.replace(A, center_W=A.center_W + shift,
+                          vertices_W=A.vertices_W + shift)
+    assert _Handled(dc.replace(plant, fruits=[fragment, B]), status) == [True, False]
+    # without the target's estimate only the centre distance is left
+    record["final_estimate"] = None
+    assert _Handled(dc.replace(plant, fruits=[fragment, B]), status) == [False, False]
+
+
 def test_target_focus_is_the_current_targets_centre():
     import types
 
