@@ -23,8 +23,9 @@ ray-cast labels, 1 torch thread; Chamfer cm / volume cm^3 / centre cm /
 angle deg) went on the 12 family suite scenes 0.263 / 28.6 / 0.457 / 6.8 ->
 0.250 / 26.8 / 0.411 / 5.9, on 31 external development cases 0.501 / 48.4 /
 0.868 / 13.2 -> 0.481 / 47.0 / 0.815 / 11.6, and on 18 further external
-cases 0.393 / 37.3 / 0.589 / 10.1 -> 0.393 / 37.0 / 0.613 / 8.3 (0.1 and
-0.2 rotate too little: the fits stay near their upright start). The
+cases 0.393 / 37.3 / 0.589 / 10.1 -> 0.393 / 37.0 / 0.613 / 8.3 (at 0.1
+the fits stay near their upright start; 0.2-0.5 are within seed noise of
+each other, 0.3 is their middle). The
 re-estimate after the action, where most of the fruit is in view, keeps
 the paper's plain Adam: with 0.3x its Chamfer in the default episode went
 0.12 -> 0.15 cm. Fewer steps were tried and not kept: the loss flattens
@@ -339,7 +340,8 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
     when None or ``w_ped == 0``). ``init`` may override ``z``, ``s``,
     ``R``, ``t``. Returns a FruitEstimate (mesh by marching tetrahedra at
     ``mesh_spacing`` m, X_WO, latent, centre = mesh volume centroid,
-    peduncle axis R e_z, batched numpy ``sdf_W``, per-iteration loss trace).
+    peduncle axis R e_z, batched numpy ``sdf_W``, per-iteration trace of the
+    losses, the scale and the axis R e_z).
     """
     P = params or SscParams()
     rng = np.random.default_rng(P.seed)
