@@ -19,6 +19,9 @@ from lmap_drake.shape.ssc import OptimizeShape, SscParams
 from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
 METHODS = ("ssc", "homa", "supeps")
+# Fragments whose points lie this close (m, median |SDF|) to another
+# fragment's completed surface are one fruit (``CompletePlant``).
+MERGE_DISTANCE = 0.006
 
 
 def LargestInstance(points: np.ndarray, instance: np.ndarray) -> np.ndarray:
@@ -113,7 +116,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                   free_space_voxel: float = 0.003,
                   branch_params: BranchCompletionParams | None = None,
                   min_fruit_points: int = 30, timings: dict | None = None,
-                  merge_distance: float = 0.006,
+                  merge_distance: float = MERGE_DISTANCE,
                   leaf_split_angle_deg: float = 15.0,
                   focus_W: np.ndarray | None = None,
                   focus_radius: float = 0.08) -> PlantEstimate:

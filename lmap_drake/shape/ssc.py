@@ -203,12 +203,12 @@ class Adam:
     def step(self):
         self.k += 1
         c1, c2 = 1 - self.b1 ** self.k, 1 - self.b2 ** self.k
-        for p, m, v, k in zip(self.params, self.m, self.v, self.scales):
+        for p, m, v, scale in zip(self.params, self.m, self.v, self.scales):
             if p.grad is None:
                 continue
             m.mul_(self.b1).add_(p.grad, alpha=1 - self.b1)
             v.mul_(self.b2).addcmul_(p.grad, p.grad, value=1 - self.b2)
-            p.sub_(k * self.lr * (m / c1) / ((v / c2).sqrt() + self.eps))
+            p.sub_(scale * self.lr * (m / c1) / ((v / c2).sqrt() + self.eps))
 
 
 def Skew(w: torch.Tensor) -> torch.Tensor:

@@ -63,7 +63,7 @@ from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, HeldGras
                                       PlanResult, SelectFromPredictions)
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
-from lmap_drake.shape.completion import FruitsOverlap, PointsOnFruit
+from lmap_drake.shape.completion import MERGE_DISTANCE, FruitsOverlap, PointsOnFruit
 from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
 
@@ -221,17 +221,15 @@ class ContinuationPlanning(LeafSystem):
 # A fruit estimate whose centre lies this close (m) to a handled target's is
 # that target again (instance ids are not kept between views).
 SAME_FRUIT_DISTANCE = 0.03
-# ... and so is one whose points lie this close (m, median) to the handled
-# target's surface (the distance at which CompletePlant merges fragments).
-ON_FRUIT_DISTANCE = 0.006
 
 
 def _Handled(plant, status) -> list[bool]:
     """Per fruit of ``plant``: is it a target already handled? By centre
     distance (``SAME_FRUIT_DISTANCE``) or by the tests that merge the
     fragments of one fruit in ``CompletePlant``: its points lie on the
-    target's latest estimate (the re-estimate after the action when there
-    is one), or the two estimates overlap more than two fruits can. A
+    target's latest estimate within ``MERGE_DISTANCE`` (the re-estimate
+    after the action when there is one), or the two estimates overlap more
+    than two fruits can. A
     fragment of a revealed fruit, completed on its own in a later view,
     lies on that fruit but can have its centre several cm away."""
     done = []
@@ -248,7 +246,7 @@ def _Handled(plant, status) -> list[bool]:
         mine = pts[inst == plant.fruit_ids[k]] if k < len(plant.fruit_ids) and \
             len(inst) == len(pts) else np.zeros((0, 3))
         out.append(any(np.linalg.norm(f.center_W - c) < SAME_FRUIT_DISTANCE or
-                       FruitsOverlap(f, est) or PointsOnFruit(est, mine, ON_FRUIT_DISTANCE)
+                       FruitsOverlap(f, est) or PointsOnFruit(est, mine, MERGE_DISTANCE)
                        for c, est in done))
     return out
 
