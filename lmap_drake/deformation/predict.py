@@ -5,8 +5,6 @@ parallel threads (the ARAP kernels release the GIL). World frame W, metres."""
 from __future__ import annotations
 
 import dataclasses as dc
-import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -15,6 +13,7 @@ from lmap_drake.deformation.arap import ArapProblem
 from lmap_drake.deformation.graph import (
     FIXED, HANDLE, BuildGraspGraph, BuildLeafGraph, GraspGraph, LeafGraph)
 from lmap_drake.deformation.interpolate import DenseInterpolator
+from lmap_drake.parallel import DefaultWorkers, ParallelMap  # noqa: F401 (scripts use it)
 from lmap_drake.scenario import DeformationConfig
 
 
@@ -107,14 +106,6 @@ def SolveGrasp(prep: GraspSolution, actions: list[Action], config: DeformationCo
     return _Predictions(prep, actions, SolveActions(prep, actions, config), dense)
 
 
-def DefaultWorkers() -> int:
-    """Threads for independent grasps: the CPUs this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:                       # not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
 def PrepareAndSolveGrasps(leaf_graph: LeafGraph, groups: list[list[Action]],
                           config: DeformationConfig, factorization: str = "inverse",
                           workers: int | None = None, skip_unmodelled: bool = False) -> list:
@@ -132,11 +123,7 @@ def PrepareAndSolveGrasps(leaf_graph: LeafGraph, groups: list[list[Action]],
             return None, err
         return prep, SolveActions(prep, acts, config)
 
-    workers = min(len(groups), workers or DefaultWorkers())
-    if workers <= 1:
-        return [Run(acts) for acts in groups]
-    with ThreadPoolExecutor(workers) as pool:
-        return list(pool.map(Run, groups))
+    return ParallelMap(Run, groups, workers)
 
 
 def PredictDeformations(leaf_points_W: np.ndarray, branch_points_W: np.ndarray,

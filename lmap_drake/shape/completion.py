@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from lmap_drake.parallel import ParallelMap
 from lmap_drake.perception.points import SplitOversizedLeaves, SplitTouchingLeaves
 from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
 from lmap_drake.shape.branch import BranchCompletionParams, CompleteBranches
@@ -119,7 +120,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                   merge_distance: float = MERGE_DISTANCE,
                   leaf_split_angle_deg: float = 15.0,
                   focus_W: np.ndarray | None = None,
-                  focus_radius: float = 0.08) -> PlantEstimate:
+                  focus_radius: float = 0.08, workers: int | None = None) -> PlantEstimate:
     """Every fruit instance (``FruitInstances``) completed on its own, the
     other fruits' points counted as outside it (paper Sec. III-F: one
     estimate per fruit), and the branches completed once. Fragments of one
@@ -129,7 +130,10 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     told apart (``SplitTouchingLeaves`` at ``leaf_split_angle_deg``; 0 =
     not), and so are blades lying flush (``SplitOversizedLeaves``). ``focus_W`` (W, m): only the instances whose points' centroid lies
     within ``focus_radius`` of it are completed (the re-estimate of the fruit
-    being revealed; every fruit's points still count as outside the others)."""
+    being revealed; every fruit's points still count as outside the others).
+    The fruits are completed in ``workers`` threads (default: one per CPU;
+    each fit is independent and seeded, so the result does not depend on
+    it); ``timings`` sums the fruits' seconds."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     P = params or SscParams()
@@ -151,11 +155,19 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
         groups = [g for g in groups
                   if np.linalg.norm(pts[np.isin(inst, g)].mean(axis=0) - focus) <= focus_radius]
 
-    def complete(g):
+    def complete(g, own_timings=timings):
         mine = np.isin(inst, g)
         return _CompleteFruit(semantic, pts[mine], pts[~mine], out.branch, decoder,
-                              mean_latent, P, method, free_space_voxel, timings)
-    ests = [complete(g) for g in groups]
+                              mean_latent, P, method, free_space_voxel, own_timings)
+
+    def complete_apart(g):          # a thread's own timings, summed below
+        t = {}
+        return complete(g, t), t
+    done = ParallelMap(complete_apart, groups, workers)
+    ests = [e for e, _ in done]
+    for _, t in done:
+        for k, v in t.items():
+            timings[k] = timings.get(k, 0.0) + v
     # A leaf across a fruit splits its visible part into fragments that
     # cluster apart: fragments lying on one another's completed surface are
     # one fruit, completed again from all of them.

@@ -85,7 +85,9 @@ class ShapeCompletion(LeafSystem):
                                                         AbstractValue.Make(object()))
             plant_deps.add(self._focus.ticket())
         # the focus comes from the controller's state, which changes every
-        # tick: the last result is kept for an unchanged view and focus
+        # tick, and a view segmented again is a new object with the same
+        # contents: the last result is kept for an unchanged view (same
+        # contents, ``SemanticScene.Fingerprint``) and focus
         self._plant_memo: tuple | None = None
         self.DeclareAbstractOutputPort(
             "plant_estimate", lambda: AbstractValue.Make(PlantEstimate(SemanticScene())),
@@ -110,9 +112,9 @@ class ShapeCompletion(LeafSystem):
             value = self._focus.Eval(context)
             if value is not None and np.size(value) == 3:
                 focus = np.asarray(value, float).reshape(3)
-        key = (id(sem), None if focus is None else tuple(np.round(focus, 4)))
+        key = (sem.Fingerprint(), None if focus is None else tuple(np.round(focus, 4)))
         if self._plant_memo is not None and self._plant_memo[0] == key:
-            output.set_value(self._plant_memo[2])
+            output.set_value(self._plant_memo[1])
             return
         re = self.reestimate or "reestimate" in sem.flags
         timings = {}
@@ -121,5 +123,5 @@ class ShapeCompletion(LeafSystem):
                             timings=timings, leaf_split_angle_deg=self.cfg.leaf_split_angle_deg,
                             focus_W=focus)
         self.last_timings = timings
-        self._plant_memo = (key, sem, est)     # (sem kept alive: its id stays unique)
+        self._plant_memo = (key, est)
         output.set_value(est)

@@ -90,8 +90,10 @@ def test_leaf_holds_its_shape_under_gravity():
 
 def test_leaves_at_rest_far_from_the_robot_sleep_and_wake_when_it_comes():
     """A settled leaf the robot is far from is frozen (its FEM not
-    computed) and does not move while asleep; bringing the open gripper to
-    the pre-grasp pose next to it wakes it before anything touches it."""
+    computed) and does not move while asleep; the open gripper 5 cm away at
+    the pre-grasp pose leaves it asleep (``sleep_distance`` 3 cm), and
+    moving in to grasp wakes it before anything touches it: it wakes
+    where it was frozen."""
     from lmap_drake.plants.simworld import TipGraspPose, _LeafNormal
     from lmap_drake.planning.motion import PlanApproach
     scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
@@ -111,7 +113,15 @@ def test_leaves_at_rest_far_from_the_robot_sleep_and_wake_when_it_comes():
                         pull.pregrasp_opening)
     world.SetGripper(pull.pregrasp_opening, 0.0)
     world.MoveJoints([plan.via] + list(plan.to_ready) + list(plan.to_pregrasp), 0.8)
-    assert enabled()
+    assert not enabled()
+    woke = None
+    for q in plan.to_grasp:
+        world.MoveJoints([q], 0.8)
+        if enabled():
+            woke = world.LeafVertices()
+            break
+    assert woke is not None
+    assert np.abs(woke - frozen).max() < 1e-4      # awake before the pads touched it
     # with sleeping off every leaf is always simulated
     scenario.plant_scene.sleep_distance = 0.0
     awake = PlantWorldSim(scenario)

@@ -89,3 +89,24 @@ def test_complete_plant_with_a_focus_completes_only_the_fruit_there(decoder):
     assert len(CompletePlant(sem2, dec, mean, P, "ssc").fruits) == 2
     # a focus far from every fruit completes none
     assert CompletePlant(sem2, dec, mean, P, "ssc", focus_W=near_second + 1.0).fruits == []
+
+
+def test_complete_plant_gives_the_same_estimates_in_one_thread_or_two(decoder):
+    """The fruits are completed in parallel threads: each fit is seeded and
+    independent, so two threads give the estimates of one, in order."""
+    from lmap_drake.shape.completion import CompletePlant
+    dec, mean = decoder
+    sem = MakeSyntheticCase(0, occluded=False).semantic
+    f = np.asarray(sem.fruit_points_W, float)
+    pts = np.vstack([f, f[::2] + [0.15, 0.0, 0.0], f[::3] + [-0.15, 0.0, 0.02]])
+    ids = np.r_[np.zeros(len(f), int), np.ones(len(f[::2]), int), np.full(len(f[::3]), 2)]
+    sem3 = dc.replace(sem, fruit_points_W=pts, fruit_instance=ids)
+    P = SscParams(iterations=40)
+    t1, t2 = {}, {}
+    one = CompletePlant(sem3, dec, mean, P, "ssc", workers=1, timings=t1)
+    two = CompletePlant(sem3, dec, mean, P, "ssc", workers=2, timings=t2)
+    assert one.fruit_ids == two.fruit_ids == [0, 1, 2]
+    for a, b in zip(one.fruits, two.fruits):
+        assert np.array_equal(a.X_WO, b.X_WO) and np.array_equal(a.vertices_W, b.vertices_W)
+    # the per-fruit seconds are summed over the threads
+    assert t2["fruit_s"] > 0 and set(t1) == set(t2)

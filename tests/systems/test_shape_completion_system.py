@@ -46,3 +46,29 @@ def test_missing_weights_is_a_clear_error(tmp_path):
     cfg = dc.replace(ShapeConfig(), weights_file=str(tmp_path / "missing.pt"))
     with pytest.raises(MissingWeightsError, match="train_deepsdf"):
         ShapeCompletion(cfg)
+
+
+def test_a_view_segmented_again_is_not_completed_again(monkeypatch):
+    """``plant_estimate`` keeps its last result for a scene of equal
+    contents (perception hands a new object for the same view), and
+    completes a scene that differs."""
+    import lmap_drake.systems.shape_completion as module
+    torch.set_num_threads(1)
+    calls = []
+    real = module.CompletePlant
+    monkeypatch.setattr(module, "CompletePlant",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))
+    sem = MakeSyntheticCase(2, occluded=True).semantic
+    sys = ShapeCompletion(dc.replace(ShapeConfig(), iterations=20))
+    ctx = sys.CreateDefaultContext()
+    port = sys.GetOutputPort("plant_estimate")
+    sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(sem))
+    first = port.Eval(ctx)
+    copy = dc.replace(sem, fruit_points_W=sem.fruit_points_W.copy())
+    assert copy is not sem and copy.Fingerprint() == sem.Fingerprint()
+    sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(copy))
+    assert port.Eval(ctx) is first and len(calls) == 1
+    moved = dc.replace(sem, fruit_points_W=sem.fruit_points_W + [0.0, 0.0, 0.001])
+    assert moved.Fingerprint() != sem.Fingerprint()
+    sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(moved))
+    assert port.Eval(ctx) is not first and len(calls) == 2
