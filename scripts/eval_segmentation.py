@@ -18,7 +18,16 @@ Writes JSON: ``{backend: {"mean": {"fruit_iou", "leaf_iou", "branch_iou"},
 IoU is over pixels; the robot counts as background. A class absent from both
 the truth and the prediction has IoU null and is left out of the means.
 ``fruit_color`` (red / orange / yellow / green, from the rendered truth
-pixels' hue) lets green peppers be reported separately.
+pixels' hue) lets green peppers be reported separately. Per scenario,
+``fruit_instances`` lists the backend's fruit instances of 50 pixels or
+more with the truth fractions of their pixels (fruit / branch / leaf;
+``FruitInstanceTruth``); ``phantoms`` counts those mostly not fruit (a
+side shoot or stalk taken for a fruit: the planner would complete and
+reveal a fruit that is not there), summed in each backend's
+``instances``. Multi-fruit plants:
+
+    python scripts/eval_segmentation.py --scenario_file diagrams/multi_suite.yaml \
+        --settle 0.3 --backends segnet --out out/seg_multi.json
 """
 from __future__ import annotations
 
@@ -77,7 +86,8 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
     import dataclasses as dc
 
     from lmap_drake.perception.points import Intrinsics
-    from lmap_drake.perception.segmentation import ClassIou, MakeSegmenter, TruthClassMap
+    from lmap_drake.perception.segmentation import (ClassIou, FruitInstanceTruth, MakeSegmenter,
+                                                    TruthClassMap)
     from lmap_drake.scenario import LoadScenario
     from lmap_drake.plants.world import RenderStill
     names = names or _scenario_names(scenario_file)
@@ -103,6 +113,8 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
                     v = ClassIou(seg.class_map, truth, c)
                     row[key] = None if math.isnan(v) else round(v, 4)
                 row["flags"] = seg.flags
+                row["fruit_instances"] = FruitInstanceTruth(seg, truth)
+                row["phantoms"] = sum(r["fruit"] < 0.5 for r in row["fruit_instances"])
             except Exception as err:  # e.g. grounded_sam without weights
                 row["error"] = f"{type(err).__name__}: {err}"
             results[backend]["scenarios"][name] = row
@@ -115,6 +127,8 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
         res["counts"] = {k: v for k, v in _mean(rows).items() if k.endswith("_n")}
         res["mean_non_green"] = _mean([r for r in rows if r["fruit_color"] != "green"])
         res["mean_green"] = _mean([r for r in rows if r["fruit_color"] == "green"])
+        res["instances"] = {"fruit_instances": sum(len(r["fruit_instances"]) for r in rows),
+                            "phantoms": sum(r["phantoms"] for r in rows)}
     return results
 
 
@@ -160,7 +174,9 @@ def main(argv=None) -> int:
     for b in args.backends:
         g, o = res[b]["mean_green"], res[b]["mean_non_green"]
         print(f"{b:12s} mean {res[b]['mean']}  fruit IoU green {g['fruit_iou']} "
-              f"(n={g['fruit_n']}), others {o['fruit_iou']} (n={o['fruit_n']})")
+              f"(n={g['fruit_n']}), others {o['fruit_iou']} (n={o['fruit_n']}); phantom fruit "
+              f"instances {res[b]['instances']['phantoms']} of "
+              f"{res[b]['instances']['fruit_instances']}")
     return 0
 
 

@@ -548,6 +548,25 @@ def ClassIou(pred: np.ndarray, truth: np.ndarray, class_id: int) -> float:
     return float(np.logical_and(a, b).sum() / union)
 
 
+def FruitInstanceTruth(seg: Segmentation, truth: np.ndarray, min_pixels: int = 50) -> list[dict]:
+    """Every fruit instance of ``seg`` with at least ``min_pixels`` pixels:
+    its pixel count and the fractions of its pixels that the truth class
+    map ``truth`` calls fruit, branch and leaf. An instance mostly not
+    fruit (``fruit`` < 0.5) is a phantom: the planner would complete and
+    reveal a fruit that is not there."""
+    out = []
+    fruit = seg.class_map == FRUIT
+    ids, counts = np.unique(seg.instance_map[fruit], return_counts=True)
+    for i, n in zip(ids, counts):
+        if i < 0 or n < min_pixels:
+            continue
+        t = truth[fruit & (seg.instance_map == i)]
+        out.append({"pixels": int(n), "fruit": round(float(np.mean(t == FRUIT)), 3),
+                    "branch": round(float(np.mean(t == BRANCH)), 3),
+                    "leaf": round(float(np.mean(t == LEAF)), 3)})
+    return out
+
+
 def TruthClassMap(label) -> np.ndarray:
     """Ground-truth class map from a render label image (robot = background)."""
     return LabelSegmenter().Segment(None, None, label).class_map

@@ -18,6 +18,10 @@ def test_eval_segmentation_writes_means(tmp_path):
         assert set(mean) == {"fruit_iou", "leaf_iou", "branch_iou"}
         assert res[backend]["scenarios"]["Defaults"]["fruit_color"] == "red"
     assert res["label"]["mean"]["fruit_iou"] == 1.0
+    # fruit instances with the truth of their pixels: the labels have no phantom
+    rows = res["label"]["scenarios"]["Defaults"]["fruit_instances"]
+    assert len(rows) >= 1 and all(r["fruit"] == 1.0 for r in rows)
+    assert res["label"]["instances"] == {"fruit_instances": len(rows), "phantoms": 0}
     assert res["segnet"]["mean"]["fruit_iou"] >= 0.9
     assert res["segnet"]["mean"]["leaf_iou"] >= 0.9
     assert res["segnet"]["mean_non_green"]["fruit_n"] == 1

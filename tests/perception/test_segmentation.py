@@ -138,3 +138,24 @@ def test_fruit_border_snaps_to_the_leafs_depth_edge():
     d_alone = np.where(r2 < 1, 0.60 - 0.02 * np.sqrt(np.clip(1 - r2, 0, 1)),
                        np.where(u < 5, 0.58, np.inf))
     assert np.array_equal(SnapFruitToDepthEdges(alone, d_alone), alone)
+
+
+def test_fruit_instance_truth_finds_a_stalk_taken_for_a_fruit():
+    """A predicted fruit instance whose pixels are branch in the truth is a
+    phantom (fruit fraction < 0.5); a real one is not; tiny ones are left
+    out."""
+    from lmap_drake.labels import BRANCH, FRUIT, LEAF
+    from lmap_drake.perception.segmentation import FruitInstanceTruth, Segmentation
+    truth = np.zeros((40, 40), np.int64)
+    truth[0:10, 0:10] = FRUIT
+    truth[20:30, 0:6] = BRANCH
+    truth[20:30, 6:10] = LEAF
+    cls = np.zeros_like(truth)
+    inst = np.full(truth.shape, -1, np.int64)
+    cls[0:10, 0:10], inst[0:10, 0:10] = FRUIT, 0          # a real fruit, 100 px
+    cls[20:30, 0:10], inst[20:30, 0:10] = FRUIT, 1        # stalk + leaf called fruit
+    cls[35:37, 35:37], inst[35:37, 35:37] = FRUIT, 2      # 4 px: left out
+    rows = FruitInstanceTruth(Segmentation(cls, inst), truth, min_pixels=50)
+    assert [r["pixels"] for r in rows] == [100, 100]
+    assert rows[0]["fruit"] == 1.0
+    assert rows[1]["fruit"] == 0.0 and rows[1]["branch"] == 0.6 and rows[1]["leaf"] == 0.4
