@@ -251,7 +251,11 @@ class SimWorld:
         per ground-truth fruit: its visibility in the first view and after
         its reveal (in the view observed after its last motion; unchanged
         when it was not moved for), the shape metrics of its estimate before
-        and after, and the target record (leaf chosen, why, motions)."""
+        and after, and the target record (leaf chosen, why, motions). A
+        target is matched to the true fruit its points land on in the render
+        labels of its view; a target whose points are mostly not on a fruit
+        is a phantom (``targets[k].phantom``, ``phantom_targets``; e.g. a
+        stalk segmented as fruit) and is no fruit's estimate."""
         from lmap_drake.plants.outcome import FruitShapeErrors, Summarize
         sim, model = self.sim, self.model
         label = [v.label for v in views]
@@ -265,16 +269,34 @@ class SimWorld:
             during = [s for s in sim.samples
                       if t["t_start"] - 1e-9 <= s.t <= t["t_end"] + 1e-9]
             return max(during, key=lambda s: s.petiole_force) if during else None
+        from lmap_drake.perception.points import Intrinsics
+        from lmap_drake.plants.outcome import TruthFruitOfPoints
+        K = Intrinsics.FromCameraConfig(self.scenario.cameras["camera0"])
+
+        def truth_of(t):
+            """(true fruit, fraction of the target's points on a fruit): from
+            the render labels of the view it was planned in; a phantom
+            (points mostly not on a fruit) is (None, fraction); without
+            those, the fruit nearest the target's estimated centre."""
+            est, k = t.get("initial_estimate"), t.get("view_plan")
+            if est is not None and k is not None and 0 <= k < len(label) \
+                    and label[k] is not None and len(est.semantic.fruit_points_W):
+                return TruthFruitOfPoints(est.semantic.fruit_points_W, label[k], K,
+                                          est.semantic.X_WC)
+            c = np.asarray(t["target"]["center_W"], float)
+            return int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits])), None
         targets = {}
         rows = []           # every target in turn, also a second one on the same fruit
         for t in st.targets:
             if t.get("target"):
-                c = np.asarray(t["target"]["center_W"], float)
-                i = int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits]))
-                targets.setdefault(i, t)
+                i, on_fruit = truth_of(t)
+                if i is not None:
+                    targets.setdefault(i, t)
                 worst = worst_load(t)
                 plans = ([t["plan"]] if t["plan"] is not None else []) + t["continuations"]
-                rows.append({"fruit": i, "fruit_id": t["target"].get("fruit_id"),
+                rows.append({"fruit": i, "phantom": i is None,
+                             "points_on_fruit": None if on_fruit is None else round(on_fruit, 3),
+                             "fruit_id": t["target"].get("fruit_id"),
                              "center_W": t["target"]["center_W"],
                              "leaf_id": t["target"].get("leaf_id"), "outcome": t["outcome"],
                              "motions": [p.chosen.action.Describe() for p in plans
@@ -283,6 +305,7 @@ class SimWorld:
                              "max_petiole_force": (None if worst is None
                                                    else float(worst.petiole_force))})
         record["targets"] = rows
+        record["phantom_targets"] = sum(r["phantom"] for r in rows)
         fruits = []
         for i, f in enumerate(model.fruits):
             t = targets.get(i)

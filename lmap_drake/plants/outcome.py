@@ -94,6 +94,35 @@ def Summarize(samples: list[OutcomeSample], cfg, visibility_initial: float,
         max_fruit_contact_force=fc, max_robot_contact_force=rc)
 
 
+def TruthFruitOfPoints(points_W: np.ndarray, label_image, K, X_WC: np.ndarray,
+                       min_fraction: float = 0.5) -> tuple[int | None, float]:
+    """Which true fruit a fruit instance's points are of: the points (W, m)
+    projected into the render label image of the view they came from
+    (intrinsics ``K`` with fx, fy, cx, cy; camera pose ``X_WC`` 4x4); the
+    fruit instance most of them land on, and the fraction of them on any
+    fruit. Fewer than ``min_fraction`` on a fruit: (None, fraction), a
+    phantom (e.g. a stalk the segmenter took for a fruit)."""
+    p = np.asarray(points_W, float).reshape(-1, 3)
+    cls, inst = DecodeLabels(np.asarray(getattr(label_image, "data", label_image)).squeeze())
+    if len(p) == 0:
+        return None, 0.0
+    X_CW = np.linalg.inv(np.asarray(X_WC, float))
+    pc = p @ X_CW[:3, :3].T + X_CW[:3, 3]
+    front = pc[:, 2] > 1e-6
+    u = np.round(K.fx * pc[front, 0] / pc[front, 2] + K.cx).astype(int)
+    v = np.round(K.fy * pc[front, 1] / pc[front, 2] + K.cy).astype(int)
+    inside = (u >= 0) & (u < cls.shape[1]) & (v >= 0) & (v < cls.shape[0])
+    c, i = cls[v[inside], u[inside]], inst[v[inside], u[inside]]
+    if len(c) == 0:
+        return None, 0.0
+    on_fruit = c == FRUIT
+    fraction = float(np.mean(on_fruit))
+    if fraction < min_fraction:
+        return None, fraction
+    ids, counts = np.unique(i[on_fruit], return_counts=True)
+    return int(ids[np.argmax(counts)]), fraction
+
+
 def ShapeErrors(estimate, model) -> dict | None:
     """Table I metrics of a fruit estimate (``SceneEstimate``) against the
     plant's ground truth: Chamfer (cm), volume error (cm^3), centre error

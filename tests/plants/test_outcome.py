@@ -1,0 +1,31 @@
+"""Ground-truth measures of an episode (``lmap_drake.plants.outcome``)."""
+import types
+
+import numpy as np
+
+from lmap_drake.labels import BRANCH, FRUIT, EncodeLabel
+from lmap_drake.plants.outcome import TruthFruitOfPoints
+
+
+def test_a_target_is_matched_to_the_fruit_its_points_land_on_or_is_a_phantom():
+    """Points projected into the render labels of their view: those on fruit
+    1's pixels are fruit 1 (whatever fruit is nearer in space), those on a
+    stalk are a phantom with the fraction on fruit."""
+    K = types.SimpleNamespace(fx=100.0, fy=100.0, cx=50.0, cy=50.0)
+    X_WC = np.eye(4)                      # camera at the origin looking along +z
+    label = np.zeros((100, 100), np.int32)
+    label[:, :40] = EncodeLabel(FRUIT, 0)
+    label[:, 40:60] = EncodeLabel(BRANCH, 1)
+    label[:, 60:] = EncodeLabel(FRUIT, 1)
+
+    def at(u, v, z=0.5, n=20):           # n points seen at pixel columns u
+        uu = np.linspace(u[0], u[1], n)
+        return np.c_[(uu - 50.0) * z / 100.0, np.full(n, (v - 50.0) * z / 100.0), np.full(n, z)]
+
+    assert TruthFruitOfPoints(at((65, 90), 50), label, K, X_WC) == (1, 1.0)
+    assert TruthFruitOfPoints(at((5, 30), 20), label, K, X_WC) == (0, 1.0)
+    fruit, fraction = TruthFruitOfPoints(np.vstack([at((42, 58), 50, n=30), at((62, 65), 50, n=10)]),
+                                         label, K, X_WC)
+    assert fruit is None and 0.2 < fraction < 0.3
+    # behind the camera or outside the image: nothing to match
+    assert TruthFruitOfPoints(at((65, 90), 50, z=-0.5), label, K, X_WC) == (None, 0.0)
