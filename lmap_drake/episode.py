@@ -270,7 +270,7 @@ class SimWorld:
                       if t["t_start"] - 1e-9 <= s.t <= t["t_end"] + 1e-9]
             return max(during, key=lambda s: s.petiole_force) if during else None
         from lmap_drake.perception.points import Intrinsics
-        from lmap_drake.plants.outcome import TruthFruitOfPoints
+        from lmap_drake.plants.outcome import TruthFruitOfInstance
         K = Intrinsics.FromCameraConfig(self.scenario.cameras["camera0"])
 
         def truth_of(t):
@@ -280,9 +280,11 @@ class SimWorld:
             those, the fruit nearest the target's estimated centre."""
             est, k = t.get("initial_estimate"), t.get("view_plan")
             if est is not None and k is not None and 0 <= k < len(label) \
-                    and label[k] is not None and len(est.semantic.fruit_points_W):
-                return TruthFruitOfPoints(est.semantic.fruit_points_W, label[k], K,
-                                          est.semantic.X_WC)
+                    and label[k] is not None:
+                found = TruthFruitOfInstance(est.semantic, t["target"].get("fruit_id"),
+                                             label[k], K)
+                if found is not None:
+                    return found
             c = np.asarray(t["target"]["center_W"], float)
             return int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits])), None
         targets = {}

@@ -123,6 +123,20 @@ def TruthFruitOfPoints(points_W: np.ndarray, label_image, K, X_WC: np.ndarray,
     return int(ids[np.argmax(counts)]), fraction
 
 
+def TruthFruitOfInstance(semantic, fruit_id, label_image, K):
+    """``TruthFruitOfPoints`` of fruit instance ``fruit_id``'s points in
+    ``semantic`` (a SemanticScene: a target's scene holds its own points
+    only, a target without a chosen leaf the whole plant's; None = every
+    fruit point); None when it has no points."""
+    pts = np.asarray(semantic.fruit_points_W, float).reshape(-1, 3)
+    inst = np.asarray(semantic.fruit_instance)
+    if fruit_id is not None and len(inst) == len(pts):
+        pts = pts[inst == fruit_id]
+    if len(pts) == 0:
+        return None
+    return TruthFruitOfPoints(pts, label_image, K, semantic.X_WC)
+
+
 def ShapeErrors(estimate, model) -> dict | None:
     """Table I metrics of a fruit estimate (``SceneEstimate``) against the
     plant's ground truth: Chamfer (cm), volume error (cm^3), centre error

@@ -4,7 +4,8 @@ import types
 import numpy as np
 
 from lmap_drake.labels import BRANCH, FRUIT, EncodeLabel
-from lmap_drake.plants.outcome import TruthFruitOfPoints
+from lmap_drake.plants.outcome import TruthFruitOfInstance, TruthFruitOfPoints
+from lmap_drake.types import SemanticScene
 
 
 def test_a_target_is_matched_to_the_fruit_its_points_land_on_or_is_a_phantom():
@@ -29,3 +30,9 @@ def test_a_target_is_matched_to_the_fruit_its_points_land_on_or_is_a_phantom():
     assert fruit is None and 0.2 < fraction < 0.3
     # behind the camera or outside the image: nothing to match
     assert TruthFruitOfPoints(at((65, 90), 50, z=-0.5), label, K, X_WC) == (None, 0.0)
+    # a whole plant's scene: only the target instance's points count
+    plant = SemanticScene(fruit_points_W=np.vstack([at((65, 90), 50, n=40), at((5, 30), 20)]),
+                          fruit_instance=np.r_[np.zeros(40, int), np.ones(20, int)], X_WC=X_WC)
+    assert TruthFruitOfInstance(plant, 1, label, K) == (0, 1.0)
+    assert TruthFruitOfInstance(plant, 0, label, K) == (1, 1.0)
+    assert TruthFruitOfInstance(plant, 7, label, K) is None
