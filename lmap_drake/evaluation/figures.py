@@ -9,6 +9,7 @@ import numpy as np
 from PIL import Image
 
 from lmap_drake.labels import BRANCH, CLASS_NAMES, FRUIT, LEAF
+from lmap_drake.perception.points import ProjectPoints
 from lmap_drake.viz import RgbArray
 
 
@@ -144,18 +145,6 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     return files
 
 
-def _Project(p_W: np.ndarray, K, X_WC: np.ndarray) -> np.ndarray:
-    """Pixel coordinates (u, v) of world points; NaN behind the camera."""
-    X_CW = np.linalg.inv(X_WC)
-    p_C = (X_CW[:3, :3] @ np.asarray(p_W, float).reshape(-1, 3).T).T + X_CW[:3, 3]
-    z = p_C[:, 2]
-    uv = np.full((len(p_C), 2), np.nan)
-    ok = z > 1e-3
-    uv[ok, 0] = K.fx * p_C[ok, 0] / z[ok] + K.cx
-    uv[ok, 1] = K.fy * p_C[ok, 1] / z[ok] + K.cy
-    return uv
-
-
 def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
     """The camera image (greyed) with the planner's view of the chosen
     action drawn over it: the observed leaf (yellow), the predicted
@@ -173,7 +162,7 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
     def dots(points, color, every=1, r=1):
         if points is None or len(points) == 0:
             return
-        for u, v in _Project(np.asarray(points)[::every], K, X_WC):
+        for u, v in ProjectPoints(np.asarray(points)[::every], K, X_WC):
             if np.isfinite(u) and 0 <= u < w and 0 <= v < h:
                 draw.ellipse([u - r, v - r, u + r, v + r], fill=color)
     if estimate is not None:
@@ -187,7 +176,7 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
         if c.deformed_leaf_W is not None:
             dots(c.deformed_leaf_W, (60, 255, 60), max(1, len(c.deformed_leaf_W) // 3000))
         a = c.action
-        uv = _Project(np.vstack([a.p_WG] + [p for p, _ in a.Poses(0.005)]), K, X_WC)
+        uv = ProjectPoints(np.vstack([a.p_WG] + [p for p, _ in a.Poses(0.005)]), K, X_WC)
         (u0, v0), (u1, v1) = uv[0], uv[-1]
         if np.all(np.isfinite(uv)):
             draw.line([tuple(x) for x in uv], fill=(0, 120, 255), width=3)

@@ -90,6 +90,19 @@ def FlyingPixelMask(depth: np.ndarray, jump: float) -> np.ndarray:
         return valid & (near < d - jump) & (far > d + jump)
 
 
+def ProjectPoints(p_W: np.ndarray, K: Intrinsics, X_WC) -> np.ndarray:
+    """Pixel coordinates (N, 2: u, v, float) of world points (W, m) in the
+    camera at ``X_WC``; NaN for points behind the camera."""
+    X_CW = np.linalg.inv(AsTransform(X_WC))
+    p_C = np.asarray(p_W, float).reshape(-1, 3) @ X_CW[:3, :3].T + X_CW[:3, 3]
+    z = p_C[:, 2]
+    uv = np.full((len(p_C), 2), np.nan)
+    ok = z > 1e-3
+    uv[ok, 0] = K.fx * p_C[ok, 0] / z[ok] + K.cx
+    uv[ok, 1] = K.fy * p_C[ok, 1] / z[ok] + K.cy
+    return uv
+
+
 def DeprojectPixels(depth: np.ndarray, mask: np.ndarray, K: Intrinsics,
                     X_WC=None) -> np.ndarray:
     """(N, 3) points of the pixels where ``mask`` is true, in W if ``X_WC``

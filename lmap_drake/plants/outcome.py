@@ -106,11 +106,10 @@ def TruthFruitOfPoints(points_W: np.ndarray, label_image, K, X_WC: np.ndarray,
     cls, inst = DecodeLabels(np.asarray(getattr(label_image, "data", label_image)).squeeze())
     if len(p) == 0:
         return None, 0.0
-    X_CW = np.linalg.inv(np.asarray(X_WC, float))
-    pc = p @ X_CW[:3, :3].T + X_CW[:3, 3]
-    front = pc[:, 2] > 1e-6
-    u = np.round(K.fx * pc[front, 0] / pc[front, 2] + K.cx).astype(int)
-    v = np.round(K.fy * pc[front, 1] / pc[front, 2] + K.cy).astype(int)
+    from lmap_drake.perception.points import ProjectPoints
+    uv = ProjectPoints(p, K, X_WC)
+    uv = np.round(uv[np.isfinite(uv[:, 0])]).astype(int)
+    u, v = uv[:, 0], uv[:, 1]
     inside = (u >= 0) & (u < cls.shape[1]) & (v >= 0) & (v < cls.shape[0])
     c, i = cls[v[inside], u[inside]], inst[v[inside], u[inside]]
     if len(c) == 0:

@@ -155,10 +155,10 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
         groups = [g for g in groups
                   if np.linalg.norm(pts[np.isin(inst, g)].mean(axis=0) - focus) <= focus_radius]
 
-    def complete(g, own_timings=timings):
+    def complete(g, into: dict):
         mine = np.isin(inst, g)
         return _CompleteFruit(semantic, pts[mine], pts[~mine], out.branch, decoder,
-                              mean_latent, P, method, free_space_voxel, own_timings)
+                              mean_latent, P, method, free_space_voxel, into)
 
     def complete_apart(g):          # a thread's own timings, summed below
         t = {}
@@ -181,7 +181,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                         PointsOnFruit(ests[b], pts[np.isin(inst, groups[a])], merge_distance):
                     groups[a] = groups[a] + groups.pop(b)
                     ests.pop(b)
-                    ests[a] = complete(groups[a])
+                    ests[a] = complete(groups[a], timings)
                     merged = True
                     break
             if merged:
