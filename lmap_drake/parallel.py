@@ -11,12 +11,22 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
+THREADS_ENV = "LMAP_DRAKE_THREADS"
+
+
 def DefaultWorkers() -> int:
-    """Threads for independent items: the CPUs this process may run on."""
+    """Threads for independent items: the CPUs this process may run on, or
+    fewer when ``LMAP_DRAKE_THREADS`` says so (an evaluation worker sharing
+    the machine with others gets its share)."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cpus = max(1, len(os.sched_getaffinity(0)))
     except AttributeError:                       # not on Linux
-        return max(1, os.cpu_count() or 1)
+        cpus = max(1, os.cpu_count() or 1)
+    try:
+        share = int(os.environ.get(THREADS_ENV, "0"))
+    except ValueError:
+        share = 0
+    return min(cpus, share) if share > 0 else cpus
 
 
 def ParallelMap(fn: Callable[[T], R], items: Iterable[T], workers: int | None = None) -> list[R]:

@@ -306,7 +306,14 @@ class PlantSceneConfig:
     samples' gaps and the robot's largest move in a step (at most 1.2 cm measured
     in the multi-fruit suite); on ``three_fruits_default`` 3 cm gave the
     same outcome as 8 cm (petiole force equal to 10 digits) in 178 s
-    instead of 222 s."""
+    instead of 222 s.
+
+    ``fem_threads``: threads for the leaves' FEM (Drake's
+    ``DeformableModel`` parallelism; 0 = one per CPU, or the
+    ``LMAP_DRAKE_THREADS`` an evaluation worker is given). The result does
+    not depend on it (leaf vertices after 0.5 s of four awake leaves are
+    bit-equal on 1 and 2 threads); 2 threads cut a step with four awake
+    leaves from 49-50 to 38-40 ms on this 2-core machine."""
     kind: str = "placeholder"
     name: str = ""
     p_W_branch_base: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
@@ -320,6 +327,7 @@ class PlantSceneConfig:
     multi: MultiPlantConfig = dc.field(default_factory=MultiPlantConfig)
     sleep_distance: float = 0.03
     sleep_speed: float = 0.002
+    fem_threads: int = 0
     # placeholder-only fields
     branch_length: float = 0.5
     branch_radius: float = 0.006
@@ -942,6 +950,7 @@ _RULES = {
     "plant_scene.outcome.sample_period": ">0",
     "plant_scene.sleep_distance": ">=0",
     "plant_scene.sleep_speed": ">=0",
+    "plant_scene.fem_threads": ">=0",
     "plant_scene.branch_length": ">0",
     "plant_scene.branch_radius": ">0",
     "plant_scene.fruit_center_W": "3xfinite",

@@ -28,6 +28,8 @@ import os
 import time
 from typing import Any, Callable, Iterator, Protocol, Sequence
 
+from lmap_drake.parallel import THREADS_ENV
+
 from lmap_drake.errors import InputError
 
 ENGINES = ("pool", "ray")
@@ -85,7 +87,7 @@ def InitWorker(threads: int, parent: int | None = None) -> None:
         if os.getppid() != parent:          # the parent died before prctl
             os._exit(1)
         _WatchParent(parent)
-    for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", THREADS_ENV):
         os.environ.setdefault(k, str(threads))
     try:
         import torch

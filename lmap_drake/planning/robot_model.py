@@ -66,6 +66,32 @@ def _SampleShape(shape, spacing: float) -> np.ndarray:
     return np.vstack([side] + discs)
 
 
+class SurfaceSamples:
+    """The robot's surface samples at one pose, per geometry (see
+    ``RobotModel.SurfacePointsByBody``): ``samples[i]`` (N_i, 3, world) is
+    computed when first read; ``boxes`` (G, 2, 3) at once from 8 corners
+    per geometry."""
+
+    def __init__(self, local: list, corners: list, X: list):
+        self._local, self._X = local, X
+        self._world: dict[int, np.ndarray] = {}
+        self.boxes = np.empty((len(local), 2, 3))
+        for i, (c, Xi) in enumerate(zip(corners, X)):
+            w = c @ Xi[:3, :3].T + Xi[:3, 3]
+            self.boxes[i] = w.min(axis=0), w.max(axis=0)
+
+    def __len__(self) -> int:
+        return len(self._local)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        if not 0 <= i < len(self._local):
+            raise IndexError(i)
+        if i not in self._world:
+            X = self._X[i]
+            self._world[i] = self._local[i] @ X[:3, :3].T + X[:3, 3]
+        return self._world[i]
+
+
 class RobotModel:
     """UR5 + gripper for planning. ``X_WB``: robot base in the world.
     Joint vectors ``q`` are the 6 UR5 angles (rad); the gripper half-opening
@@ -99,6 +125,10 @@ class RobotModel:
             self._bodies.append(body)
             self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
         self.num_points = int(sum(len(p) for p in self._points))
+        # each geometry's sample box in its body frame, as 8 corners
+        self._corners = [np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                   for z in (lo[2], hi[2])])
+                         for lo, hi in ((p.min(axis=0), p.max(axis=0)) for p in self._points)]
         # Self-collision pairs worth reporting: the gripper's own parts touch
         # each other by design (pads closing on nothing), the rest is the
         # plant's filtering (bodies joined by a joint).
@@ -130,12 +160,17 @@ class RobotModel:
 
     def SurfacePoints(self, q: np.ndarray, half_opening: float = 0.0) -> np.ndarray:
         """Samples of the robot's collision surfaces at ``q`` (N, 3), world."""
+        return np.vstack(list(self.SurfacePointsByBody(q, half_opening)))
+
+    def SurfacePointsByBody(self, q: np.ndarray, half_opening: float = 0.0) -> "SurfaceSamples":
+        """``SurfacePoints`` split by geometry: a sequence of (N_g, 3) world
+        arrays, each transformed when first read, with ``boxes`` (G, 2, 3):
+        a world box (min, max) around each (its body-frame box turned into
+        the world: it may be larger than the samples' own)."""
         self.SetQ(q, half_opening)
-        out = []
-        for body, p in zip(self._bodies, self._points):
-            X = self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
-            out.append(p @ X[:3, :3].T + X[:3, 3])
-        return np.vstack(out)
+        X = [self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
+             for body in self._bodies]
+        return SurfaceSamples(self._points, self._corners, X)
 
     def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
                       margin: float = 0.0) -> str:

@@ -49,22 +49,28 @@ def ConstrainedTetMask(tets: np.ndarray, constrained_vertices: np.ndarray) -> np
 
 
 def StrainPercentile(rest: np.ndarray, current: np.ndarray, tets: np.ndarray,
-                     excluded: np.ndarray, percentile: float) -> float:
+                     excluded: np.ndarray, percentile: float,
+                     stretch: np.ndarray | None = None) -> float:
     """``percentile`` of per-tet max principal stretch over tets not in
-    ``excluded`` (the maximum always sits next to a constraint)."""
-    stretch = MaxPrincipalStretch(rest, current, tets)
+    ``excluded`` (the maximum always sits next to a constraint).
+    ``stretch``: ``MaxPrincipalStretch(rest, current, tets)`` when known."""
+    if stretch is None:
+        stretch = MaxPrincipalStretch(rest, current, tets)
     keep = ~excluded
     return float(np.percentile(stretch[keep] if keep.any() else stretch, percentile))
 
 
 def PetioleForce(rest: np.ndarray, current: np.ndarray, tets: np.ndarray,
                  attach_tets: np.ndarray, youngs_modulus: float,
-                 cross_section: float) -> float:
+                 cross_section: float, stretch: np.ndarray | None = None) -> float:
     """Axial force estimate (N) in the petiole at the branch: E * A * (s - 1)
     with s the median max principal stretch of the tets at the attachment
-    (a linear-elastic bar of the petiole's cross-section)."""
-    stretch = MaxPrincipalStretch(rest, current[None] if current.ndim == 1 else current,
-                                  tets[attach_tets])
+    (a linear-elastic bar of the petiole's cross-section). ``stretch``:
+    ``MaxPrincipalStretch(rest, current, tets)`` of every tet, when known."""
+    if stretch is not None:
+        stretch = np.asarray(stretch)[attach_tets]
+    else:
+        stretch = MaxPrincipalStretch(rest, current, tets[attach_tets])
     return float(youngs_modulus * cross_section * max(0.0, np.median(stretch) - 1.0))
 
 

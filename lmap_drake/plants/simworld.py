@@ -24,11 +24,69 @@ from pydrake.systems.analysis import Simulator
 from pydrake.trajectories import PiecewisePolynomial
 
 from lmap_drake.plants.generator import SIGN_RAYS, MeshSignedDistance
+from lmap_drake.plants.leaf import MaxPrincipalStretch, RestShapeInverse
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
                                        StrainPercentile, VisibilityFraction)
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.plants.world import GetPlantModel, LeafGrasp, MakePlantStation
+
+
+def SetFemThreads(plant, threads: int = 0) -> int:
+    """Threads for ``plant``'s FEM (0 = ``DefaultWorkers()``); returns the
+    number set, or 0 when this Drake has no such hook (then serial).
+    Drake's ``DeformableModel`` parallelism is bound as an internal method
+    (``_set_parallelism``); the leaves' results do not depend on it."""
+    from lmap_drake.parallel import DefaultWorkers
+    dm = plant.deformable_model()
+    if not hasattr(dm, "_set_parallelism"):
+        return 0
+    from pydrake.common import Parallelism
+    n = int(threads) or DefaultWorkers()
+    dm._set_parallelism(Parallelism(n))
+    return n
+
+
+def BodyBoxes(bodies: list[np.ndarray]) -> np.ndarray:
+    """(B, 2, 3): each body's sample box (min, max); empty bodies get an
+    inverted box that meets nothing."""
+    out = np.empty((len(bodies), 2, 3))
+    out[:, 0], out[:, 1] = np.inf, -np.inf
+    for i, b in enumerate(bodies):
+        if len(b):
+            out[i] = b.min(axis=0), b.max(axis=0)
+    return out
+
+
+class LeafProximity:
+    """A leaf's vertices (N, 3, W, m) for the sleep test: is any robot
+    surface sample within a distance of them?"""
+
+    def __init__(self, V: np.ndarray):
+        self.V = np.asarray(V, float)
+        self.lo, self.hi = self.V.min(axis=0), self.V.max(axis=0)
+        self._tree = None
+
+    def Near(self, bodies: list[np.ndarray], distance: float,
+             boxes: np.ndarray | None = None) -> bool:
+        """Whether a sample of ``bodies`` (the robot's surface samples, one
+        (M, 3) array per body, W) lies within ``distance`` (m) of a vertex.
+        Exact: only the bodies whose box (``boxes`` (B, 2, 3): min, max;
+        default computed here) meets the leaf's box grown by the distance,
+        and their samples inside it, go to the k-d tree."""
+        lo, hi = self.lo - distance, self.hi + distance
+        if boxes is None:
+            boxes = BodyBoxes(bodies)
+        hit = np.flatnonzero(np.all((boxes[:, 0] <= hi) & (boxes[:, 1] >= lo), axis=1))
+        if not len(hit):
+            return False
+        P = np.vstack([bodies[i] for i in hit])
+        P = P[np.all((P >= lo) & (P <= hi), axis=1)]
+        if not len(P):
+            return False
+        if self._tree is None:
+            self._tree = cKDTree(self.V)
+        return bool(np.any(self._tree.query(P, distance_upper_bound=distance)[0] < distance))
 
 
 def _Kabsch(P: np.ndarray, Q: np.ndarray) -> RigidTransform:
@@ -130,6 +188,7 @@ class PlantWorldSim:
         self.width_cmd = float(scenario.robot.initial_gripper_width)
         self.samples: list[OutcomeSample] = []
         self._asleep_measures: dict[int, tuple] = {}   # frozen leaves: (strain, force, pen)
+        self._frozen: dict[int, LeafProximity] = {}     # frozen leaves: their vertices' bounds
         # the largest robot-robot / robot-branch contact so far, and what touched
         self.worst_robot_contact = {"force_N": 0.0, "t": None, "pair": ""}
         self.grasp_state: GraspState | None = None
@@ -143,6 +202,7 @@ class PlantWorldSim:
             self._petiole_tets_of.append(
                 ConstrainedTetMask(ref.tets, np.unique(ref.tets[ring1])) & ~ring1)
         self._petiole_tets = self._petiole_tets_of[0]
+        self._Dm_inv_of: list = [None] * len(self.leaf_refs)   # per leaf, when first measured
         self._build(None, None)
 
     @property
@@ -151,6 +211,8 @@ class PlantWorldSim:
 
     # --- building and state carry-over ----------------------------------
     def _build(self, grasp: LeafGrasp | None, old_context) -> None:
+        self._frozen = {}
+        self._fruit_id_set = None
         if self._make_diagram is None:
             self.station = MakePlantStation(self.scenario, self.meshcat, leaf_grasp=grasp)
             self.diagram = self.station
@@ -163,6 +225,7 @@ class PlantWorldSim:
             self._CopyState(old_context, self.context)
         self.plant = self.station.GetSubsystemByName("plant")
         self.scene_graph = self.station.GetSubsystemByName("scene_graph")
+        SetFemThreads(self.plant, self.scenario.plant_scene.fem_threads)
         self.deformable = self.plant.deformable_model()
         names = [f"leaf_{j}" for j in range(len(self.leaf_refs))] if self.multi else ["leaf"]
         self.leaf_ids = [self.deformable.GetBodyByName(n).body_id() for n in names]
@@ -274,26 +337,39 @@ class PlantWorldSim:
             constrained = np.flatnonzero(ref.fixed)
             if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
                 constrained = np.union1d(constrained, self.grasp_state.vertices)
+            if self._Dm_inv_of[j] is None:
+                self._Dm_inv_of[j] = RestShapeInverse(ref.rest_W, ref.tets)
+            stretch = MaxPrincipalStretch(ref.rest_W, V, ref.tets, self._Dm_inv_of[j])
             s_j = StrainPercentile(ref.rest_W, V, ref.tets,
                                    ConstrainedTetMask(ref.tets, constrained),
-                                   cfg.outcome.strain_percentile)
+                                   cfg.outcome.strain_percentile, stretch)
             f_j = PetioleForce(ref.rest_W, V, ref.tets, self._petiole_tets_of[j],
                                cfg.leaf.youngs_modulus,
-                               cfg.leaf.petiole_width * cfg.leaf.thickness)
+                               cfg.leaf.petiole_width * cfg.leaf.thickness, stretch)
             strain, force = max(strain, s_j), max(force, f_j)
             measured[j] = (s_j, f_j, asleep)
         if fresh:
             leaves = list(fresh)
-            if self.multi:      # one ray-casting scene of every fruit, built once
+            allV = np.vstack([fresh[j] for j in leaves])
+            # Only a vertex inside a fruit's box can be inside the fruit: the
+            # others need no signed distance (they count as outside).
+            fruit_meshes = ([f.mesh_W for f in self.model.fruits] if self.multi
+                            else [self.model.fruit_mesh_W])
+            inside = np.zeros(len(allV), bool)
+            for m in fruit_meshes:
+                lo, hi = np.asarray(m.bounds, float)
+                inside |= np.all((allV >= lo - 1e-6) & (allV <= hi + 1e-6), axis=1)
+            d = np.full(len(allV), np.inf)
+            if inside.any() and self.multi:    # one ray-casting scene of every fruit
                 if getattr(self, "_fruits_sdf", None) is None:
                     from lmap_drake.plants.multi import _o3d_scene
-                    self._fruits_sdf = _o3d_scene([f.mesh_W for f in self.model.fruits])
+                    self._fruits_sdf = _o3d_scene(fruit_meshes)
                 import open3d as o3d
-                d = self._fruits_sdf.compute_signed_distance(
-                    o3d.core.Tensor(np.vstack([fresh[j] for j in leaves]).astype(np.float32)),
+                d[inside] = self._fruits_sdf.compute_signed_distance(
+                    o3d.core.Tensor(allV[inside].astype(np.float32)),
                     nsamples=SIGN_RAYS).numpy()
-            else:
-                d = MeshSignedDistance(self.model.fruit_mesh_W, fresh[leaves[0]])
+            elif inside.any():
+                d[inside] = MeshSignedDistance(fruit_meshes[0], allV[inside])
             ends = np.cumsum([len(fresh[j]) for j in leaves])
             for j, part in zip(leaves, np.split(np.asarray(d, float), ends[:-1])):
                 p_j = max(0.0, -float(part.min()))
@@ -308,10 +384,13 @@ class PlantWorldSim:
                              self._RobotContactForce(), t=self.time)
 
     def _fruit_ids(self) -> set:
-        inspector = self.scene_graph.model_inspector()
-        return {g for g in inspector.GetAllGeometryIds()
-                if inspector.GetName(g).endswith("_collision")
-                and inspector.GetName(g).split("::")[-1].startswith("fruit")}
+        """The fruits' collision geometries (of the current Diagram)."""
+        if self._fruit_id_set is None:
+            inspector = self.scene_graph.model_inspector()
+            self._fruit_id_set = {g for g in inspector.GetAllGeometryIds()
+                                  if inspector.GetName(g).endswith("_collision")
+                                  and inspector.GetName(g).split("::")[-1].startswith("fruit")}
+        return self._fruit_id_set
 
     def _RobotFruitPenetration(self) -> float:
         query = self.scene_graph.get_query_output_port().Eval(
@@ -408,28 +487,33 @@ class PlantWorldSim:
         if d_max <= 0 or (self.multi and cfg.multi.leaf_leaf_contact):
             return
         ctx = self.plant.GetMyMutableContextFromRoot(self.context)
-        robot = None
+        bodies = None
         for j, lid in enumerate(self.leaf_ids):
             enabled = self.deformable.is_enabled(lid, ctx)
             if self.grasp_state is not None and self.grasp_state.grasp.leaf == j:
                 if not enabled:
-                    self.deformable.Enable(lid, ctx)
+                    self._Wake(j, lid, ctx)
                 continue
             if enabled and np.abs(self.deformable.GetVelocities(ctx, lid)).max() >= \
                     cfg.sleep_speed:
                 continue        # still moving: stays awake
-            if robot is None:
-                robot = self.robot.SurfacePoints(self.q(), 0.5 * self.GripperWidth())
-            V = self.LeafVertices(j)
-            # robot samples in the leaf's box grown by the distance, then exact
-            box = robot[np.all((robot >= V.min(axis=0) - d_max)
-                               & (robot <= V.max(axis=0) + d_max), axis=1)]
-            near = len(box) > 0 and bool(np.any(cKDTree(V).query(
-                box, distance_upper_bound=d_max)[0] < d_max))
+            if bodies is None:
+                bodies = self.robot.SurfacePointsByBody(self.q(), 0.5 * self.GripperWidth())
+            if enabled:
+                leaf = LeafProximity(self.LeafVertices(j))
+            else:       # frozen: its vertices do not change until it wakes
+                leaf = self._frozen.get(j)
+                if leaf is None:
+                    leaf = self._frozen[j] = LeafProximity(self.LeafVertices(j))
+            near = leaf.Near(bodies, d_max, bodies.boxes)
             if enabled and not near:
                 self.deformable.Disable(lid, ctx)
             elif not enabled and near:
-                self.deformable.Enable(lid, ctx)
+                self._Wake(j, lid, ctx)
+
+    def _Wake(self, j: int, lid, ctx) -> None:
+        self.deformable.Enable(lid, ctx)
+        self._frozen.pop(j, None)
 
     def Hold(self, duration: float) -> None:
         self.AdvanceTo(self.time + duration)
@@ -501,6 +585,7 @@ class PlantWorldSim:
         other.simulator.set_target_realtime_rate(0.0)
         other.samples = list(self.samples)
         other._asleep_measures = dict(self._asleep_measures)
+        other._frozen = dict(self._frozen)
         other.worst_robot_contact = dict(self.worst_robot_contact)
         other.q_cmd = self.q_cmd.copy()
         other.simulator.Initialize()

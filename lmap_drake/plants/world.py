@@ -58,7 +58,9 @@ def GetPlantModel(scenario: Scenario):
         raise ValueError("GetPlantModel needs plant_scene.kind: procedural or multi")
     p_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().translation()
     cached = _CachedPlantModel if kind == "procedural" else _CachedMultiPlantModel
-    return cached(yaml_dump_typed(scenario.plant_scene, schema=PlantSceneConfig),
+    # the keys that only steer the simulation do not make another plant
+    shape = dc.replace(scenario.plant_scene, sleep_distance=0.0, sleep_speed=0.0, fem_threads=0)
+    return cached(yaml_dump_typed(shape, schema=PlantSceneConfig),
                   tuple(float(x) for x in p_WC))
 
 

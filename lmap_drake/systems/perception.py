@@ -63,6 +63,21 @@ def _camera_pose(camera_config) -> RigidTransform:
     return camera_config.X_PB.GetDeterministicValue()
 
 
+class _Fused:
+    """The fused scene held in the Context's abstract state. Drake copies a
+    system's abstract state (``copy.deepcopy`` for Python values) before
+    every per-step update, whether it acts or not; the scene is never
+    changed in place (a new view makes a new scene), so the copies share it
+    (a fused scene's point arrays cost ~1 ms a step to copy)."""
+    __slots__ = ("scene",)
+
+    def __init__(self, scene: SemanticScene):
+        self.scene = scene
+
+    def __deepcopy__(self, memo):
+        return self
+
+
 class Perception(LeafSystem):
     """RGB-D (+ optional labels) -> SemanticScene; see the module docstring
     for ports, frames and units."""
@@ -90,7 +105,7 @@ class Perception(LeafSystem):
         self._q = self.DeclareVectorInputPort("ur5.position", 6)
         self._capture = self.DeclareVectorInputPort("capture", 1)
         self._fused_index = self.DeclareAbstractState(
-            AbstractValue.Make(SemanticScene(flags=["no_views_fused"], num_views=0)))
+            AbstractValue.Make(_Fused(SemanticScene(flags=["no_views_fused"], num_views=0))))
         self._scene_port = self.DeclareAbstractOutputPort(
             "semantic_scene", lambda: AbstractValue.Make(SemanticScene()), self._calc_scene,
             prerequisites_of_calc={self.all_input_ports_ticket()})
@@ -101,7 +116,7 @@ class Perception(LeafSystem):
         self.DeclareVectorOutputPort(
             "num_views_fused", 1,
             lambda c, out: out.SetFromVector(
-                [c.get_abstract_state(self._fused_index).get_value().num_views]),
+                [c.get_abstract_state(self._fused_index).get_value().scene.num_views]),
             prerequisites_of_calc={self.abstract_state_ticket(self._fused_index)})
         self.DeclarePerStepUnrestrictedUpdateEvent(self._on_step)
 
@@ -144,7 +159,7 @@ class Perception(LeafSystem):
         output.set_value(self.ComputeScene(context))
 
     def _calc_fused(self, context: Context, output) -> None:
-        output.set_value(context.get_abstract_state(self._fused_index).get_value())
+        output.set_value(context.get_abstract_state(self._fused_index).get_value().scene)
 
     def _fuse(self, previous: SemanticScene, scene: SemanticScene) -> SemanticScene:
         if previous.num_views == 0:
@@ -156,16 +171,16 @@ class Perception(LeafSystem):
         """Fuses the current view into this system's state in ``context``
         (a mutable context of this system) and returns the fused scene."""
         state = context.get_mutable_abstract_state(self._fused_index)
-        fused = self._fuse(state.get_value(), self._scene_port.Eval(context))
-        state.set_value(fused)
+        fused = self._fuse(state.get_value().scene, self._scene_port.Eval(context))
+        state.set_value(_Fused(fused))
         return fused
 
     def _on_step(self, context: Context, state: State):
         if not self._capture.HasValue(context):
             return EventStatus.DidNothing()
-        previous = context.get_abstract_state(self._fused_index).get_value()
+        previous = context.get_abstract_state(self._fused_index).get_value().scene
         if self._capture.Eval(context)[0] <= previous.num_views:
             return EventStatus.DidNothing()
         fused = self._fuse(previous, self._scene_port.Eval(context))
-        state.get_mutable_abstract_state(self._fused_index).set_value(fused)
+        state.get_mutable_abstract_state(self._fused_index).set_value(_Fused(fused))
         return EventStatus.Succeeded()

@@ -143,3 +143,15 @@ def test_planner_rejects_a_self_colliding_pose(robot):
     assert _RobotPoseReason(robot, home, 0.0, robot.SurfacePoints(home), ctx, cfg) == ""
     why = _RobotPoseReason(robot, folded, 0.0, robot.SurfacePoints(folded), ctx, cfg)
     assert why.startswith("robot self-collision") and "forearm" in why
+
+
+def test_surface_samples_by_body_are_the_surface_points_inside_their_boxes(robot):
+    q = np.array([0.3, -1.2, 1.4, -1.8, -1.5, 0.2])
+    per = robot.SurfacePointsByBody(q, 0.02)
+    np.testing.assert_array_equal(np.vstack([per[i] for i in range(len(per))]),
+                                  robot.SurfacePoints(q, 0.02))
+    for i in range(len(per)):
+        lo, hi = per.boxes[i]
+        assert np.all(per[i] >= lo - 1e-12) and np.all(per[i] <= hi + 1e-12)
+    with pytest.raises(IndexError):
+        per[len(per)]

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape,
-                                    MaxPrincipalStretch, OrientTets, TetMeshToVtk,
-                                    TetVolumes, TriangulateLeaf)
+                                    MaxPrincipalStretch, OrientTets, RestShapeInverse,
+                                    TetMeshToVtk, TetVolumes, TriangulateLeaf)
 
 
 def _area(uv, faces):
@@ -48,6 +48,19 @@ def test_max_principal_stretch():
     assert MaxPrincipalStretch(V, V @ R.T + 1.0, tets)[0] == pytest.approx(1.0)
     S = np.diag([1.1, 1.0, 0.9])
     assert MaxPrincipalStretch(V, V @ S.T, tets)[0] == pytest.approx(1.1)
+
+
+def test_max_principal_stretch_is_the_largest_singular_value_with_a_stored_rest_inverse():
+    rng = np.random.default_rng(2)
+    V = rng.normal(size=(40, 3))
+    tets = OrientTets(V, np.array([rng.choice(40, 4, replace=False) for _ in range(60)]))
+    current = V + 0.1 * rng.normal(size=V.shape)
+    Ds = np.stack([current[tets[:, k]] - current[tets[:, 0]] for k in (1, 2, 3)], axis=2)
+    Dm = np.stack([V[tets[:, k]] - V[tets[:, 0]] for k in (1, 2, 3)], axis=2)
+    svd = np.linalg.svd(Ds @ np.linalg.inv(Dm), compute_uv=False)[:, 0]
+    np.testing.assert_allclose(MaxPrincipalStretch(V, current, tets), svd, rtol=1e-9)
+    np.testing.assert_array_equal(MaxPrincipalStretch(V, current, tets, RestShapeInverse(V, tets)),
+                                  MaxPrincipalStretch(V, current, tets))
 
 
 def test_bad_shape_name():

@@ -70,3 +70,20 @@ def test_collision_filters(world):
     assert filtered(leaf[j], ids[f"{m.branches[own].name}_0_collision"])
     assert not filtered(leaf[j], ids["stem_0_collision"])
     assert filtered(leaf[0], leaf[1])
+
+
+def test_fem_threads_do_not_change_the_leaves():
+    """Two FEM threads give the leaves bit for bit what one gives (every
+    leaf awake, 0.2 s of settling)."""
+    from lmap_drake.plants.simworld import SetFemThreads
+    out = []
+    for n in (1, 2):
+        scenario = LoadScenario(scenario_text="{plant_scene: {kind: multi, sleep_distance: 0.0, "
+                                f"fem_threads: {n}}}}}")
+        w = PlantWorldSim(scenario)
+        assert w.deformable._parallelism().num_threads() == n
+        w.Hold(0.2)
+        out.append(np.vstack([w.LeafVertices(j) for j in range(w.num_leaves)]))
+    assert np.abs(out[0] - np.vstack([lf.rest_W for lf in w.model.leaves])).max() > 1e-5
+    np.testing.assert_array_equal(out[0], out[1])
+    assert SetFemThreads(w.plant, 1) == 1

@@ -5,7 +5,7 @@ import pytest
 
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.plants.outcome import Summarize
-from lmap_drake.plants.simworld import ApproachAndGrasp, PlantWorldSim, Pull
+from lmap_drake.plants.simworld import ApproachAndGrasp, LeafProximity, PlantWorldSim, Pull
 from lmap_drake.scenario import LoadScenario
 
 
@@ -86,6 +86,28 @@ def test_leaf_holds_its_shape_under_gravity():
     world.Hold(0.5)
     sag = np.linalg.norm(world.LeafVertices() - world.model.leaf_rest_W, axis=1).max()
     assert sag < 0.01
+
+
+def test_leaf_proximity_agrees_with_every_pairwise_distance():
+    """The sleep test's shortcut (bodies' boxes, then samples in the leaf's
+    grown box, then a k-d tree) answers as the brute-force distance does,
+    for bodies far, near and just either side of the distance."""
+    rng = np.random.default_rng(3)
+    V = rng.uniform(0, 0.1, size=(200, 3)) * [1, 1, 0.05]
+    leaf = LeafProximity(V)
+    d = 0.03
+    for trial in range(200):
+        centre = rng.uniform(-0.1, 0.2, size=3)
+        bodies = [centre + rng.normal(scale=0.01, size=(rng.integers(0, 30), 3))
+                  for _ in range(3)]
+        pts = np.vstack(bodies)
+        truth = len(pts) > 0 and bool(
+            (np.linalg.norm(pts[:, None] - V[None], axis=2) < d).any())
+        assert leaf.Near(bodies, d) == truth, trial
+    # one sample 0.1 mm inside and one 0.1 mm outside the distance
+    v = V[np.argmax(V[:, 0])]
+    assert leaf.Near([np.array([v + [d - 1e-4, 0, 0]])], d)
+    assert not leaf.Near([np.array([v + [d + 1e-4, 0, 0]])], d)
 
 
 def test_leaves_at_rest_far_from_the_robot_sleep_and_wake_when_it_comes():

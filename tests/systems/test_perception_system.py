@@ -110,3 +110,8 @@ def test_capture_port_fuses_views_during_simulation():
     fused2 = p.CaptureView(pc)  # direct capture of a second view
     assert fused2.num_views == 2 and "fused_views" in fused2.flags
     assert len(fused2.fruit_points_W) == len(fused1.fruit_points_W)  # same view, same voxels
+    # Drake copies abstract state at every step's update (and in a Clone of
+    # the Context): the copies share the fused scene, which is never changed
+    # in place, instead of copying its points.
+    clone = p.GetMyContextFromRoot(sim.get_context().Clone())
+    assert clone.get_abstract_state(0).get_value().scene is fused2
