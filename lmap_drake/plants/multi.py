@@ -75,6 +75,9 @@ class MultiFruit:
     occlusion_predicted: float = 0.0     # hidden fraction of the camera-visible surface, all leaves
     occlusion_clamped: bool = False
     occluders: list = dc.field(default_factory=list)   # leaf indices hiding >= OCCLUDER_MIN
+    # the most of it camera0 sees with one leaf taken away entirely (the
+    # others in place; 1 - hidden fraction): what one leaf's move can reveal
+    one_leaf_ceiling: float = 1.0
 
 
 @dc.dataclass
@@ -126,6 +129,7 @@ class MultiPlantModel:
                         "occlusion_predicted": f.occlusion_predicted,
                         "occlusion_clamped": f.occlusion_clamped,
                         "occluders": list(f.occluders),
+                        "one_leaf_ceiling": f.one_leaf_ceiling,
                         "own_leaves": [j for j, lf in enumerate(self.leaves) if lf.fruit == i]}
                        for i, f in enumerate(self.fruits)],
             "leaves": [{"index": j, "leaf_attach_W": lf.attach_W.tolist(), "shoot": lf.shoot,
@@ -570,6 +574,9 @@ def GenerateMultiPlant(cfg, p_WC) -> MultiPlantModel:
     for i, (f, fc) in enumerate(zip(fruits, mc.fruits)):
         f.occlusion_predicted = views[i].Occlusion(surfs)
         f.occluders = [j for j, s in enumerate(surfs) if views[i].Occlusion([s]) >= OCCLUDER_MIN]
+        f.one_leaf_ceiling = max(
+            [1.0 - views[i].Occlusion([x for k, x in enumerate(surfs) if k != j])
+             for j in f.occluders] or [1.0 - f.occlusion_predicted])
         if not fc.num_leaves:
             continue
         target = float(fc.occlusion)

@@ -201,3 +201,19 @@ def test_runner_records_failed_episodes_and_resumes(tmp_path):
 def test_specs_carry_the_user_override():
     specs = T.EpisodeSpecs(["a"], ["lmap"], scenario_text="{planner: {max_energy_per_node: 0.0}}")
     assert [s["scenario_text"] for s in specs] == ["{planner: {max_energy_per_node: 0.0}}"]
+
+
+def test_fruit_table_counts_reveals_among_the_fruits_one_leaf_can_reveal():
+    def fruit(v1, ceiling, chamfer=0.2):
+        return {"visibility_initial": 0.2, "visibility_final": v1, "one_leaf_ceiling": ceiling,
+                "shape_initial": {"chamfer_cm": 1.0}, "shape_final": {"chamfer_cm": chamfer}}
+    a = rec(scenario="p0")
+    a["fruits"] = [fruit(0.95, 1.0), fruit(0.7, 0.75), fruit(0.5, 1.0)]
+    b = rec(scenario="p1")
+    b["fruits"] = [fruit(0.92, 0.8), fruit(1.0, 1.0)]
+    b["fruits"][1].pop("one_leaf_ceiling")        # an older record: counted as reachable
+    t = T.FruitTable([a, b])["lmap"]["adaptive"]
+    assert t["fruits"] == 5 and t["revealed"] == 3
+    assert t["one_leaf_reachable"] == 3 and t["revealed_of_reachable"] == 2
+    md = T.FruitMarkdown(T.FruitTable([a, b]))
+    assert "| 3 (0.60) | 2 of 3 |" in md

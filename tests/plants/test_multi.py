@@ -86,11 +86,32 @@ def test_two_leaves_over_one_fruit_and_leaves_apart_at_rest(default_plant):
             assert MeshSignedDistance(f.mesh_W, m.leaves[a].rest_W).min() > 0.003
 
 
+def test_one_leaf_ceiling_is_what_the_fruit_shows_with_its_best_leaf_taken_away(default_plant):
+    """The default plant's two-leaf fruit cannot be shown >= 0.9 by moving
+    one leaf (its ceiling is checked by a fresh ray cast without each
+    leaf); a one-leaf fruit's ceiling is about 1."""
+    m = default_plant
+    surfs = [lf.Surface() for lf in m.leaves]
+    two = [i for i in range(len(m.fruits)) if sum(lf.fruit == i for lf in m.leaves) == 2]
+    for i, f in enumerate(m.fruits):
+        others = [g.mesh_W for k, g in enumerate(m.fruits) if k != i]
+        view = _FruitView(f.mesh_W, others, P_WC, n=2000)
+        best = max([1 - view.Occlusion([s for k, s in enumerate(surfs) if k != j])
+                    for j in f.occluders] or [1 - view.Occlusion(surfs)])
+        assert f.one_leaf_ceiling == pytest.approx(best, abs=0.05)
+        assert f.one_leaf_ceiling >= 1 - f.occlusion_predicted - 1e-9
+        if i in two:
+            assert f.one_leaf_ceiling < 0.9
+        elif len(f.occluders) == 1:
+            assert f.one_leaf_ceiling > 0.95
+
+
 def test_ground_truth_file(default_plant, tmp_path):
     names = SaveMultiGroundTruth(default_plant, tmp_path)
     gt = json.loads((tmp_path / "ground_truth.json").read_text())
     assert len(gt["fruits"]) == 3 and len(gt["leaves"]) == 4
     assert gt["fruits"][0]["occluders"] == default_plant.fruits[0].occluders
+    assert gt["fruits"][0]["one_leaf_ceiling"] == default_plant.fruits[0].one_leaf_ceiling
     assert {"fruit_center_W", "X_WO", "occlusion_predicted", "shoot"} <= set(gt["fruits"][0])
     assert all((tmp_path / n).exists() for n in names)
 
