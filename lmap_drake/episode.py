@@ -340,6 +340,10 @@ class SimWorld:
                 if worst is not None:
                     entry.update(max_petiole_force=float(worst.petiole_force),
                                  max_petiole_force_t=float(worst.t))
+            # every captured view together: what the fused views saw of it
+            # (a fruit under two leaves shows different parts as each is moved)
+            shown = [x for x in label if x is not None]
+            entry["visibility_union"] = sim.VisibilityUnion(shown, fruit=i) if shown else v0
             fruits.append(entry)
         record["fruits"] = fruits
         cfg = self.scenario.plant_scene.outcome

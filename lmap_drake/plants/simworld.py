@@ -26,7 +26,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from lmap_drake.plants.generator import SIGN_RAYS, MeshSignedDistance
 from lmap_drake.plants.leaf import MaxPrincipalStretch, RestShapeInverse
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
-                                       StrainPercentile, VisibilityFraction)
+                                       StrainPercentile)
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.plants.world import GetPlantModel, LeafGrasp, MakePlantStation
@@ -306,18 +306,31 @@ class PlantWorldSim:
         """The fruit's visible fraction in camera0 now, or in ``label`` (a
         label image or array, e.g. a captured view's). ``kind: multi``:
         fruit instance ``fruit`` (default 0)."""
+        if label is None:
+            label = self.station.GetOutputPort("camera0.label_image").Eval(self.station_context)
+        return self.VisibilityUnion([label], fruit)
+
+    def VisibilityUnion(self, labels: list, fruit: int | None = None) -> float:
+        """The fraction of the fruit's unoccluded camera0 pixels that show
+        it in at least one of ``labels`` (label images or arrays of the fixed
+        camera0, e.g. an episode's captured views): what the fused views
+        observed of it, over several views. ``kind: multi``: fruit instance
+        ``fruit`` (default 0)."""
+        from lmap_drake.labels import FRUIT, EncodeLabel, DecodeLabels
         if self.multi and fruit is None:
             fruit = 0
         if fruit not in self._unoccluded:
             self._unoccluded[fruit] = UnoccludedFruitPixels(self.scenario, fruit)
-        if label is None:
-            label = self.station.GetOutputPort("camera0.label_image").Eval(self.station_context)
-        if fruit is None:
-            return VisibilityFraction(label, self._unoccluded[fruit])
-        from lmap_drake.labels import FRUIT, EncodeLabel
-        lab = np.asarray(label.data if hasattr(label, "data") else label).reshape(-1)
-        return float(min(1.0, (lab == EncodeLabel(FRUIT, fruit)).sum() /
-                         max(self._unoccluded[fruit], 1)))
+        seen = None
+        for label in labels:
+            lab = np.asarray(label.data if hasattr(label, "data") else label)
+            lab = lab.reshape(lab.shape[0], lab.shape[1])
+            mask = (lab == EncodeLabel(FRUIT, fruit)) if fruit is not None \
+                else (DecodeLabels(lab)[0] == FRUIT)
+            seen = mask if seen is None else (seen | mask)
+        if seen is None:
+            return 0.0
+        return float(min(1.0, seen.sum() / max(self._unoccluded[fruit], 1)))
 
     def Sample(self) -> OutcomeSample:
         """Ground-truth measures now (see ``OutcomeConfig``). A frozen leaf

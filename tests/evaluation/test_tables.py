@@ -209,11 +209,13 @@ def test_fruit_table_counts_reveals_among_the_fruits_one_leaf_can_reveal():
                 "shape_initial": {"chamfer_cm": 1.0}, "shape_final": {"chamfer_cm": chamfer}}
     a = rec(scenario="p0")
     a["fruits"] = [fruit(0.95, 1.0), fruit(0.7, 0.75), fruit(0.5, 1.0)]
+    a["fruits"][1]["visibility_union"] = 0.93      # two leaves moved in turn: seen over two views
     b = rec(scenario="p1")
     b["fruits"] = [fruit(0.92, 0.8), fruit(1.0, 1.0)]
     b["fruits"][1].pop("one_leaf_ceiling")        # an older record: counted as reachable
     t = T.FruitTable([a, b])["lmap"]["adaptive"]
     assert t["fruits"] == 5 and t["revealed"] == 3
     assert t["one_leaf_reachable"] == 3 and t["revealed_of_reachable"] == 2
+    assert t["revealed_union"] == 4         # records without it count their final view
     md = T.FruitMarkdown(T.FruitTable([a, b]))
-    assert "| 3 (0.60) | 2 of 3 |" in md
+    assert "| 3 (0.60) | 2 of 3 | 4 |" in md

@@ -72,6 +72,27 @@ def test_collision_filters(world):
     assert filtered(leaf[0], leaf[1])
 
 
+def test_visibility_over_several_views_is_the_union_of_their_fruit_pixels(world):
+    """Two views that each show one half of a fruit's pixels show all of
+    them together; one view alone is its own visibility."""
+    from lmap_drake.labels import EncodeLabel
+    label = np.asarray(world.Images()["label_image"].data)[..., 0].copy()
+    i = 0
+    mine = label == EncodeLabel(FRUIT, i)
+    cols = np.flatnonzero(mine.any(axis=0))
+    half = cols[len(cols) // 2]
+    left, right = label.copy(), label.copy()
+    bg = EncodeLabel(LEAF, 0)            # hidden behind a leaf in that view
+    left[:, half:][mine[:, half:]] = bg
+    right[:, :half][mine[:, :half]] = bg
+    full = world.Visibility(label, fruit=i)
+    assert full > 0.05
+    assert world.VisibilityUnion([label], fruit=i) == pytest.approx(full)
+    assert world.Visibility(left, fruit=i) < full and world.Visibility(right, fruit=i) < full
+    assert world.VisibilityUnion([left, right], fruit=i) == pytest.approx(full)
+    assert world.VisibilityUnion([left], fruit=i) == pytest.approx(world.Visibility(left, fruit=i))
+
+
 def test_fem_threads_do_not_change_the_leaves():
     """Two FEM threads give the leaves bit for bit what one gives (every
     leaf awake, 0.2 s of settling)."""
