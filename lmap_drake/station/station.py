@@ -178,8 +178,16 @@ def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None, add_world) -> D
         builder.ExportOutput(sensor.label_image_output_port(), f"{name}.label_image")
 
     if meshcat is not None:
+        # Published on the plant's step grid: a publish time between steps
+        # (the default 1/64 s) makes the simulator stop there too, and the
+        # per-step events (a view's capture) then fire at other times than
+        # without Meshcat, which changed episodes.
+        dt = float(scenario.plant_config.time_step)
+        period = dt * max(1, int(np.ceil((1.0 / 64.0) / dt - 1e-9))) if dt > 0 else 1.0 / 64.0
         MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
-                                       MeshcatVisualizerParams(delete_on_initialization_event=False))
+                                       MeshcatVisualizerParams(
+                                           publish_period=period,
+                                           delete_on_initialization_event=False))
     diagram = builder.Build()
     diagram.set_name("station")
     return diagram

@@ -137,3 +137,26 @@ def test_camera_images(scenario):
     # Fruit pixels are red, leaf pixels green.
     assert rgb.data[cls == FRUIT][:, 0].mean() > rgb.data[cls == FRUIT][:, 1].mean() + 50
     assert rgb.data[cls == LEAF][:, 1].mean() > rgb.data[cls == LEAF][:, 0].mean() + 30
+
+
+def test_meshcat_publishes_on_the_plant_step_grid():
+    """With Meshcat the simulator still stops only on the plant's steps: a
+    publish between steps (Meshcat's default 1/64 s) made it stop there,
+    the per-step events (view captures) fired at other times, and an
+    episode with Meshcat differed from the same episode without it."""
+    from pydrake.geometry import Meshcat
+    from pydrake.systems.framework import EventStatus
+    from lmap_drake.plants.simworld import PlantWorldSim
+    s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    world = PlantWorldSim(s, meshcat=Meshcat())
+    times = []
+
+    def monitor(context):
+        times.append(context.get_time())
+        return EventStatus.DidNothing()
+    world.simulator.set_monitor(monitor)
+    world.Hold(0.1)
+    dt = s.plant_config.time_step
+    assert len(times) >= 10
+    off = [t for t in times if abs(t / dt - round(t / dt)) > 1e-6]
+    assert not off, off[:5]
