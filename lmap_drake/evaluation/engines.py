@@ -28,9 +28,8 @@ import os
 import time
 from typing import Any, Callable, Iterator, Protocol, Sequence
 
-from lmap_drake.parallel import THREADS_ENV
-
 from lmap_drake.errors import InputError
+from lmap_drake.parallel import THREADS_ENV
 
 ENGINES = ("pool", "ray")
 RAY_REQUIREMENT = "ray==2.60.0"

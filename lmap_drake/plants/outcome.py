@@ -6,7 +6,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from lmap_drake.labels import FRUIT, DecodeLabels
+from lmap_drake.labels import FRUIT, DecodeLabels, EncodeLabel
 from lmap_drake.plants.leaf import MaxPrincipalStretch
 
 
@@ -74,13 +74,22 @@ def PetioleForce(rest: np.ndarray, current: np.ndarray, tets: np.ndarray,
     return float(youngs_modulus * cross_section * max(0.0, np.median(stretch) - 1.0))
 
 
-def VisibilityFraction(label_image, unoccluded_fruit_pixels: int) -> float:
-    """Fruit pixels in a label image over the fruit's pixels with the leaf and
-    robot removed (clipped to [0, 1])."""
-    if unoccluded_fruit_pixels <= 0:
+def VisibilityFraction(labels: list, unoccluded_fruit_pixels: int,
+                       fruit: int | None = None) -> float:
+    """The fruit's pixels in at least one of ``labels`` (label images or
+    arrays of one fixed camera) over its pixels with the leaves and robot
+    removed (clipped to [0, 1]); ``fruit``: that fruit instance's label
+    (None: every fruit pixel). One label is one view's visibility."""
+    if unoccluded_fruit_pixels <= 0 or not len(labels):
         return 0.0
-    cls, _ = DecodeLabels(np.asarray(getattr(label_image, "data", label_image)))
-    return float(min(1.0, (cls == FRUIT).sum() / unoccluded_fruit_pixels))
+    seen = None
+    for label in labels:
+        lab = np.asarray(getattr(label, "data", label))
+        lab = lab.reshape(lab.shape[0], lab.shape[1])
+        mask = (DecodeLabels(lab)[0] == FRUIT) if fruit is None \
+            else (lab == EncodeLabel(FRUIT, fruit))
+        seen = mask if seen is None else (seen | mask)
+    return float(min(1.0, seen.sum() / unoccluded_fruit_pixels))
 
 
 def Summarize(samples: list[OutcomeSample], cfg, visibility_initial: float,

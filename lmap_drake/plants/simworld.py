@@ -26,7 +26,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from lmap_drake.plants.generator import SIGN_RAYS, MeshSignedDistance
 from lmap_drake.plants.leaf import MaxPrincipalStretch, RestShapeInverse
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
-                                       StrainPercentile)
+                                       StrainPercentile, VisibilityFraction)
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.plants.world import GetPlantModel, LeafGrasp, MakePlantStation
@@ -67,14 +67,15 @@ class LeafProximity:
         self.lo, self.hi = self.V.min(axis=0), self.V.max(axis=0)
         self._tree = None
 
-    def Near(self, bodies: list[np.ndarray], distance: float,
-             boxes: np.ndarray | None = None) -> bool:
+    def Near(self, bodies, distance: float) -> bool:
         """Whether a sample of ``bodies`` (the robot's surface samples, one
-        (M, 3) array per body, W) lies within ``distance`` (m) of a vertex.
-        Exact: only the bodies whose box (``boxes`` (B, 2, 3): min, max;
-        default computed here) meets the leaf's box grown by the distance,
-        and their samples inside it, go to the k-d tree."""
+        (M, 3) array per body, W; with a ``boxes`` (B, 2, 3) attribute of
+        min/max boxes, as ``RobotModel.SurfacePointsByBody`` gives, else
+        computed here) lies within ``distance`` (m) of a vertex. Exact: only
+        the bodies whose box meets the leaf's box grown by the distance, and
+        their samples inside it, go to the k-d tree."""
         lo, hi = self.lo - distance, self.hi + distance
+        boxes = getattr(bodies, "boxes", None)
         if boxes is None:
             boxes = BodyBoxes(bodies)
         hit = np.flatnonzero(np.all((boxes[:, 0] <= hi) & (boxes[:, 1] >= lo), axis=1))
@@ -316,21 +317,11 @@ class PlantWorldSim:
         camera0, e.g. an episode's captured views): what the fused views
         observed of it, over several views. ``kind: multi``: fruit instance
         ``fruit`` (default 0)."""
-        from lmap_drake.labels import FRUIT, EncodeLabel, DecodeLabels
         if self.multi and fruit is None:
             fruit = 0
         if fruit not in self._unoccluded:
             self._unoccluded[fruit] = UnoccludedFruitPixels(self.scenario, fruit)
-        seen = None
-        for label in labels:
-            lab = np.asarray(label.data if hasattr(label, "data") else label)
-            lab = lab.reshape(lab.shape[0], lab.shape[1])
-            mask = (lab == EncodeLabel(FRUIT, fruit)) if fruit is not None \
-                else (DecodeLabels(lab)[0] == FRUIT)
-            seen = mask if seen is None else (seen | mask)
-        if seen is None:
-            return 0.0
-        return float(min(1.0, seen.sum() / max(self._unoccluded[fruit], 1)))
+        return VisibilityFraction(labels, self._unoccluded[fruit], fruit)
 
     def Sample(self) -> OutcomeSample:
         """Ground-truth measures now (see ``OutcomeConfig``). A frozen leaf
@@ -518,7 +509,7 @@ class PlantWorldSim:
                 leaf = self._frozen.get(j)
                 if leaf is None:
                     leaf = self._frozen[j] = LeafProximity(self.LeafVertices(j))
-            near = leaf.Near(bodies, d_max, bodies.boxes)
+            near = leaf.Near(bodies, d_max)
             if enabled and not near:
                 self.deformable.Disable(lid, ctx)
             elif not enabled and near:
