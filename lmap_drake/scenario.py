@@ -610,6 +610,16 @@ class PlannerConfig:
     moved, observed, re-estimated, released and retreated from before the
     next (``planning.targets``, ``systems.planning.PlantPlanning``).
 
+    ``ready_distances`` (m): the approach comes in along the gripper's axis
+    from a ready pose this far behind the pre-grasp (itself
+    ``pregrasp_distance`` behind the grasp); when the arm cannot reach a
+    ready pose or would hit something on the way to the pre-grasp, the
+    next distance is tried (the grasp and the last 5 cm of the approach
+    stay the same). On the far side of a plant the 8 cm ready pose can lie
+    beyond the UR5's reach: in the multi-fruit suite's ``four_fruits`` one
+    fruit had no feasible action for that reason alone, and a 2 cm ready
+    pose made one of its grasps feasible.
+
     ``min_usable_grasps``: when fewer grasps than this pass the IK and robot
     checks (a small leaf near the branch, an edge the arm reaches
     awkwardly), the failed grasps are retried with the gripper turned 180
@@ -667,6 +677,7 @@ class PlannerConfig:
     early_stop_fraction: float = 0.95
     pregrasp_distance: float = 0.05
     pregrasp_opening: float = 0.035
+    ready_distances: list[float] = dc.field(default_factory=lambda: [0.08, 0.02])
     grasp_close_width: float = 0.0015
     gripper_close_speed: float = 0.05
     grasp_attach_opening: float = 0.006
@@ -1047,6 +1058,7 @@ _RULES = {
     "planner.early_stop_fraction": "(0,1]",
     "planner.pregrasp_distance": ">0",
     "planner.pregrasp_opening": "(0,0.085]",
+    "planner.ready_distances": "+x>=0",
     "planner.grasp_close_width": "[0,0.085]",
     "planner.gripper_close_speed": ">0",
     "planner.grasp_attach_opening": "[0,0.085]",

@@ -144,12 +144,14 @@ def SceneNegatives(sem, voxel: float) -> np.ndarray:
 
 def Markdown(res: dict, methods) -> str:
     seeds = res.get("seeds", [0])
+    # only the conditions evaluated (--conditions), not rows of nan
+    conds = [c for c in CONDITIONS if any(res[m][c].get("num_cases") for m in methods)]
     lines = [f"Shape completion, {res['num_cases']} cases, source: {res['source']} "
              f"(mean over cases" + (f" and seeds {seeds}" if len(seeds) > 1 else "") +
              f"; seconds = fruit completion per fruit, {res['threads']} torch threads)", "",
              "| condition | method | Chamfer (cm) | volume err (cm^3) | centre err (cm) "
              "| angle err (deg) | s/fruit |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    for cond in CONDITIONS:
+    for cond in conds:
         for m in methods:
             r = res[m][cond]
             lines.append(f"| {cond.replace('_', ' ')} | {NAMES[m]} | {r['chamfer_cm']:.2f} | "
@@ -158,7 +160,7 @@ def Markdown(res: dict, methods) -> str:
     if "seed_std" in res:
         lines += ["", "Standard deviation over seeds of the mean (Chamfer / volume / centre / "
                   "angle):", ""]
-        for cond in CONDITIONS:
+        for cond in conds:
             for m in methods:
                 r = res["seed_std"][m][cond]
                 lines.append(f"- {cond.replace('_', ' ')}, {NAMES[m]}: {r['chamfer_cm']:.3f} / "
@@ -171,7 +173,7 @@ def Markdown(res: dict, methods) -> str:
                   " | ".join(NAMES[m] for m in methods) + " |",
                   "| --- | --- | --- | --- | " + " | ".join("---" for _ in methods) + " |"]
         for fruit, d in res["per_fruit"].items():
-            for cond in CONDITIONS:
+            for cond in conds:
                 cells = []
                 for m in methods:
                     r = d[m][cond]

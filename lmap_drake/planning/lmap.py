@@ -232,31 +232,51 @@ def NarrowOpening(leaf_W: np.ndarray, grasp, cfg: PlannerConfig) -> float:
     return float(np.clip(opening, 0.015, cfg.pregrasp_opening))
 
 
+def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, R, ready: float):
+    """The approach to ``grasp`` with its ready pose ``ready`` (m) behind the
+    pre-grasp (an ``ApproachPlan``), or why there is none: the configured
+    opening first; if the open pads hit the fruit close behind the leaf (or
+    the leaf), the narrowest opening that still lets the observed leaf pass
+    between them."""
+    from lmap_drake.planning.motion import MotionError, PlanApproach
+    why = ""
+    for opening in dict.fromkeys([cfg.pregrasp_opening,
+                                  NarrowOpening(ctx.leaf_W, grasp, cfg)]):
+        try:
+            approach = PlanApproach(ctx.robot, RigidTransform(R, grasp.p_WG), ctx.q_current,
+                                    grasp.R_WG[:, 1], cfg.pregrasp_distance, opening,
+                                    ready_extra=ready)
+        except MotionError as err:
+            return f"IK failed ({'staging' if err.staging else 'approach'}): {err}"
+        why = (_ApproachCollision(ctx, cfg, approach, 0.5 * opening)
+               if np.isfinite(cfg.collision_margin) else "")
+        if not why:
+            return approach
+        if not why.startswith(("robot-fruit", "robot-leaf")):
+            break
+    return why
+
+
 def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
                       actions: list[Action]) -> list[Candidate]:
     """The approach (IK chain via, ready, pre-grasp, grasp; see
     ``planning.motion.PlanApproach``) with robot checks along it, then IK for
     each pulled pose (warm-started along each direction's distances) and
     robot-vs-fruit/branch checks there."""
-    from lmap_drake.planning.motion import MotionError, PlanApproach
-    robot = ctx.robot
+    from lmap_drake.planning.motion import ApproachPlan
     R = RotationMatrix(grasp.R_WG)
     cands = [Candidate(a, _DistanceId(a, cfg)) for a in actions]
-    # The configured opening first; if the open pads hit the fruit close
-    # behind the leaf (or the leaf), the narrowest opening that still lets
-    # the observed leaf pass between them.
+    # If the arm cannot reach the ready pose or hits something on the way
+    # to the pre-grasp, a ready pose closer to the pre-grasp
+    # (``ready_distances``): on the far side of a plant the default one
+    # can lie beyond the arm's reach.
     why = ""
-    for opening in dict.fromkeys([cfg.pregrasp_opening,
-                                  NarrowOpening(ctx.leaf_W, grasp, cfg)]):
-        try:
-            approach = PlanApproach(robot, RigidTransform(R, grasp.p_WG), ctx.q_current,
-                                    grasp.R_WG[:, 1], cfg.pregrasp_distance, opening)
-        except MotionError as err:
-            why = f"IK failed (approach): {err}"
+    for ready in cfg.ready_distances:
+        why = _Approach(ctx, cfg, grasp, R, ready)
+        if isinstance(why, ApproachPlan):
+            approach, why = why, ""
             break
-        why = (_ApproachCollision(ctx, cfg, approach, 0.5 * opening)
-               if np.isfinite(cfg.collision_margin) else "")
-        if not why or not why.startswith(("robot-fruit", "robot-leaf")):
+        if not why.startswith("IK failed (staging)") and "on the way to the pre-grasp" not in why:
             break
     if why:
         for c in cands:

@@ -15,7 +15,14 @@ from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
 
 
 class MotionError(RuntimeError):
-    """No joint path for a requested Cartesian motion (IK failed)."""
+    """No joint path for a requested Cartesian motion (IK failed).
+    ``index``: the failing pose's index in the requested list (None when
+    unknown); ``staging``: in an approach, the failure lies beyond the
+    pre-grasp (the ready pose, the via point or the line between them)."""
+
+    def __init__(self, message: str, index: int | None = None, staging: bool = False):
+        super().__init__(message)
+        self.index, self.staging = index, staging
 
 
 def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
@@ -45,7 +52,7 @@ def IkPath(robot, poses: list[RigidTransform], seed: np.ndarray, half_opening: f
         r = robot.Ik(X, seed, half_opening, multistart=(k == 0))
         if not r.success:
             raise MotionError(f"IK failed for the TCP pose at {X.translation().round(3)}: "
-                              f"{r.reason}")
+                              f"{r.reason}", index=k)
         out.append(r.q)
         seed = r.q
     return out
@@ -69,7 +76,9 @@ def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
     """The approach to a grasp: the pre-grasp sits ``pregrasp_distance``
     back along the approach axis (TCP z), a ready pose ``ready_extra``
     further back, and a via point ``via_offset`` from the ready pose toward
-    the camera side of the leaf (``toward_camera_W``)."""
+    the camera side of the leaf (``toward_camera_W``). Raises
+    ``MotionError`` (with ``staging`` True when the pose without IK lies
+    beyond the pre-grasp)."""
     R = X_WT_grasp.rotation()
     z = R.col(2)
 
@@ -82,7 +91,11 @@ def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
     ready_poses = CartesianPath(X_via, X_ready, 0.02)
     backwards = ([X_WT_grasp] + grasp_poses[::-1][1:] + [X_pre] + pre_poses[::-1][1:]
                  + [X_ready] + ready_poses[::-1][1:] + [X_via])
-    chain = IkPath(robot, backwards, q_current, 0.5 * pregrasp_opening)[::-1]
+    try:
+        chain = IkPath(robot, backwards, q_current, 0.5 * pregrasp_opening)[::-1]
+    except MotionError as err:      # backwards[len(grasp_poses)] is the pre-grasp
+        err.staging = err.index is not None and err.index > len(grasp_poses)
+        raise
     n_r, n_p = len(ready_poses), len(pre_poses)
     return ApproachPlan(via=chain[0], to_ready=chain[1:1 + n_r],
                         to_pregrasp=chain[1 + n_r:1 + n_r + n_p],

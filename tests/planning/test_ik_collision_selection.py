@@ -155,3 +155,35 @@ def test_surface_samples_by_body_are_the_surface_points_inside_their_boxes(robot
         assert np.all(per[i] >= lo - 1e-12) and np.all(per[i] <= hi + 1e-12)
     with pytest.raises(IndexError):
         per[len(per)]
+
+
+def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
+    """The approach comes in along the gripper's axis from a ready pose
+    behind the pre-grasp. Near the edge of the arm's reach the default 8 cm
+    ready pose has no IK (a failure of the staging, not of the grasp); the
+    planner then tries the next of ``ready_distances`` and keeps the grasp."""
+    from types import SimpleNamespace
+    from lmap_drake.planning.lmap import _IkAndRobotChecks
+    from lmap_drake.planning.motion import MotionError, PlanApproach
+    from lmap_drake.scenario import PlannerConfig
+    R = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])    # approaching from above
+    p = RobotConfig().X_WB.GetDeterministicValue().translation() + [0.50, 0.0, 0.30]
+    q0 = np.array(RobotConfig().initial_q)
+    with pytest.raises(MotionError) as err:
+        PlanApproach(robot, RigidTransform(RotationMatrix(R), p), q0, np.array([0, -1.0, 0]),
+                     0.05, 0.035, ready_extra=0.08)
+    assert err.value.staging
+    none = np.zeros((0, 3))
+    ctx = SimpleNamespace(robot=robot, q_current=q0, leaf_W=none, other_leaves_W=none,
+                          fruit_sdf=None, branch_distance=None, fruit_box=None, branch_box=None)
+    grasp = SimpleNamespace(p_WG=p, R_WG=R, grasp_id=0)
+    pull = Action(p, R, dp_W=np.array([0.0, 0.0, 0.02]), grasp_id=0, direction_id=0)
+    far = _IkAndRobotChecks(ctx, grasp, PlannerConfig(ready_distances=[0.08]), [pull])
+    assert far[0].reason.startswith("IK failed (staging)") and far[0].approach is None
+    (c,) = _IkAndRobotChecks(ctx, grasp, PlannerConfig(), [pull])
+    assert PlannerConfig().ready_distances == [0.08, 0.02]
+    assert c.approach is not None and not c.reason.startswith("IK failed"), c.reason
+    X_ready = robot.TcpPose(c.approach.to_ready[-1])
+    assert np.linalg.norm(X_ready.translation() - (p + [0, 0, 0.07])) < 0.003
+    X_grasp = robot.TcpPose(c.approach.to_grasp[-1])
+    assert np.linalg.norm(X_grasp.translation() - p) < 0.002

@@ -38,6 +38,21 @@ def test_eval_shape_on_a_folder_of_meshes(tmp_path):
     assert "| tiny |" in (tmp_path / "shape.md").read_text()
 
 
+def test_eval_shape_tables_only_the_conditions_asked_for(tmp_path):
+    d = tmp_path / "peppers"
+    d.mkdir()
+    fruit, _ = _MAKER["MakeTestPepper"]("blob", np.random.default_rng(3), False)
+    fruit.export(d / "one.obj")
+    mod = runpy.run_path(str(REPO_ROOT / "scripts" / "eval_shape.py"), run_name="eval_shape")
+    out = tmp_path / "shape.json"
+    assert mod["main"](["--fruit_mesh_dir", str(d), "--out", str(out), "--iterations", "20",
+                        "--methods", "ssc", "--conditions", "initial_occlusion",
+                        "--scenario_names", "small_leaf_thin_branch_round_red_heavy"]) in (0, None)
+    md = (tmp_path / "shape.md").read_text()
+    assert "| initial occlusion | SSC |" in md
+    assert "without occlusion" not in md and "nan" not in md
+
+
 def test_eval_shape_refuses_a_bad_mesh_before_any_work(tmp_path, capsys):
     import subprocess
     import sys
