@@ -59,6 +59,17 @@ def test_train_on_scans_mixed_with_family(tmp_path):
              "--steps", "3", "--holdout_scans", "0", "--holdout_family", "0",
              "--init", str(out / "pepper_decoder.pt"), "--out_dir", str(out2)])
     assert json.loads((out2 / "train_summary.json").read_text())["heldout"] == {}
+    # With held-out shapes, a fine-tune reports the starting weights' error
+    # on the same shapes next to its own.
+    out3 = tmp_path / "w3"
+    _main()(["--meshes", str(scans), "--num_shapes", "1", "--samples_per_shape", "512",
+             "--steps", "3", "--holdout_scans", "1", "--holdout_family", "1",
+             "--holdout_iterations", "5", "--init", str(out / "pepper_decoder.pt"),
+             "--out_dir", str(out3)])
+    h = json.loads((out3 / "train_summary.json").read_text())["heldout"]
+    for kind in ("scans", "family"):
+        assert set(h[kind]["init_per_shape_chamfer_cm"]) == set(h[kind]["per_shape_chamfer_cm"])
+        assert np.isfinite(h[kind]["init_mean_chamfer_cm"])
 
 
 def test_bad_scan_stops_before_training_naming_the_file(tmp_path):
