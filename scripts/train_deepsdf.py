@@ -20,9 +20,10 @@ collapse the latent space. ``--holdout_scans`` scans are kept out of
 training; at the end their latent is fitted with the decoder frozen and the
 Chamfer distance (cm) between the fitted surface and the scan is printed and
 saved, next to the same error on ``--holdout_family`` unseen procedural
-shapes; with ``--init`` also the errors of the starting weights on the same
-shapes (``init_mean_chamfer_cm``), so a lab sees what its fine-tune gained. ``--init FILE`` fine-tunes from existing weights (e.g. the shipped
-``models/deepsdf/pepper_decoder.pt``) instead of starting from scratch.
+shapes. ``--init FILE`` fine-tunes from existing weights (e.g. the shipped
+``models/deepsdf/pepper_decoder.pt``) instead of starting from scratch; the
+starting weights' error on the same held-out shapes is then saved too
+(``init_mean_chamfer_cm``), so a lab sees what its fine-tune gained.
 
 Writes into --out_dir (default models/deepsdf/):
   pepper_decoder.pt              decoder weights + config + mean latent + training latents

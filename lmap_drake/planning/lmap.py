@@ -72,6 +72,8 @@ class Candidate:
                 "reason": self.reason, "energy": None if np.isnan(self.energy) else self.energy,
                 "pregrasp_opening": (None if self.approach is None
                                      else round(self.approach.opening, 4)),
+                "ready_distance": (None if self.approach is None
+                                   else round(self.approach.ready_extra, 4)),
                 "energy_per_node": self.EnergyPerNode(),
                 "arap_energy": None if np.isnan(self.arap_energy) else self.arap_energy,
                 "hinge_deg": None if np.isnan(self.hinge_deg) else round(self.hinge_deg, 2),
@@ -272,10 +274,11 @@ def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     # can lie beyond the arm's reach.
     why = ""
     for ready in cfg.ready_distances:
-        why = _Approach(ctx, cfg, grasp, R, ready)
-        if isinstance(why, ApproachPlan):
-            approach, why = why, ""
+        got = _Approach(ctx, cfg, grasp, R, ready)
+        if isinstance(got, ApproachPlan):
+            approach, why = got, ""
             break
+        why = got
         if not why.startswith("IK failed (staging)") and "on the way to the pre-grasp" not in why:
             break
     if why:

@@ -67,6 +67,7 @@ class ApproachPlan:
     to_pregrasp: list[np.ndarray]
     to_grasp: list[np.ndarray]
     opening: float = 0.0   # gripper opening (m) along the approach
+    ready_extra: float = 0.0   # the ready pose's distance (m) behind the pre-grasp
 
 
 def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
@@ -99,7 +100,8 @@ def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
     n_r, n_p = len(ready_poses), len(pre_poses)
     return ApproachPlan(via=chain[0], to_ready=chain[1:1 + n_r],
                         to_pregrasp=chain[1 + n_r:1 + n_r + n_p],
-                        to_grasp=chain[1 + n_r + n_p:], opening=float(pregrasp_opening))
+                        to_grasp=chain[1 + n_r + n_p:], opening=float(pregrasp_opening),
+                        ready_extra=float(ready_extra))
 
 
 def PlanPull(robot, X_WT_start: RigidTransform, dp_W: np.ndarray, q_start: np.ndarray,

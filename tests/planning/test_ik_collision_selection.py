@@ -183,6 +183,7 @@ def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
     (c,) = _IkAndRobotChecks(ctx, grasp, PlannerConfig(), [pull])
     assert PlannerConfig().ready_distances == [0.08, 0.02]
     assert c.approach is not None and not c.reason.startswith("IK failed"), c.reason
+    assert c.Row()["ready_distance"] == 0.02
     X_ready = robot.TcpPose(c.approach.to_ready[-1])
     assert np.linalg.norm(X_ready.translation() - (p + [0, 0, 0.07])) < 0.003
     X_grasp = robot.TcpPose(c.approach.to_grasp[-1])
