@@ -234,7 +234,7 @@ def NarrowOpening(leaf_W: np.ndarray, grasp, cfg: PlannerConfig) -> float:
     return float(np.clip(opening, 0.015, cfg.pregrasp_opening))
 
 
-def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, R, ready: float):
+def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float):
     """The approach to ``grasp`` with its ready pose ``ready`` (m) behind the
     pre-grasp (an ``ApproachPlan``), or why there is none: the configured
     opening first; if the open pads hit the fruit close behind the leaf (or
@@ -245,7 +245,9 @@ def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, R, ready: float):
     for opening in dict.fromkeys([cfg.pregrasp_opening,
                                   NarrowOpening(ctx.leaf_W, grasp, cfg)]):
         try:
-            approach = PlanApproach(ctx.robot, RigidTransform(R, grasp.p_WG), ctx.q_current,
+            approach = PlanApproach(ctx.robot,
+                                    RigidTransform(RotationMatrix(grasp.R_WG), grasp.p_WG),
+                                    ctx.q_current,
                                     grasp.R_WG[:, 1], cfg.pregrasp_distance, opening,
                                     ready_extra=ready)
         except MotionError as err:
@@ -266,7 +268,6 @@ def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     each pulled pose (warm-started along each direction's distances) and
     robot-vs-fruit/branch checks there."""
     from lmap_drake.planning.motion import ApproachPlan
-    R = RotationMatrix(grasp.R_WG)
     cands = [Candidate(a, _DistanceId(a, cfg)) for a in actions]
     # If the arm cannot reach the ready pose or hits something on the way
     # to the pre-grasp, a ready pose closer to the pre-grasp
@@ -274,7 +275,7 @@ def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     # can lie beyond the arm's reach.
     why = ""
     for ready in cfg.ready_distances:
-        got = _Approach(ctx, cfg, grasp, R, ready)
+        got = _Approach(ctx, cfg, grasp, ready)
         if isinstance(got, ApproachPlan):
             approach, why = got, ""
             break
