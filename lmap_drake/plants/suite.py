@@ -159,11 +159,8 @@ def SuiteYaml(suite: dict[str, PlantSceneConfig], header: str = "", extra: str =
 # the stem only through the near leaves. From the first view of the six
 # scenes (scripts/plan_plant.py), 5 of the 15 fruits to reveal had no
 # feasible action (every candidate refused for robot-leaf contact on the way
-# to the pre-grasp, IK or self-collision); from the aisle 1 of 15. The
-# approach may stage 2 cm behind the pre-grasp when the 8 cm ready pose is
-# out of reach (planner.ready_distances; on the fruits at the far side of
-# the stem).
-MULTI_SCENE_EXTRA = """planner: {targets: all, ready_distances: [0.08, 0.02]}
+# to the pre-grasp, IK or self-collision); from the aisle 1 of 15.
+MULTI_SCENE_EXTRA = """planner: {targets: all}
 robot:
   X_WB:
     translation: [0.1, -0.25, 0.0]

@@ -198,6 +198,7 @@ class Twin:
         self._fault_t = None
         self.fault_stop: dict = {}
         self._grasp_tried_at = None
+        self._grasp_opening = None      # where the pads met the leaf
         self.stopped_by_twin = False
         self.emulator = self.camera = self.gripper_server = None
 
@@ -301,7 +302,10 @@ class Twin:
     def _GraspAndRelease(self, width: float, rate: float) -> None:
         """The pads hold the leaf once they close to ``grasp_attach_opening``
         or stall on it for 0.1 s short of a closing request (what the 2F-85
-        reports as an object); they let go when asked to open."""
+        reports as an object); they let go when asked to open 2 mm past the
+        opening where they met the leaf (not past the measured one: once the
+        leaf hangs from the pads, the simulated fingers may close past a
+        request)."""
         w = self.world
         closing = w.width_cmd < width - 1e-4
         stalled = closing and width > w.width_cmd + 0.001 and abs(rate) < 0.005
@@ -313,6 +317,7 @@ class Twin:
                 self._grasp_tried_at != round(width, 4):
             try:
                 w.Grasp()
+                self._grasp_opening = width
                 self._grasp_tcp = w.X_WT().translation()
                 self.events.append({"t": w.time, "event": "grasp",
                                     "p_WT": self._grasp_tcp.tolist(),
@@ -321,7 +326,7 @@ class Twin:
             except RuntimeError as err:
                 self._grasp_tried_at = round(width, 4)   # not again at the same opening
                 self.events.append({"t": w.time, "event": "grasp_failed", "why": str(err)})
-        elif w.grasp_state is not None and w.width_cmd > width + 0.002:
+        elif w.grasp_state is not None and w.width_cmd > self._grasp_opening + 0.002:
             self.release_sample = len(w.samples)
             self.vis_at_release = w.Visibility()
             w.ApplyCommands()

@@ -427,8 +427,13 @@ class ArmController(LeafSystem):
                 stalled = (t - old_t >= STALL_WINDOW - 1e-9 and old_w - width < 0.0003
                            and width > commanded + 0.001)
             if commanded <= w1 + 1e-9 or stalled or t - t0 > 2.0:
+                # Stalled on the leaf: hold just inside the measured opening.
+                # Otherwise the fingers may still lag the ramp: a request
+                # above its last one would open a gripper that already holds
+                # a thin leaf (the twin lets go; so would a 2F-85).
                 st.gripper_ramp = None
-                st.gripper_cmd = max(w1, float(width) - 0.0005)
+                hold = float(width) - 0.0005
+                st.gripper_cmd = max(w1, hold if stalled else min(commanded, hold))
                 self._enter(st, "grasp_wait", t, f"closed at {width * 1000:.1f} mm")
         elif mode == "grasp_wait":
             if st.grasp_acknowledged or not self._options.grasp_ack_required:

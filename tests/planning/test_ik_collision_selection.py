@@ -178,10 +178,10 @@ def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
                           fruit_sdf=None, branch_distance=None, fruit_box=None, branch_box=None)
     grasp = SimpleNamespace(p_WG=p, R_WG=R, grasp_id=0)
     pull = Action(p, R, dp_W=np.array([0.0, 0.0, 0.02]), grasp_id=0, direction_id=0)
-    assert PlannerConfig().ready_distances == [0.08]        # the fallback is opt-in
-    far = _IkAndRobotChecks(ctx, grasp, PlannerConfig(), [pull])
+    far = _IkAndRobotChecks(ctx, grasp, PlannerConfig(ready_distances=[0.08]), [pull])
     assert far[0].reason.startswith("IK failed (staging)") and far[0].approach is None
-    (c,) = _IkAndRobotChecks(ctx, grasp, PlannerConfig(ready_distances=[0.08, 0.02]), [pull])
+    assert PlannerConfig().ready_distances == [0.08, 0.02]      # the fallback is the default
+    (c,) = _IkAndRobotChecks(ctx, grasp, PlannerConfig(), [pull])
     assert c.approach is not None and not c.reason.startswith("IK failed"), c.reason
     assert c.Row()["ready_distance"] == 0.02
     X_ready = robot.TcpPose(c.approach.to_ready[-1])

@@ -24,7 +24,7 @@ def plans():
     return first, cont
 
 
-def _Run(plans, answers, max_replans=1):
+def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None):
     first, cont = plans
     s = Scenario()
     s.planner.max_replans = max_replans
@@ -42,13 +42,15 @@ def _Run(plans, answers, max_replans=1):
     for name in ("scene_estimate", "final_estimate"):
         c.GetInputPort(name).FixValue(cc, AbstractValue.Make(_scene()))
     c.GetInputPort("ur5.state_estimated").FixValue(cc, np.r_[s.robot.initial_q, np.zeros(6)])
-    c.GetInputPort("gripper.state_measured").FixValue(cc, [0.003, 0.0, 1.0])  # on the leaf
+    c.GetInputPort("gripper.state_measured").FixValue(cc, list(gripper))  # default: on the leaf
     c.GetInputPort("views_fused").FixValue(cc, [10.0])
     asked, traj_ends = [], []
     answers = list(answers)
     while sim.get_context().get_time() < 60.0:
         sim.AdvanceTo(sim.get_context().get_time() + 0.1)
         st = c.Status(cc)
+        if grip_log is not None:
+            grip_log.append((st.mode, float(c.GetOutputPort("gripper.position").Eval(cc)[0])))
         if st.trajectory is not None:
             traj_ends.append(np.asarray(st.q_hold, float).copy())
         if st.finished:
@@ -92,3 +94,16 @@ def test_no_replans_means_one_motion(plans):
     st, asked, _ = _Run(plans, [True], max_replans=0)
     assert asked == [False] and [m for _, m in st.mode_log].count("pull") == 1
     assert st.replan_log == [] and st.mode == "done"
+
+
+def test_closing_never_asks_the_gripper_to_open(plans):
+    """The fingers lag the closing ramp: the controller reads 4.8 mm while
+    the ramp already asks for less. Holding "just inside the measured
+    opening" must not raise the request above the ramp's (a request that
+    rises opens a real 2F-85 and drops a thin leaf; the twin let go)."""
+    log = []
+    st, _, _ = _Run(plans, [True, True], gripper=(0.0048, 0.0, 0.0), grip_log=log)
+    closing = [w for m, w in log if m in ("close_gripper", "grasp_wait", "pull", "hold")]
+    assert len(closing) > 5 and "pull" in [m for m, _ in log]
+    assert all(b <= a + 1e-9 for a, b in zip(closing, closing[1:])), closing
+    assert closing[-1] <= Scenario().planner.grasp_close_width + 1e-9
