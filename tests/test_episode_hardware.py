@@ -45,12 +45,12 @@ class FakeCell:
     """Fake clients for one run plus a progress log and fault injection:
     ``inject[mode] = callable`` runs when the controller enters ``mode``."""
 
-    def __init__(self, cell, read_only=False):
+    def __init__(self, cell, read_only=False, leaf_opening=LEAF_OPENING):
         self.scenario, frames, self.resources = cell
         K = Intrinsics.FromCameraConfig(self.scenario.cameras["camera0"])
         self.rs = FakePyrealsense2(frames=frames, intrinsics=(K.fx, K.fy, K.cx, K.cy))
-        self.gripper = FakeGripper(object_pos=OpeningToPos(LEAF_OPENING,
-                                                           self.scenario.hardware.gripper))
+        self.gripper = FakeGripper(object_pos=None if leaf_opening is None else OpeningToPos(
+            leaf_opening, self.scenario.hardware.gripper))
         self.server = FakeRobotiqServer(self.gripper).__enter__()
         self.clients = MakeFakeHardwareClients(self.scenario.hardware,
                                                q0=self.scenario.robot.initial_q,
@@ -247,3 +247,19 @@ def test_a_plan_leaving_the_workspace_is_refused_before_anything_moves(cell, tmp
     assert "outside the workspace box on x" in fake.record["message"]
     q0 = np.asarray(fake.scenario.robot.initial_q)
     assert np.abs(fake.servoed - q0).max() < 1e-9
+
+
+def test_a_grasp_that_meets_no_leaf_is_not_pulled(cell, tmp_path):
+    """The pads close to the end of the ramp without the gripper reporting an
+    object (the leaf slipped away, or is thinner than the ramp's end): the
+    controller does not pull an empty gripper; it opens, backs out along the
+    approach and the episode aborts saying so."""
+    fake = FakeCell(cell, leaf_opening=None)
+    _, status = fake.run(tmp_path)
+    assert status == "aborted"
+    assert fake.modes[-4:] == ["approach", "close_gripper", "retreat", "aborted"], fake.modes
+    assert "pull" not in fake.modes
+    assert fake.record["message"].startswith("grasp missed: the gripper closed to 1.")
+    w1 = OpeningToPos(fake.scenario.planner.grasp_close_width, fake.scenario.hardware.gripper)
+    assert fake.gripper.regs["PRE"] < w1 - 50               # opened again
+    assert np.allclose(fake.clients.ur.last_target, fake.scenario.robot.initial_q, atol=1e-6)

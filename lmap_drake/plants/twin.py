@@ -59,7 +59,8 @@ class TwinGripper:
     """2F-85 registers (ACT, GTO, POS, PRE, OBJ, STA, ...) over the simulated
     gripper: ``SET POS`` requests an opening, ``GET POS`` reads the
     simulated fingers, OBJ is 2 when they stand still short of a closing
-    request (an object between the pads), 3 at the request."""
+    request or the plant world holds the leaf between them (an object
+    between the pads), 3 at the request."""
 
     def __init__(self, config, opening: float):
         from lmap_drake.station.hardware.robotiq_client import OpeningToPos
@@ -70,6 +71,7 @@ class TwinGripper:
         pos = OpeningToPos(opening, config)
         self.regs.update(POS=pos, PRE=pos, OBJ=3)
         self._still_since = None
+        self.holding = False        # the plant world holds the leaf between the pads
 
     def Set(self, values: dict) -> bool:
         with self.lock:
@@ -111,7 +113,9 @@ class TwinGripper:
                 self._still_since = None
             elif self._still_since is None:
                 self._still_since = t
-            if abs(pos - self.regs["PRE"]) <= 1:
+            if self.holding:        # the leaf between the pads stops them
+                self.regs["OBJ"] = 2
+            elif abs(pos - self.regs["PRE"]) <= 1:
                 self.regs["OBJ"] = 3
             elif still_short and t - self._still_since >= 0.1 - 1e-9:
                 self.regs["OBJ"] = 2 if pos < self.regs["PRE"] else 1   # 2: stalled closing
@@ -317,6 +321,7 @@ class Twin:
                 self._grasp_tried_at != round(width, 4):
             try:
                 w.Grasp()
+                self.gripper.holding = True
                 self._grasp_opening = width
                 self._grasp_tcp = w.X_WT().translation()
                 self.events.append({"t": w.time, "event": "grasp",
@@ -331,6 +336,7 @@ class Twin:
             self.vis_at_release = w.Visibility()
             w.ApplyCommands()
             w.Release()
+            self.gripper.holding = False
             w.ApplyCommands()
             self.events.append({"t": w.time, "event": "release"})
             self.progress(f"twin: leaf released at t = {w.time:.2f} s")

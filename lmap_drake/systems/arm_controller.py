@@ -134,6 +134,7 @@ class ControllerStatus:
     pregrasp_opening: float = 0.0
     grasp_path: list = dc.field(default_factory=list)       # pre-grasp -> grasp joints
     released: bool = False              # the gripper was told to let the leaf go
+    grasp_missed: str = ""              # hardware: why the closed gripper holds nothing
     t_released: float = 0.0
     grip_history: list = dc.field(default_factory=list)   # (t, opening) while closing
     continuations: list = dc.field(default_factory=list)  # PlanResults of the re-plans
@@ -422,7 +423,15 @@ class ArmController(LeafSystem):
                                if t - tt <= STALL_WINDOW + 1e-9] + [(t, float(width))]
             old_t, old_w = st.grip_history[0]
             if np.isfinite(on_object):
+                # The gripper tells: it stalled on the leaf, or its pads
+                # stand at the end of the ramp with nothing between them.
                 stalled = on_object >= 0.5
+                if not stalled and t - t0 <= 2.0 and not (
+                        commanded <= w1 + 1e-9 and width <= w1 + 0.0005 and abs(rate) < 0.001):
+                    return                      # still closing
+                if not stalled:
+                    self._GraspMissed(st, t, width)
+                    return
             else:
                 stalled = (t - old_t >= STALL_WINDOW - 1e-9 and old_w - width < 0.0003
                            and width > commanded + 0.001)
@@ -467,6 +476,16 @@ class ArmController(LeafSystem):
                 if st.segments:
                     waypoints, fraction = st.segments.pop(0)
                     self._start_path(st, t, waypoints, fraction)
+                elif st.grasp_missed:
+                    st.trajectory = None
+                    why, st.grasp_missed = st.grasp_missed, ""
+                    if self._multi:
+                        self._EndTarget(st, t, why + "; arm retreated")
+                        st.captures += 1
+                        self._enter(st, "capture", t, f"{len(st.targets)} fruit(s) handled; "
+                                    "looking again for the next one")
+                    else:
+                        self._enter(st, "aborted", t, why + "; gripper opened and arm retreated")
                 else:
                     st.trajectory = None
                     done = ("action executed; shape re-estimated on the fused views; leaf "
@@ -649,6 +668,22 @@ class ArmController(LeafSystem):
         st.gripper_cmd = st.pregrasp_opening
         self._start_path(st, t, st.pregrasp_path, 0.5)
         self._enter(st, "pregrasp", t, message)
+
+    def _GraspMissed(self, st: ControllerStatus, t: float, width: float) -> None:
+        """On hardware the gripper closed without reporting the leaf (no
+        stall): nothing is held, so nothing is pulled. The gripper opens and
+        the arm retreats; the target ends ``grasp missed`` (the episode
+        aborts with that message, or the next fruit is planned)."""
+        st.gripper_ramp = None
+        st.gripper_cmd = st.pregrasp_opening
+        w1 = self._scenario.planner.grasp_close_width
+        st.grasp_missed = (f"grasp missed: the gripper closed to {width * 1000:.1f} mm "
+                           "without reporting the leaf between its pads; nothing was moved"
+                           + (f" (the pads stop at planner.grasp_close_width, {w1 * 1000:.1f} "
+                              "mm: a thinner leaf is never met, set it lower)"
+                              if width <= w1 + 0.0005 else ""))
+        self.progress(st.grasp_missed + "; opening and retreating")
+        self._Retreat(st, t)
 
     def _Retreat(self, st: ControllerStatus, t: float) -> None:
         """The approach in reverse (all of it checked at planning time):

@@ -114,10 +114,11 @@ def test_the_twin_sees_what_the_simulation_sees(twin_episode):
 
 
 def test_a_protective_stop_mid_pull_stops_the_run_with_the_gripper_holding(tmp_path):
-    """A straight pull, as the stop bound was measured on (0.04-0.10 s): an
-    arc turns the wrist faster (its stop measured 0.12 s in the twin), and
-    how fast the simulated arm settles after the stop is the plant's
-    property, not the controller's."""
+    """A straight pull (an arc turns the wrist faster). How fast the
+    simulated arm settles after the stop is the plant's property, not the
+    controller's: 0.04-0.10 s measured on the grasp of the 8 cm ready pose,
+    0.08-0.14 s on grasp 14 (2 cm ready pose, the default since the
+    fallback), in 20 ms twin steps. A pull that went on would take seconds."""
     twin = TwinProcess(tmp_path / "twin", "--fault_after_grasp_move", "0.01")
     try:
         _, status = RunLmapEpisode(twin.Scenario("{planner: {action_families: [pull]}}"),
@@ -130,5 +131,5 @@ def test_a_protective_stop_mid_pull_stops_the_run_with_the_gripper_holding(tmp_p
     assert [m for _, m in record["mode_log"]][-1] == "pull"
     events = [e["event"] for e in log["events"]]
     assert "protective_stop_injected" in events and "release" not in events
-    # the arm stood still within 0.1 simulated s of the stop
-    assert log["fault_stop"]["arm_stopped_after_s"] <= 0.1
+    # the arm stood still within 0.2 simulated s of the stop
+    assert log["fault_stop"]["arm_stopped_after_s"] <= 0.2
