@@ -625,9 +625,11 @@ class PlannerConfig:
     ``min_usable_grasps``: when fewer grasps than this pass the IK and robot
     checks (a small leaf near the branch, an edge the arm reaches
     awkwardly), the failed grasps are retried with the gripper turned 180
-    deg about its approach axis and with the approach tilted +-35 deg in the
-    blade's plane, and grasps between half of ``min_branch_distance`` and
-    it are tried too (``planning.lmap.GraspAlternatives``; 0 = never).
+    deg about its approach axis and with the approach tilted +-35 and +-70
+    deg in the blade's plane (70: nearly from the leaf's side), and grasps
+    between half of ``min_branch_distance`` and it are tried too
+    (``planning.lmap.GraspAlternatives``; the record's ``approach_tilt_deg``
+    and ``gripper_turned`` say which was used; 0 = never).
 
     ``max_replans``: after the action and the re-estimation, while the
     fruit is predicted less than ``early_stop_fraction`` visible, plan a

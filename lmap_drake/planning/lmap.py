@@ -48,6 +48,9 @@ class Candidate:
     seen: int = -1
     score: float = float("nan")
     deformed_leaf_W: np.ndarray | None = None
+    # a second-chance grasp orientation (``GraspAlternatives``): approach
+    # tilted this many degrees in the blade's plane, gripper turned 180 deg
+    orientation: tuple | None = None        # (tilt_deg, turned) or None: as generated
 
     @property
     def feasible(self) -> bool:
@@ -74,6 +77,8 @@ class Candidate:
                                      else round(self.approach.opening, 4)),
                 "ready_distance": (None if self.approach is None
                                    else round(self.approach.ready_extra, 4)),
+                "approach_tilt_deg": None if self.orientation is None else self.orientation[0],
+                "gripper_turned": None if self.orientation is None else self.orientation[1],
                 "energy_per_node": self.EnergyPerNode(),
                 "arap_energy": None if np.isnan(self.arap_energy) else self.arap_energy,
                 "hinge_deg": None if np.isnan(self.hinge_deg) else round(self.hinge_deg, 2),
@@ -526,7 +531,10 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
 # Second-chance grasp orientations: the approach turned by these angles
 # (deg) about the pads' closing axis, i.e. within the blade's plane, still
 # crossing the leaf's edge; each also turned 180 deg about the approach axis.
-APPROACH_TILTS_DEG = (0.0, 35.0, -35.0)
+# 70 deg comes in nearly from the leaf's side: for leaves on the far side of
+# a plant that point away from the robot, whose approach from beyond the
+# edge the arm cannot reach (four_fruits: a fruit 0.44 -> 0.98 visible).
+APPROACH_TILTS_DEG = (0.0, 35.0, -35.0, 70.0, -70.0)
 
 
 def GraspAlternatives(R_WG: np.ndarray) -> list[np.ndarray]:
@@ -542,6 +550,11 @@ def GraspAlternatives(R_WG: np.ndarray) -> list[np.ndarray]:
         R = R_WG @ AxisAngleMatrix([0.0, 1.0, 0.0], np.deg2rad(tilt))
         out += [R, R @ np.diag([-1.0, -1.0, 1.0])]
     return out[1:]                      # not the orientation already tried
+
+
+def _AlternativeLabels() -> list[tuple]:
+    """(tilt deg, turned 180 deg) of each ``GraspAlternatives`` rotation."""
+    return [(float(t), turned) for t in APPROACH_TILTS_DEG for turned in (False, True)][1:]
 
 
 def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: CandidateSet,
@@ -568,9 +581,11 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
         if all(c.approach is None for c in cands):
             extra.append((g, actions))
     for g, actions in failed + extra:
-        for R in GraspAlternatives(g.R_WG):
+        for R, label in zip(GraspAlternatives(g.R_WG), _AlternativeLabels()):
             g2 = Grasp(g.p_WG, R, g.grasp_id)
             cands = _IkAndRobotChecks(ctx, g2, cfg, [dc.replace(a, R_WG=R) for a in actions])
+            for c in cands:
+                c.orientation = label
             if any(c.approach is not None for c in cands):
                 out.candidates = [c for c in out.candidates
                                   if c.action.grasp_id != g.grasp_id] + cands

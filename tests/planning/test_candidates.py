@@ -84,16 +84,20 @@ def test_narrow_opening_follows_the_leafs_local_thickness():
 
 
 def test_grasp_alternatives_keep_the_pads_across_the_leaf():
-    from lmap_drake.planning.lmap import APPROACH_TILTS_DEG, GraspAlternatives
+    from lmap_drake.planning.lmap import (APPROACH_TILTS_DEG, GraspAlternatives,
+                                          _AlternativeLabels)
     # pads close along y = the leaf normal (W y); approach z along W +x
     R = np.column_stack([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
     alts = GraspAlternatives(R)
-    assert len(alts) == 2 * len(APPROACH_TILTS_DEG) - 1
-    for A in alts:
+    assert len(alts) == 2 * len(APPROACH_TILTS_DEG) - 1 == len(_AlternativeLabels())
+    assert max(APPROACH_TILTS_DEG) < 90.0
+    for A, (tilt, turned) in zip(alts, _AlternativeLabels()):
         assert np.allclose(A.T @ A, np.eye(3)) and np.isclose(np.linalg.det(A), 1.0)
         assert np.isclose(abs(A[:, 1] @ R[:, 1]), 1.0)         # closing axis: the leaf normal
         assert abs(A[:, 2] @ R[:, 1]) < 1e-12                  # approach in the blade plane
-        assert A[:, 2] @ R[:, 2] > np.cos(np.deg2rad(36))      # still toward the leaf
+        # tilted by the labelled angle, still toward the leaf (not along its edge)
+        assert np.isclose(A[:, 2] @ R[:, 2], np.cos(np.deg2rad(tilt)))
+        assert np.isclose(A[:, 1] @ R[:, 1], -1.0 if turned else 1.0)
         assert not np.allclose(A, R)
     # the 180-degree turn about the approach axis is among them
     assert any(np.allclose(A, R @ np.diag([-1.0, -1.0, 1.0])) for A in alts)
