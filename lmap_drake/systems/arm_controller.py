@@ -66,7 +66,10 @@ seen, IK fails, a trajectory is refused, or a stage raises (``stage_error:
 simulation the grasp is made by the episode runner (it rebuilds the station
 with the leaf fixed between the pads, see ``lmap_drake.plants.simworld``),
 which then calls ``AcknowledgeGrasp``; on hardware the gripper closes until
-it stalls on the leaf and the controller continues alone.
+it stalls on the leaf and the controller continues alone. A hardware
+gripper that reaches the end of its ramp (or 2 s) without reporting an
+object holds nothing: it opens, the arm retreats and the target ends
+``grasp missed`` (``aborted`` for a single fruit; the next fruit of a plant).
 """
 from __future__ import annotations
 
