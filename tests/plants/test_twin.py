@@ -133,3 +133,31 @@ def test_a_protective_stop_mid_pull_stops_the_run_with_the_gripper_holding(tmp_p
     assert "protective_stop_injected" in events and "release" not in events
     # the arm stood still within 0.2 simulated s of the stop
     assert log["fault_stop"]["arm_stopped_after_s"] <= 0.2
+
+
+def test_the_twin_gripper_reports_a_held_leaf_as_an_object():
+    """The 2F-85's OBJ register over the simulated fingers: moving (0), at
+    the request (3), stalled short of a closing request for 0.1 s (2), and
+    2 whenever the plant world holds the leaf between the pads, even when
+    the simulated fingers close past the request (the leaf hangs from them).
+    The hardware controller pulls only on OBJ 2."""
+    from lmap_drake.plants.twin import TwinGripper
+    from lmap_drake.scenario import HardwareConfig
+    g = TwinGripper(HardwareConfig().gripper, 0.085)
+    g.Set({"ACT": 1, "GTO": 1})
+    assert g.Get("OBJ") == 3
+    from lmap_drake.station.hardware.robotiq_client import OpeningToPos
+    g.Set({"POS": OpeningToPos(0.0015, HardwareConfig().gripper)})
+    g.SetMeasured(0.02, -0.05, 1.0)
+    assert g.Get("OBJ") == 0                                 # closing
+    g.SetMeasured(0.005, 0.0, 1.05)
+    g.SetMeasured(0.005, 0.0, 1.10)
+    assert g.Get("OBJ") == 0                                 # still for 0.05 s only
+    g.SetMeasured(0.005, 0.0, 1.16)
+    assert g.Get("OBJ") == 2                                 # stalled on the leaf
+    g.holding = True
+    g.SetMeasured(0.0, -0.02, 1.2)                           # past the request, holding
+    assert g.Get("OBJ") == 2
+    g.holding = False
+    g.SetMeasured(0.0015, 0.0, 1.3)
+    assert g.Get("OBJ") == 3                                 # at the request: nothing held
