@@ -682,7 +682,7 @@ class PlannerConfig:
     pregrasp_distance: float = 0.05
     pregrasp_opening: float = 0.035
     ready_distances: list[float] = dc.field(default_factory=lambda: [0.08, 0.02])
-    grasp_close_width: float = 0.0015
+    grasp_close_width: float = 0.0     # the closing ramp's end: fully closed, so the pads meet a real 0.2-0.5 mm leaf
     gripper_close_speed: float = 0.05
     grasp_attach_opening: float = 0.006
     min_branch_distance: float = 0.06

@@ -117,7 +117,7 @@ def test_hardware_episode_runs_every_state_then_releases_and_retreats(full_run):
     assert r["station"] == "hardware" and r["outcome"] is None    # no ground truth
     # The gripper closed until it stalled on the leaf (no simulator
     # acknowledgement): never below the leaf's opening (the commanded end of
-    # the ramp is 1.5 mm).
+    # the ramp is 0 mm).
     import re
     closed = [float(m) for m in re.findall(r"closed at ([0-9.]+) mm", " ".join(fake.log))]
     assert len(closed) == 1 and LEAF_OPENING * 1000 - 0.4 <= closed[0] < 20.0, closed
@@ -259,7 +259,7 @@ def test_a_grasp_that_meets_no_leaf_is_not_pulled(cell, tmp_path):
     assert status == "aborted"
     assert fake.modes[-4:] == ["approach", "close_gripper", "retreat", "aborted"], fake.modes
     assert "pull" not in fake.modes
-    assert fake.record["message"].startswith("grasp missed: the gripper closed to 1.")
+    assert fake.record["message"].startswith("grasp missed: the gripper closed to 0.0 mm")
     w1 = OpeningToPos(fake.scenario.planner.grasp_close_width, fake.scenario.hardware.gripper)
     assert fake.gripper.regs["PRE"] < w1 - 50               # opened again
     assert np.allclose(fake.clients.ur.last_target, fake.scenario.robot.initial_q, atol=1e-6)

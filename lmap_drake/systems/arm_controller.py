@@ -684,7 +684,7 @@ class ArmController(LeafSystem):
                            "without reporting the leaf between its pads; nothing was moved"
                            + (f" (the pads stop at planner.grasp_close_width, {w1 * 1000:.1f} "
                               "mm: a thinner leaf is never met, set it lower)"
-                              if width <= w1 + 0.0005 else ""))
+                              if w1 > 0 and width <= w1 + 0.0005 else ""))
         self.progress(st.grasp_missed + "; opening and retreating")
         self._Retreat(st, t)
 
