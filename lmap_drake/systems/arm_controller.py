@@ -446,7 +446,7 @@ class ArmController(LeafSystem):
                 st.gripper_ramp = None
                 hold = float(width) - 0.0005
                 st.gripper_cmd = max(w1, hold if stalled else min(commanded, hold))
-                self._enter(st, "grasp_wait", t, f"closed at {max(width, 0.0) * 1000:.1f} mm")
+                self._enter(st, "grasp_wait", t, f"closed at {max(0.0, width) * 1000:.1f} mm")
         elif mode == "grasp_wait":
             if st.grasp_acknowledged or not self._options.grasp_ack_required:
                 self._start_path(st, t, st.pull_path, 0.3, self._pull_duration(st))
@@ -680,7 +680,7 @@ class ArmController(LeafSystem):
         st.gripper_ramp = None
         st.gripper_cmd = st.pregrasp_opening
         w1 = self._scenario.planner.grasp_close_width
-        st.grasp_missed = (f"grasp missed: the gripper closed to {max(width, 0.0) * 1000:.1f} mm "
+        st.grasp_missed = (f"grasp missed: the gripper closed to {max(0.0, width) * 1000:.1f} mm "
                            "without reporting the leaf between its pads; nothing was moved"
                            + (f" (the pads stop at planner.grasp_close_width, {w1 * 1000:.1f} "
                               "mm: a thinner leaf is never met, set it lower)"
