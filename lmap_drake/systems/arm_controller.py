@@ -479,27 +479,23 @@ class ArmController(LeafSystem):
                 if st.segments:
                     waypoints, fraction = st.segments.pop(0)
                     self._start_path(st, t, waypoints, fraction)
-                elif st.grasp_missed:
-                    st.trajectory = None
-                    why, st.grasp_missed = st.grasp_missed, ""
-                    if self._multi:
-                        self._EndTarget(st, t, why + "; arm retreated")
-                        st.captures += 1
-                        self._enter(st, "capture", t, f"{len(st.targets)} fruit(s) handled; "
-                                    "looking again for the next one")
-                    else:
-                        self._enter(st, "aborted", t, why + "; gripper opened and arm retreated")
                 else:
                     st.trajectory = None
-                    done = ("action executed; shape re-estimated on the fused views; leaf "
-                            "released and arm retreated")
+                    if st.grasp_missed:
+                        end, why, st.grasp_missed = "aborted", st.grasp_missed, ""
+                        outcome = why + "; arm retreated"
+                        message = why + "; gripper opened and arm retreated"
+                    else:
+                        message = ("action executed; shape re-estimated on the fused views; "
+                                   "leaf released and arm retreated")
+                        end, outcome = "done", "revealed: " + message
                     if self._multi:         # the next fruit, from a fresh view
-                        self._EndTarget(st, t, "revealed: " + done)
+                        self._EndTarget(st, t, outcome)
                         st.captures += 1
                         self._enter(st, "capture", t, f"{len(st.targets)} fruit(s) handled; "
                                     "looking again for the next one")
                     else:
-                        self._enter(st, "done", t, done)
+                        self._enter(st, end, t, message)
 
     def _Stop(self, context, st: ControllerStatus, t: float) -> None:
         """Holds the measured joints; the gripper keeps its current command
