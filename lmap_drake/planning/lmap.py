@@ -19,7 +19,7 @@ from lmap_drake.deformation.graph import FREE, MainLeafComponent
 from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
 from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
-                                           RobotCollisionReason)
+                                           NearBox, RobotCollisionReason, UnionSdf)
 from lmap_drake.planning.robot_model import SELF_MARGIN, RobotModel
 from lmap_drake.planning.visibility import CountNewlySeen, VisibilityModel
 from lmap_drake.scenario import DeformationConfig, PlannerConfig
@@ -153,8 +153,9 @@ class PlanningContext:
         others = [f for f in getattr(self.scene, "other_fruits", []) if f is not None]
         if fruit is not None and others:
             fruits = [fruit] + others
-            self.fruit_sdf = lambda p: np.min([np.asarray(f.sdf_W(p), float)  # noqa: E731
-                                               for f in fruits], axis=0)
+            self.fruit_sdf = UnionSdf([f.sdf_W for f in fruits],
+                                      [(f.vertices_W.min(0), f.vertices_W.max(0))
+                                       for f in fruits])
             V = np.vstack([f.vertices_W for f in fruits])
             self.fruit_box = (V.min(0), V.max(0))
         self.other_leaves_W = np.asarray(getattr(self.scene, "other_leaves_W", np.zeros((0, 3))),
@@ -179,14 +180,29 @@ def FruitSurfaceSamples(f) -> np.ndarray:
 def _RobotPoseReason(robot, q: np.ndarray, half_open: float, points_W: np.ndarray,
                      ctx: PlanningContext, cfg: PlannerConfig, self_margin: float = 0.0
                      ) -> str:
-    """'' if the robot at ``q`` (surface samples ``points_W``) is clear of
-    itself (arm against gripper or arm; distant links by ``self_margin``)
-    and keeps the margin from the fruit and the branch, else the reason."""
+    """'' if the robot at ``q`` (surface samples ``points_W``, an array or
+    per geometry) is clear of itself (arm against gripper or arm; distant
+    links by ``self_margin``) and keeps the margin from the fruit and the
+    branch, else the reason."""
     pair = robot.SelfCollision(q, half_open, self_margin)
     if pair:
         return f"robot self-collision ({pair})"
     return RobotCollisionReason(points_W, ctx.fruit_sdf, ctx.branch_distance,
                                 cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+
+
+def _LeafObstacles(ctx: PlanningContext) -> tuple:
+    """(KD-tree of every leaf's observed points or None, their box (lo,
+    hi)): the approach's leaf obstacles, built once per planning context
+    (cached on it)."""
+    cached = getattr(ctx, "_leaf_obstacles", None)
+    if cached is None:
+        from scipy.spatial import cKDTree
+        leaves_W = np.vstack([ctx.leaf_W, ctx.other_leaves_W])
+        cached = ((cKDTree(leaves_W), (leaves_W.min(0), leaves_W.max(0))) if len(leaves_W)
+                  else (None, None))
+        ctx._leaf_obstacles = cached
+    return cached
 
 
 def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_open: float
@@ -196,30 +212,28 @@ def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_
     and pre-grasp poses and the final approach: fruit, branch and the
     observed leaf points all keep the margin from the robot (in the final
     approach the leaf must therefore pass between the open pads)."""
-    from scipy.spatial import cKDTree
     robot = ctx.robot
     free = [ctx.q_current + f * (approach.via - ctx.q_current) for f in np.linspace(0, 1, 8)[1:]]
     free += list(approach.to_ready) + list(approach.to_pregrasp)
     # (the other leaves of the plant are obstacles like the grasped one)
-    leaves_W = np.vstack([ctx.leaf_W, ctx.other_leaves_W])
-    leaf_tree = cKDTree(leaves_W) if len(leaves_W) else None
+    leaf_tree, leaf_box = _LeafObstacles(ctx)
     if leaf_tree is not None:   # only robot points near the leaves' box can be within the margin
-        leaf_lo = leaves_W.min(axis=0) - cfg.collision_margin
-        leaf_hi = leaves_W.max(axis=0) + cfg.collision_margin
+        leaf_lo = leaf_box[0] - cfg.collision_margin
+        leaf_hi = leaf_box[1] + cfg.collision_margin
     # During the approach the leaf must pass between the open pads: every
     # observed leaf point keeps the margin from the robot, pads included.
     for path, when, leaf_why in (
             (free, "on the way to the pre-grasp", ""),
             (approach.to_grasp, "during the approach", " (leaf not between the pads)")):
         for q in path:
-            pts = robot.SurfacePoints(q, half_open)
+            pts = robot.SurfacePointsByBody(q, half_open)
             # the approach's joint moves are fast and sampled: distant
             # links also keep SELF_MARGIN there
             why = _RobotPoseReason(robot, q, half_open, pts, ctx, cfg, SELF_MARGIN)
             if why:
                 return f"{why} {when}"
             if leaf_tree is not None:
-                near = pts[np.all((pts >= leaf_lo) & (pts <= leaf_hi), axis=1)]
+                near = NearBox(pts, leaf_lo, leaf_hi)
                 if len(near) and leaf_tree.query(near)[0].min() < cfg.collision_margin:
                     return f"robot-leaf {when}{leaf_why}"
     return ""
@@ -326,7 +340,7 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
             else:
                 r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
                 pose_why = "" if not r.success else _RobotPoseReason(
-                    robot, r.q, 0.0, robot.SurfacePoints(r.q, 0.0), ctx, cfg)
+                    robot, r.q, 0.0, robot.SurfacePointsByBody(r.q, 0.0), ctx, cfg)
                 if key is not None:
                     solved[key] = (r, pose_why)
             if not r.success:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses as dc
 
 import numpy as np
+from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.trajectories import PiecewisePolynomial
 
@@ -29,17 +30,17 @@ def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
                   ) -> list[RigidTransform]:
     """Poses from X0 (excluded) to X1 (included): straight line and slerp,
     spaced about ``step`` (m) or 10 deg apart."""
-    from scipy.spatial.transform import Rotation, Slerp
     d = float(np.linalg.norm(X1.translation() - X0.translation()))
-    angle = X0.rotation().InvertAndCompose(X1.rotation()).ToAngleAxis().angle()
+    R0, R1 = X0.rotation(), X1.rotation()
+    turn = R0.InvertAndCompose(X1.rotation()).ToAngleAxis()   # R0^T R1, in X0's frame
+    angle = turn.angle()
     n = max(1, int(np.ceil(max(d / step, angle / np.deg2rad(10)))))
-    slerp = Slerp([0, 1], Rotation.from_matrix([X0.rotation().matrix(),
-                                                X1.rotation().matrix()]))
     out = []
     for k in range(1, n + 1):
         f = k / n
-        out.append(RigidTransform(RotationMatrix(slerp(f).as_matrix()),
-                                  (1 - f) * X0.translation() + f * X1.translation()))
+        # the geodesic (slerp) from R0 to R1: R0 turned by f * angle about the axis
+        R = R1 if k == n else R0.multiply(RotationMatrix(AngleAxis(f * angle, turn.axis())))
+        out.append(RigidTransform(R, (1 - f) * X0.translation() + f * X1.translation()))
     return out
 
 
