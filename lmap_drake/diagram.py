@@ -28,13 +28,16 @@ class EpisodeResources:
     decoder: object = None
     mean_latent: object = None
     progress: object = None
+    fit_memo: object = None          # shape.completion.FitMemo: fruit fits of the episode
 
     @staticmethod
     def Make(scenario: Scenario, progress=None) -> "EpisodeResources":
         from lmap_drake.shape.deepsdf import LoadDecoder
         decoder, mean_latent, _ = LoadDecoder(scenario.shape.weights_file)
+        from lmap_drake.shape.completion import FitMemo
         return EpisodeResources(RobotModel(scenario.robot.X_WB.GetDeterministicValue()),
-                                decoder, mean_latent, progress)
+                                decoder, mean_latent, progress,
+                                FitMemo(tolerance=scenario.shape.reuse_tolerance))
 
 
 def AddPlanningStages(b: DiagramBuilder, scenario: Scenario, resources: EpisodeResources,
@@ -56,10 +59,10 @@ def AddPlanningStages(b: DiagramBuilder, scenario: Scenario, resources: EpisodeR
     b.Connect(views.GetOutputPort("num_views"), perception.GetInputPort("capture"))
     b.Connect(views.GetOutputPort("ur5.position"), perception.GetInputPort("ur5.position"))
     shape = b.AddNamedSystem("shape_completion", ShapeCompletion(
-        scenario.shape, resources.decoder, resources.mean_latent))
+        scenario.shape, resources.decoder, resources.mean_latent, fit_memo=resources.fit_memo))
     reest = b.AddNamedSystem("shape_reestimation", ShapeCompletion(
         scenario.shape, resources.decoder, resources.mean_latent, reestimate=True,
-        focus_port=scenario.planner.targets == "all"))
+        focus_port=scenario.planner.targets == "all", fit_memo=resources.fit_memo))
     b.Connect(perception.GetOutputPort("semantic_scene"), shape.GetInputPort("semantic_scene"))
     b.Connect(perception.GetOutputPort("fused_semantic_scene"),
               reest.GetInputPort("semantic_scene"))

@@ -471,13 +471,18 @@ class ShapeConfig:
     metres). ``leaf_split_angle_deg`` (plants with several fruits): touching leaves
     (one cluster of points) are told apart where their surfaces meet at more
     than this angle (``perception.points.SplitTouchingLeaves``; 0 = leaf
-    instances as clustered)."""
+    instances as clustered). ``reuse_tolerance`` (m; plants with several
+    fruits): a fruit whose points and surroundings in a new view match an
+    earlier fit's within this distance (95 % of the points both ways, the
+    sensor's noise between two captures) keeps that fit instead of a new
+    one (``shape.completion.FitMemo``; 0 = always fit again)."""
     weights_file: str = "models/deepsdf/pepper_decoder.pt"
     mean_latent_file: str = ""
     method: str = "ssc"
     latent_size: int = 32
     free_space_voxel: float = 0.003
     leaf_split_angle_deg: float = 15.0
+    reuse_tolerance: float = 0.005
     w_sur: float = 1.0
     w_neg: float = 2.0
     w_ped: float = 0.1
@@ -990,6 +995,7 @@ _RULES = {
     "shape.latent_size": ">=1",
     "shape.free_space_voxel": ">0",
     "shape.leaf_split_angle_deg": ">=0",
+    "shape.reuse_tolerance": ">=0",
     "shape.w_sur": ">=0",
     "shape.w_neg": ">=0",
     "shape.w_ped": ">=0",

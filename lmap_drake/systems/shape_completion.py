@@ -42,7 +42,7 @@ from pydrake.systems.framework import LeafSystem
 
 from lmap_drake.scenario import ShapeConfig
 from lmap_drake.shape.branch import BranchCompletionParams
-from lmap_drake.shape.completion import CompletePlant, CompleteScene
+from lmap_drake.shape.completion import CompletePlant, CompleteScene, FitMemo
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.ssc import SscParams
 from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
@@ -62,9 +62,13 @@ class ShapeCompletion(LeafSystem):
 
     def __init__(self, cfg: ShapeConfig | None = None, decoder=None, mean_latent=None,
                  reestimate: bool = False, method: str | None = None,
-                 focus_port: bool = False):
+                 focus_port: bool = False, fit_memo: FitMemo | None = None):
         super().__init__()
         self.cfg = cfg or ShapeConfig()
+        # earlier fruit fits, reused for a fruit seen again unchanged (shared
+        # by the episode's rebuilt diagrams; see FitMemo)
+        self.fit_memo = fit_memo if fit_memo is not None else FitMemo(
+            tolerance=self.cfg.reuse_tolerance)
         if decoder is None and (method or getattr(self.cfg, "method", "ssc")) != "supeps":
             decoder, mean_latent, _ = LoadDecoder(self.cfg.weights_file,
                                                   getattr(self.cfg, "mean_latent_file", "")
@@ -121,7 +125,7 @@ class ShapeCompletion(LeafSystem):
         est = CompletePlant(sem, self.decoder, self.mean_latent, self.params(re), self.method,
                             self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg),
                             timings=timings, leaf_split_angle_deg=self.cfg.leaf_split_angle_deg,
-                            focus_W=focus)
+                            focus_W=focus, memo=self.fit_memo)
         self.last_timings = timings
         self._plant_memo = (key, est)
         output.set_value(est)

@@ -110,3 +110,47 @@ def test_complete_plant_gives_the_same_estimates_in_one_thread_or_two(decoder):
         assert np.array_equal(a.X_WO, b.X_WO) and np.array_equal(a.vertices_W, b.vertices_W)
     # the per-fruit seconds are summed over the threads
     assert t2["fruit_s"] > 0 and set(t1) == set(t2)
+
+
+def test_a_fruit_seen_again_unchanged_keeps_its_fit_and_a_changed_one_is_fitted_again(decoder):
+    """``FitMemo``: a new view whose points differ from the last one by
+    sensor noise only reuses the fits (nothing is fitted); a leaf moved next
+    to one fruit makes that fruit, and only it, be fitted again; fits are
+    never reused within their own view."""
+    from lmap_drake.shape.completion import CompletePlant, FitMemo
+    dec, mean = decoder
+    sem = MakeSyntheticCase(0, occluded=False).semantic
+    f = np.asarray(sem.fruit_points_W, float)
+    pts = np.vstack([f, f + [0.3, 0.0, 0.0]])
+    ids = np.r_[np.zeros(len(f), int), np.ones(len(f), int)]
+    first = dc.replace(sem, fruit_points_W=pts, fruit_instance=ids,
+                       leaf_points_W=np.zeros((0, 3)))
+    P = SscParams(iterations=20)
+    memo = FitMemo(tolerance=0.005)
+    t0 = {}
+    a = CompletePlant(first, dec, mean, P, "ssc", memo=memo, timings=t0)
+    assert len(a.fruits) == 2 and "fits_reused" not in t0 and len(memo.entries) == 2
+    # the same scene, captured again: every point moved by ~2 mm of noise
+    rng = np.random.default_rng(0)
+    noisy = dc.replace(first, fruit_points_W=pts + rng.normal(0, 0.0012, pts.shape))
+    t1 = {}
+    b = CompletePlant(noisy, dec, mean, P, "ssc", memo=memo, timings=t1)
+    assert t1.get("fits_reused") == 2 and "fruit_s" not in t1
+    assert all(x is y for x, y in zip(a.fruits, b.fruits))
+    # a leaf now hangs 2 cm in front of the second fruit: it alone is fitted again
+    leaf = f[::4] + [0.3, -0.02, 0.0]
+    moved = dc.replace(noisy, leaf_points_W=leaf, leaf_instance=np.zeros(len(leaf), int))
+    t2 = {}
+    c = CompletePlant(moved, dec, mean, P, "ssc", memo=memo, timings=t2)
+    assert t2.get("fits_reused") == 1 and t2["fruit_s"] > 0
+    assert c.fruits[0] is a.fruits[0] and c.fruits[1] is not a.fruits[1]
+    # the second fruit half hidden: fewer points, fitted again
+    half = np.r_[np.ones(len(f), bool), f[:, 2] > np.median(f[:, 2])]
+    hidden = dc.replace(noisy, fruit_points_W=pts[half], fruit_instance=ids[half])
+    t3 = {}
+    CompletePlant(hidden, dec, mean, P, "ssc", memo=memo, timings=t3)
+    assert t3.get("fits_reused") == 1
+    # reuse off
+    t4 = {}
+    CompletePlant(noisy, dec, mean, P, "ssc", memo=FitMemo(tolerance=0.0), timings=t4)
+    assert "fits_reused" not in t4
