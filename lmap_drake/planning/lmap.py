@@ -205,38 +205,59 @@ def _LeafObstacles(ctx: PlanningContext) -> tuple:
     return cached
 
 
-def _ApproachCollision(ctx: PlanningContext, cfg: PlannerConfig, approach, half_open: float
-                       ) -> str:
-    """Robot checks along the whole approach: the joint move from the current
-    joints to the via point (sampled), the Cartesian waypoints to the ready
-    and pre-grasp poses and the final approach: fruit, branch and the
-    observed leaf points all keep the margin from the robot (in the final
-    approach the leaf must therefore pass between the open pads)."""
-    robot = ctx.robot
-    free = [ctx.q_current + f * (approach.via - ctx.q_current) for f in np.linspace(0, 1, 8)[1:]]
-    free += list(approach.to_ready) + list(approach.to_pregrasp)
-    # (the other leaves of the plant are obstacles like the grasped one)
-    leaf_tree, leaf_box = _LeafObstacles(ctx)
-    if leaf_tree is not None:   # only robot points near the leaves' box can be within the margin
-        leaf_lo = leaf_box[0] - cfg.collision_margin
-        leaf_hi = leaf_box[1] + cfg.collision_margin
-    # During the approach the leaf must pass between the open pads: every
-    # observed leaf point keeps the margin from the robot, pads included.
-    for path, when, leaf_why in (
-            (free, "on the way to the pre-grasp", ""),
-            (approach.to_grasp, "during the approach", " (leaf not between the pads)")):
-        for q in path:
-            pts = robot.SurfacePointsByBody(q, half_open)
-            # the approach's joint moves are fast and sampled: distant
-            # links also keep SELF_MARGIN there
-            why = _RobotPoseReason(robot, q, half_open, pts, ctx, cfg, SELF_MARGIN)
+class _ApproachChecks:
+    """Robot checks along an approach with the pads ``half_open`` (m) apart:
+    fruit, branch and every observed leaf keep the margin from the robot
+    (in the final approach the leaf must therefore pass between the open
+    pads), and links three or more joints apart keep ``SELF_MARGIN`` (the
+    approach's joint moves are fast and sampled). ``Pose(segment, q)`` is
+    ``PlanApproach``'s check: "grasp" poses are the final approach, the
+    others lie on the way to the pre-grasp; ``FreeMove`` samples the joint
+    move from the current joints to the via point. Results are kept by
+    joint vector in ``memo`` (a ready pose closer to the pre-grasp repeats
+    the approach's first poses)."""
+
+    def __init__(self, ctx: PlanningContext, cfg: PlannerConfig, half_open: float,
+                 memo: dict | None = None):
+        self.ctx, self.cfg, self.half_open = ctx, cfg, float(half_open)
+        self.memo = {} if memo is None else memo
+        self.leaf_tree, box = _LeafObstacles(ctx)
+        if self.leaf_tree is not None:  # only robot points near the leaves' box can be close
+            self.leaf_lo = box[0] - cfg.collision_margin
+            self.leaf_hi = box[1] + cfg.collision_margin
+
+    def _Reason(self, q: np.ndarray) -> str:
+        """'' or the robot's reason at ``q`` without where: '...', or
+        'robot-leaf'."""
+        key = (np.asarray(q, float).tobytes(), self.half_open)
+        if key in self.memo:
+            return self.memo[key]
+        robot, cfg = self.ctx.robot, self.cfg
+        pts = robot.SurfacePointsByBody(q, self.half_open)
+        why = _RobotPoseReason(robot, q, self.half_open, pts, self.ctx, cfg, SELF_MARGIN)
+        if not why and self.leaf_tree is not None:
+            near = NearBox(pts, self.leaf_lo, self.leaf_hi)
+            if len(near) and self.leaf_tree.query(near)[0].min() < cfg.collision_margin:
+                why = "robot-leaf"
+        self.memo[key] = why
+        return why
+
+    def Pose(self, segment: str, q: np.ndarray) -> str:
+        why = self._Reason(q)
+        if not why:
+            return ""
+        if segment == "grasp":
+            return why + (" during the approach (leaf not between the pads)"
+                          if why == "robot-leaf" else " during the approach")
+        return why + " on the way to the pre-grasp"
+
+    def FreeMove(self, via: np.ndarray) -> str:
+        q0 = self.ctx.q_current
+        for f in np.linspace(0, 1, 8)[1:-1][::-1]:      # (the via point itself is checked)
+            why = self.Pose("staging", q0 + f * (via - q0))
             if why:
-                return f"{why} {when}"
-            if leaf_tree is not None:
-                near = NearBox(pts, leaf_lo, leaf_hi)
-                if len(near) and leaf_tree.query(near)[0].min() < cfg.collision_margin:
-                    return f"robot-leaf {when}{leaf_why}"
-    return ""
+                return why
+        return ""
 
 
 def NarrowOpening(leaf_W: np.ndarray, grasp, cfg: PlannerConfig) -> float:
@@ -253,26 +274,36 @@ def NarrowOpening(leaf_W: np.ndarray, grasp, cfg: PlannerConfig) -> float:
     return float(np.clip(opening, 0.015, cfg.pregrasp_opening))
 
 
-def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float):
+def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
+              memo: dict | None = None):
     """The approach to ``grasp`` with its ready pose ``ready`` (m) behind the
     pre-grasp (an ``ApproachPlan``), or why there is none: the configured
     opening first; if the open pads hit the fruit close behind the leaf (or
     the leaf), the narrowest opening that still lets the observed leaf pass
-    between them."""
-    from lmap_drake.planning.motion import MotionError, PlanApproach
+    between them. ``memo`` (a dict, one per grasp orientation) keeps IK
+    solutions and pose checks for the next ready distance."""
+    from lmap_drake.planning.motion import ApproachBlocked, MotionError, PlanApproach
     why = ""
+    memo = memo if memo is not None else {}
     for opening in dict.fromkeys([cfg.pregrasp_opening,
                                   NarrowOpening(ctx.leaf_W, grasp, cfg)]):
+        # each pose is checked as soon as it is solved, from the grasp
+        # outward: a blocked approach stops before the rest of its IK
+        checks = (_ApproachChecks(ctx, cfg, 0.5 * opening, memo.setdefault(opening, {}))
+                  if np.isfinite(cfg.collision_margin) else None)
         try:
             approach = PlanApproach(ctx.robot,
                                     RigidTransform(RotationMatrix(grasp.R_WG), grasp.p_WG),
                                     ctx.q_current,
                                     grasp.R_WG[:, 1], cfg.pregrasp_distance, opening,
-                                    ready_extra=ready)
+                                    ready_extra=ready,
+                                    check=None if checks is None else checks.Pose,
+                                    memo=memo.setdefault("ik", {}))
+            why = "" if checks is None else checks.FreeMove(approach.via)
         except MotionError as err:
             return f"IK failed ({'staging' if err.staging else 'approach'}): {err}"
-        why = (_ApproachCollision(ctx, cfg, approach, 0.5 * opening)
-               if np.isfinite(cfg.collision_margin) else "")
+        except ApproachBlocked as err:
+            why = str(err)
         if not why:
             return approach
         if not why.startswith(("robot-fruit", "robot-leaf")):
@@ -293,8 +324,9 @@ def _IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     # (``ready_distances``): on the far side of a plant the default one
     # can lie beyond the arm's reach.
     why = ""
+    memo: dict = {}
     for ready in cfg.ready_distances:
-        got = _Approach(ctx, cfg, grasp, ready)
+        got = _Approach(ctx, cfg, grasp, ready, memo)
         if isinstance(got, ApproachPlan):
             approach, why = got, ""
             break

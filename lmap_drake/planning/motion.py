@@ -44,16 +44,36 @@ def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
     return out
 
 
-def IkPath(robot, poses: list[RigidTransform], seed: np.ndarray, half_opening: float
-           ) -> list[np.ndarray]:
+class ApproachBlocked(RuntimeError):
+    """A solved pose of an approach failed the caller's check
+    (``PlanApproach``'s ``check``); the message is the check's reason."""
+
+
+def IkPath(robot, poses: list[RigidTransform], seed: np.ndarray, half_opening: float,
+           check=None, memo: dict | None = None) -> list[np.ndarray]:
     """IK for each pose, each warm-started from the previous solution (the
-    first may use random restarts). Raises MotionError naming the pose."""
+    first may use random restarts). Raises MotionError naming the pose.
+    ``check(k, q) -> str`` runs on each solution as it comes; a non-empty
+    reason stops the path (``ApproachBlocked``). ``memo`` (a dict) keeps
+    the solutions by pose and seed: the same request is solved once."""
     out = []
     for k, X in enumerate(poses):
-        r = robot.Ik(X, seed, half_opening, multistart=(k == 0))
+        key = None
+        if memo is not None:
+            key = (X.GetAsMatrix4().tobytes(), np.asarray(seed, float).tobytes(),
+                   float(half_opening), k == 0)
+            r = memo.get(key)
+        if key is None or r is None:
+            r = robot.Ik(X, seed, half_opening, multistart=(k == 0))
+            if key is not None:
+                memo[key] = r
         if not r.success:
             raise MotionError(f"IK failed for the TCP pose at {X.translation().round(3)}: "
                               f"{r.reason}", index=k)
+        if check is not None:
+            why = check(k, r.q)
+            if why:
+                raise ApproachBlocked(why)
         out.append(r.q)
         seed = r.q
     return out
@@ -74,13 +94,18 @@ class ApproachPlan:
 def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
                  toward_camera_W: np.ndarray, pregrasp_distance: float = 0.05,
                  pregrasp_opening: float = 0.02, ready_extra: float = 0.08,
-                 via_offset: float = 0.12) -> ApproachPlan:
+                 via_offset: float = 0.12, check=None, memo: dict | None = None
+                 ) -> ApproachPlan:
     """The approach to a grasp: the pre-grasp sits ``pregrasp_distance``
     back along the approach axis (TCP z), a ready pose ``ready_extra``
     further back, and a via point ``via_offset`` from the ready pose toward
     the camera side of the leaf (``toward_camera_W``). Raises
     ``MotionError`` (with ``staging`` True when the pose without IK lies
-    beyond the pre-grasp)."""
+    beyond the pre-grasp). ``check(segment, q) -> str`` runs on each pose
+    as it is solved, from the grasp outward (``segment`` "grasp": the
+    final approach after the pre-grasp; "staging": the pre-grasp, the ready
+    pose, the via point and the lines between them); a reason stops the
+    planning (``ApproachBlocked``). ``memo``: see ``IkPath``."""
     R = X_WT_grasp.rotation()
     z = R.col(2)
 
@@ -93,8 +118,12 @@ def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
     ready_poses = CartesianPath(X_via, X_ready, 0.02)
     backwards = ([X_WT_grasp] + grasp_poses[::-1][1:] + [X_pre] + pre_poses[::-1][1:]
                  + [X_ready] + ready_poses[::-1][1:] + [X_via])
+    n_g = len(grasp_poses)
+    check_k = None if check is None else (
+        lambda k, q: check("grasp" if k < n_g else "staging", q))
     try:
-        chain = IkPath(robot, backwards, q_current, 0.5 * pregrasp_opening)[::-1]
+        chain = IkPath(robot, backwards, q_current, 0.5 * pregrasp_opening, check_k,
+                       memo)[::-1]
     except MotionError as err:      # backwards[len(grasp_poses)] is the pre-grasp
         err.staging = err.index is not None and err.index > len(grasp_poses)
         raise

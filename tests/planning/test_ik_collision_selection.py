@@ -179,7 +179,12 @@ def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
     grasp = SimpleNamespace(p_WG=p, R_WG=R, grasp_id=0)
     pull = Action(p, R, dp_W=np.array([0.0, 0.0, 0.02]), grasp_id=0, direction_id=0)
     far = _IkAndRobotChecks(ctx, grasp, PlannerConfig(ready_distances=[0.08]), [pull])
-    assert far[0].reason.startswith("IK failed (staging)") and far[0].approach is None
+    # (each pose is checked as it is solved, from the grasp outward: the
+    # forearm meets the gripper on the way to that ready pose before its IK
+    # fails; either is a failure of the staging)
+    assert (far[0].reason.startswith("IK failed (staging)")
+            or far[0].reason.endswith("on the way to the pre-grasp")), far[0].reason
+    assert far[0].approach is None
     assert PlannerConfig().ready_distances == [0.08, 0.02]      # the fallback is the default
     (c,) = _IkAndRobotChecks(ctx, grasp, PlannerConfig(), [pull])
     assert c.approach is not None and not c.reason.startswith("IK failed"), c.reason
