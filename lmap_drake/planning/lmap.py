@@ -214,8 +214,8 @@ class _ApproachChecks:
     ``PlanApproach``'s check: "grasp" poses are the final approach, the
     others lie on the way to the pre-grasp; ``FreeMove`` samples the joint
     move from the current joints to the via point. Results are kept by
-    joint vector in ``memo`` (a ready pose closer to the pre-grasp repeats
-    the approach's first poses)."""
+    joint vector and opening in ``memo`` (a ready pose closer to the
+    pre-grasp repeats the approach's first poses)."""
 
     def __init__(self, ctx: PlanningContext, cfg: PlannerConfig, half_open: float,
                  memo: dict | None = None):
@@ -289,7 +289,7 @@ def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
                                   NarrowOpening(ctx.leaf_W, grasp, cfg)]):
         # each pose is checked as soon as it is solved, from the grasp
         # outward: a blocked approach stops before the rest of its IK
-        checks = (_ApproachChecks(ctx, cfg, 0.5 * opening, memo.setdefault(opening, {}))
+        checks = (_ApproachChecks(ctx, cfg, 0.5 * opening, memo.setdefault("checks", {}))
                   if np.isfinite(cfg.collision_margin) else None)
         try:
             approach = PlanApproach(ctx.robot,

@@ -32,7 +32,7 @@ def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
     spaced about ``step`` (m) or 10 deg apart."""
     d = float(np.linalg.norm(X1.translation() - X0.translation()))
     R0, R1 = X0.rotation(), X1.rotation()
-    turn = R0.InvertAndCompose(X1.rotation()).ToAngleAxis()   # R0^T R1, in X0's frame
+    turn = R0.InvertAndCompose(R1).ToAngleAxis()   # R0^T R1, in X0's frame
     angle = turn.angle()
     n = max(1, int(np.ceil(max(d / step, angle / np.deg2rad(10)))))
     out = []
@@ -58,12 +58,11 @@ def IkPath(robot, poses: list[RigidTransform], seed: np.ndarray, half_opening: f
     the solutions by pose and seed: the same request is solved once."""
     out = []
     for k, X in enumerate(poses):
-        key = None
-        if memo is not None:
-            key = (X.GetAsMatrix4().tobytes(), np.asarray(seed, float).tobytes(),
-                   float(half_opening), k == 0)
-            r = memo.get(key)
-        if key is None or r is None:
+        key = None if memo is None else (X.GetAsMatrix4().tobytes(),
+                                         np.asarray(seed, float).tobytes(),
+                                         float(half_opening), k == 0)
+        r = None if key is None else memo.get(key)
+        if r is None:
             r = robot.Ik(X, seed, half_opening, multistart=(k == 0))
             if key is not None:
                 memo[key] = r

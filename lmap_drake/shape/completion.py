@@ -126,7 +126,6 @@ class FitMemo:
     count_ratio: float = 1.25
     reach: float = 0.12
     entries: list = dc.field(default_factory=list)
-    reused: int = 0
     view: int = 0
 
     def NewView(self) -> None:
@@ -160,7 +159,6 @@ class FitMemo:
         hood = self._Hood(semantic, fruit)
         for view, k, f, h, est in list(self.entries):
             if view < self.view and k == key and self._Same(fruit, f) and self._Same(hood, h):
-                self.reused += 1
                 return est, hood
         return None, hood
 
