@@ -788,6 +788,44 @@ def _unknown_keys(schema, data, path: str) -> list[str]:
     return out
 
 
+def _bad_scalars(schema, data, path: str) -> list[str]:
+    """Dotted paths of scalars in ``data`` that cannot be the number or
+    boolean ``schema`` asks for (e.g. ``abc`` for a float), with the value."""
+    if typing.get_origin(schema) is typing.Union or type(schema).__name__ == "UnionType":
+        args = [a for a in typing.get_args(schema) if a is not type(None)]
+        if data is None:
+            return []
+        if len(args) == 1:
+            schema = args[0]
+    origin = typing.get_origin(schema)
+    if origin in (list, typing.List, collections.abc.Sequence) and isinstance(data, list):
+        item_type = typing.get_args(schema)[0] if typing.get_args(schema) else None
+        return [b for i, v in enumerate(data) for b in _bad_scalars(item_type, v, f"{path}[{i}]")]
+    if origin in (dict, typing.Mapping, collections.abc.Mapping) and isinstance(data, dict):
+        value_type = typing.get_args(schema)[1]
+        return [b for k, v in data.items() for b in _bad_scalars(value_type, v, f"{path}.{k}")]
+    fields = _schema_fields(schema)
+    if fields is not None:
+        if not isinstance(data, dict):
+            return []
+        return [b for k, v in data.items() if k in fields
+                for b in _bad_scalars(fields[k], v, f"{path}.{k}" if path else k)]
+    if schema in (float, int) and not isinstance(data, (dict, list)):
+        ok = not isinstance(data, bool)
+        if ok and isinstance(data, str):
+            try:
+                (float if schema is float else int)(data)
+            except ValueError:
+                ok = False
+        elif ok and schema is int and isinstance(data, float):
+            ok = data.is_integer()
+        if not ok:
+            return [f"{path} = {data!r} (expected {'a number' if schema is float else 'an integer'})"]
+    if schema is bool and not isinstance(data, (bool, dict, list)):
+        return [f"{path} = {data!r} (expected true or false)"]
+    return []
+
+
 def _RawYaml(text: str, where: str = "the YAML text"):
     """Plain-YAML parse that keeps Drake's tagged values (``!Rpy``) as maps.
     A duplicate key or malformed YAML raises ScenarioError naming ``where``
@@ -836,6 +874,10 @@ def _explain(err: Exception, raw: dict | None, root: str, where: str) -> Scenari
                    f"fields of the Scenario dataclasses in lmap_drake/scenario.py "
                    f"(Drake said: {msg})")
             return ScenarioError(msg)
+        bad = _bad_scalars(Scenario, raw, root)
+        if bad:
+            return ScenarioError(f"bad value(s) in {where}: {'; '.join(bad)} "
+                                 f"(Drake said: {msg})")
     return ScenarioError(f"could not load scenario from {where}: {msg}")
 
 

@@ -103,3 +103,18 @@ def test_scenario_text_list_is_applied_in_order():
     assert s.planner.energy_weight == 0.0 and s.planner.num_grasps == 3
     with pytest.raises(ScenarioError, match="bogus"):
         LoadScenario(scenario_text=["{}", "{planner: {bogus: 1}}"])
+
+
+def test_a_value_of_the_wrong_type_names_its_key(tmp_path):
+    cases = {"{shape: {reuse_tolerance: abc}}": r"shape\.reuse_tolerance = 'abc'",
+             "{planner: {ready_distances: [0.08, x]}}": r"planner\.ready_distances\[1\] = 'x'",
+             "{camera_noise: {enabled: maybe}}": r"camera_noise\.enabled = 'maybe'"}
+    for text, key in cases.items():
+        with pytest.raises(ScenarioError, match=key):
+            LoadScenario(scenario_text=text)
+    # Numbers PyYAML reads as strings but Drake reads as numbers are not flagged.
+    assert LoadScenario(scenario_text="{shape: {reuse_tolerance: 1e-3}}").shape.reuse_tolerance == 1e-3
+    path = tmp_path / "s.yaml"
+    path.write_text("mine:\n  shape: {reuse_tolerance: abc}\n")
+    with pytest.raises(ScenarioError, match=r"s\.yaml.*mine\.shape\.reuse_tolerance = 'abc'"):
+        LoadScenario(filename=path, scenario_name="mine")
