@@ -97,6 +97,7 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
         files.append("plan_on_image.png")
     if getattr(st, "targets", None) or hasattr(model, "leaves"):
         files += SavePlantFigure(result, out)
+        files += SaveTargetPlanFigures(result, out)
         return files
     fig = plt.figure(figsize=(12, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
@@ -145,13 +146,15 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     return files
 
 
-def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
+def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
+                observed_leaf: bool = True, max_dots: int = 3000) -> np.ndarray:
     """The camera image (greyed) with the planner's view of the chosen
     action drawn over it: the observed leaf (yellow), the predicted
     deformed leaf (green), the fruit estimate's outline (magenta), the grasp
     point and the pull (blue arrow), and a caption with the predicted
     energy and visibility. ``K``: ``perception.points.Intrinsics``; ``X_WC``
-    4x4, the camera's pose in W."""
+    4x4, the camera's pose in W. ``observed_leaf`` False leaves the observed
+    leaf out; ``max_dots`` caps the dots per point set."""
     from PIL import ImageDraw
     base = RgbArray(rgb).astype(float)
     base = 0.45 * base + 0.55 * base.mean(axis=2, keepdims=True)
@@ -166,15 +169,17 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
             if np.isfinite(u) and 0 <= u < w and 0 <= v < h:
                 draw.ellipse([u - r, v - r, u + r, v + r], fill=color)
     if estimate is not None:
-        dots(estimate.semantic.leaf_points_W, (255, 225, 0), max(1, len(
-            estimate.semantic.leaf_points_W) // 3000))
+        if observed_leaf:
+            dots(estimate.semantic.leaf_points_W, (255, 225, 0), max(1, len(
+                estimate.semantic.leaf_points_W) // max_dots))
         if estimate.fruit is not None:
-            dots(estimate.fruit.vertices_W, (255, 0, 200), 4)
+            dots(estimate.fruit.vertices_W, (255, 0, 200),
+                 max(4, len(estimate.fruit.vertices_W) // max_dots))
     lines = [f"plan: {plan.status} ({plan.method})"]
     c = plan.chosen
     if c is not None:
         if c.deformed_leaf_W is not None:
-            dots(c.deformed_leaf_W, (60, 255, 60), max(1, len(c.deformed_leaf_W) // 3000))
+            dots(c.deformed_leaf_W, (60, 255, 60), max(1, len(c.deformed_leaf_W) // max_dots))
         a = c.action
         uv = ProjectPoints(np.vstack([a.p_WG] + [p for p, _ in a.Poses(0.005)]), K, X_WC)
         (u0, v0), (u1, v1) = uv[0], uv[-1]
@@ -204,6 +209,44 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray) -> np.ndarray:
         draw.text((7, y + 1), text, fill=color)
         y += 16
     return np.asarray(img)
+
+
+def SaveTargetPlanFigures(result, out: Path) -> list[str]:
+    """Several fruits: ``plan_fruit<k>.png`` for each target with an action,
+    the prediction beside what happened: left, the plan over the view it was
+    made in (``PlanOnImage``); right, the same predicted leaf and fruit
+    estimate over the view taken while the leaf was held."""
+    views = getattr(result, "views", ())
+    st = result.status
+    if not views:
+        return []
+    from lmap_drake.perception.points import Intrinsics
+    cam = result.world.scenario.cameras["camera0"]
+    K = Intrinsics.FromCameraConfig(cam)
+    X_WC = cam.X_PB.GetDeterministicValue().GetAsMatrix4()
+    files = []
+    for n, t in enumerate(st.targets):
+        plan, k, k_after = t.get("plan"), t.get("view_plan"), t.get("view_after")
+        if plan is None or plan.chosen is None or k is None or not 0 <= k < len(views):
+            continue
+        est = t.get("initial_estimate")
+        panels = [PlanOnImage(views[k].rgb, plan, est, K, X_WC)]
+        if k_after is not None and 0 <= k_after < len(views):
+            held = Image.fromarray(PlanOnImage(views[k_after].rgb, plan, est, K, X_WC,
+                                               observed_leaf=False, max_dots=400))
+            from PIL import ImageDraw
+            draw = ImageDraw.Draw(held)
+            draw.rectangle([0, 0, held.width, 66], fill=(0, 0, 0))
+            draw.text((7, 5), f"what happened: view {k_after}, leaf held, with the "
+                      f"predicted leaf (green) and fruit estimate (magenta)",
+                      fill=(255, 255, 255))
+            panels.append(np.asarray(held))
+        fruit = (t.get("target") or {}).get("fruit_id", n)
+        name = f"plan_fruit{fruit}.png" if f"plan_fruit{fruit}.png" not in files else \
+            f"plan_fruit{fruit}_{n}.png"
+        Image.fromarray(np.hstack(panels)).save(out / name)
+        files.append(name)
+    return files
 
 
 def SavePlantFigure(result, out: Path) -> list[str]:
