@@ -23,6 +23,12 @@ METHODS = ("ssc", "homa", "supeps")
 # Fragments whose points lie this close (m, median |SDF|) to another
 # fragment's completed surface are one fruit (``CompletePlant``).
 MERGE_DISTANCE = 0.006
+# A merge stands only if the union's fit puts every fragment's points as
+# close to its surface (median |SDF|) as the fragment's own fit did, within
+# this (m): fragments of one fruit fit together (here +0.0-0.3 mm); a piece
+# of stalk the segmenter took for fruit, 5 cm above the fruit's centre, does
+# not (+1.0 mm: the union stretched the fruit to reach it, 2x its volume).
+MERGE_RESIDUAL_TOLERANCE = 0.0005
 
 
 def LargestInstance(points: np.ndarray, instance: np.ndarray) -> np.ndarray:
@@ -183,6 +189,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                   branch_params: BranchCompletionParams | None = None,
                   min_fruit_points: int = 30, timings: dict | None = None,
                   merge_distance: float = MERGE_DISTANCE,
+                  merge_tolerance: float = MERGE_RESIDUAL_TOLERANCE,
                   leaf_split_angle_deg: float = 15.0,
                   focus_W: np.ndarray | None = None,
                   focus_radius: float = 0.08, workers: int | None = None,
@@ -192,7 +199,9 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     estimate per fruit), and the branches completed once. Fragments of one
     fruit (split by a leaf across it) are merged when one lies within
     ``merge_distance`` (m, median) of the other's completed surface, or when
-    the two completed shapes overlap (``FruitsOverlap``). Touching leaves are
+    the two completed shapes overlap (``FruitsOverlap``), and the union's
+    fit holds both (``UnionExplains`` within ``merge_tolerance``); else the
+    smaller is dropped (instance -1, flag ``fruit_fragment_dropped``). Touching leaves are
     told apart (``SplitTouchingLeaves`` at ``leaf_split_angle_deg``; 0 =
     not), and so are blades lying flush (``SplitOversizedLeaves``). ``focus_W`` (W, m): only the instances whose points' centroid lies
     within ``focus_radius`` of it are completed (the re-estimate of the fruit
@@ -252,30 +261,61 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     # A leaf across a fruit splits its visible part into fragments that
     # cluster apart: fragments lying on one another's completed surface are
     # one fruit, completed again from all of them.
+    # If the union's fit cannot hold both (``UnionExplains``), the two cannot
+    # be one fruit, nor two (their fits overlap or lie on each other): the
+    # smaller one's points are not kept as fruit.
     merged = True
+    dropped: list[int] = []
     while merged and len(groups) > 1:
         merged = False
         for a in range(len(groups)):
             for b in range(a + 1, len(groups)):
-                if FruitsOverlap(ests[a], ests[b]) or \
-                        PointsOnFruit(ests[a], pts[np.isin(inst, groups[b])], merge_distance) or \
-                        PointsOnFruit(ests[b], pts[np.isin(inst, groups[a])], merge_distance):
-                    groups[a] = groups[a] + groups.pop(b)
-                    ests.pop(b)
-                    ests[a] = complete(groups[a], timings)
+                pa, pb = pts[np.isin(inst, groups[a])], pts[np.isin(inst, groups[b])]
+                if FruitsOverlap(ests[a], ests[b]) or PointsOnFruit(ests[a], pb, merge_distance) \
+                        or PointsOnFruit(ests[b], pa, merge_distance):
+                    union = complete(groups[a] + groups[b], timings)
+                    if UnionExplains(union, [(pa, ests[a]), (pb, ests[b])], merge_tolerance):
+                        groups[a] = groups[a] + groups.pop(b)
+                        ests.pop(b)
+                        ests[a] = union
+                    else:
+                        small = b if len(pb) <= len(pa) else a
+                        dropped += groups.pop(small)
+                        ests.pop(small)
                     merged = True
                     break
             if merged:
                 break
     out.fruits = ests
     out.fruit_ids = [g[0] for g in groups]
-    if any(len(g) > 1 for g in groups):
-        # the merged fragments carry the id of their largest part
+    if any(len(g) > 1 for g in groups) or dropped:
+        # the merged fragments carry the id of their largest part; the
+        # dropped ones are no fruit's (-1)
         inst = inst.copy()
         for g in groups:
             inst[np.isin(inst, g)] = g[0]
+        inst[np.isin(inst, dropped)] = -1
         out.semantic = dc.replace(semantic, fruit_instance=inst)
+    if dropped:
+        out.semantic.flags = list(out.semantic.flags) + [
+            f"fruit_fragment_dropped:{len(dropped)}"]
     return out
+
+
+def UnionExplains(union, parts, tolerance: float = MERGE_RESIDUAL_TOLERANCE) -> bool:
+    """The union's fit puts every part's points (``parts``: (points, the
+    part's own fit)) within ``tolerance`` (m) of the median |SDF| the part's
+    own fit gave them."""
+    if union is None or union.sdf_W is None:
+        return False
+    for points, own in parts:
+        if own is None or own.sdf_W is None or len(points) == 0:
+            continue
+        mine = float(np.median(np.abs(np.asarray(own.sdf_W(points), float))))
+        theirs = float(np.median(np.abs(np.asarray(union.sdf_W(points), float))))
+        if not theirs <= mine + tolerance:
+            return False
+    return True
 
 
 def FruitsOverlap(a, b, fraction: float = 0.6) -> bool:

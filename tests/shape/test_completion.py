@@ -154,3 +154,50 @@ def test_a_fruit_seen_again_unchanged_keeps_its_fit_and_a_changed_one_is_fitted_
     t4 = {}
     CompletePlant(noisy, dec, mean, P, "ssc", memo=FitMemo(tolerance=0.0), timings=t4)
     assert "fits_reused" not in t4
+
+
+def _SphereFit(semantic, fruit, other_fruits, *args, **kwargs):
+    """A least-squares sphere standing in for SSC (the merge logic only
+    needs a fit with an SDF): |p|^2 = 2 c.p + (r^2 - |c|^2)."""
+    from lmap_drake.types import FruitEstimate
+    A = np.c_[2 * fruit, np.ones(len(fruit))]
+    sol = np.linalg.lstsq(A, (fruit ** 2).sum(1), rcond=None)[0]
+    c, r = sol[:3], float(np.sqrt(sol[3] + sol[:3] @ sol[:3]))
+    d = np.random.default_rng(0).normal(size=(500, 3))
+    verts = c + r * d / np.linalg.norm(d, axis=1, keepdims=True)
+    return FruitEstimate(verts, np.zeros((0, 3), int), np.eye(4), np.zeros(1), c,
+                         np.array([0.0, 0.0, 1.0]),
+                         sdf_W=lambda p, c=c, r=r: np.linalg.norm(p - c, axis=1) - r)
+
+
+def test_fragments_merge_only_if_one_fit_holds_them_all(monkeypatch):
+    """Fragments of one fruit (a strip hidden between them) merge; a patch
+    that overlaps the fruit but lies off any one surface through both (a
+    piece of stalk the segmenter took for fruit) is dropped, not merged: the
+    union would stretch the fruit to reach it."""
+    from lmap_drake.shape import completion
+    from lmap_drake.types import SemanticScene
+    monkeypatch.setattr(completion, "_CompleteFruit", _SphereFit)
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    cap = d[(d[:, 1] < -0.3) & (np.abs(d[:, 2]) > 0.15)]     # front cap, strip hidden
+    c0 = np.array([0.5, 0.0, 0.3])
+    fruit = c0 + 0.03 * cap
+    frag = (cap[:, 2] > 0).astype(int)                        # above / below the strip
+    stalk = c0 + [0.0, 0.0, 0.025] + 0.03 * cap[cap[:, 2] > 0.8][:40]   # 2.5 cm higher
+    pts = np.vstack([fruit, stalk])
+    ids = np.r_[frag, np.full(len(stalk), 2)]
+    sem = SemanticScene(X_WC=np.eye(4), fruit_points_W=pts, fruit_instance=ids)
+    plant = completion.CompletePlant(sem, method="homa", branch_params=None,
+                                     leaf_split_angle_deg=0)
+    assert len(plant.fruits) == 1
+    assert np.allclose(plant.fruits[0].center_W, c0, atol=1e-6)
+    inst = plant.semantic.fruit_instance
+    assert (inst[:len(fruit)] == plant.fruit_ids[0]).all() and (inst[len(fruit):] == -1).all()
+    assert "fruit_fragment_dropped:1" in plant.semantic.flags
+    # Without the check the union takes the patch and its sphere moves up.
+    loose = completion.CompletePlant(sem, method="homa", branch_params=None,
+                                     leaf_split_angle_deg=0, merge_tolerance=np.inf)
+    assert len(loose.fruits) == 1 and loose.fruits[0].center_W[2] > c0[2] + 0.002
+    assert (loose.semantic.fruit_instance >= 0).all()
