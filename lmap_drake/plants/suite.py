@@ -83,19 +83,6 @@ def PaperSuite() -> dict[str, PlantSceneConfig]:
     return out
 
 
-def _Buildable(cfg: PlantSceneConfig) -> bool:
-    """True if ``GeneratePlant`` builds ``cfg`` as requested from the default
-    camera (its occlusion is reachable, the fruit hangs on the branch)."""
-    from lmap_drake.plants.generator import GeneratePlant, PlantGenerationError
-    from lmap_drake.scenario import DefaultCameraConfig
-    p_WC = DefaultCameraConfig().X_PB.GetDeterministicValue().translation()
-    try:
-        GeneratePlant(cfg, p_WC)
-    except PlantGenerationError:
-        return False
-    return True
-
-
 def RandomSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneConfig]:
     """``n`` random plant scenes from ``seed`` (deterministic). A draw the
     plant generator cannot build as requested (e.g. a small leaf that cannot
@@ -114,11 +101,73 @@ def RandomSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneC
     return out
 
 
-def _RandomScene(rng) -> PlantSceneConfig:
-    """One random plant scene drawn from ``rng``."""
-    cfg = PlantSceneConfig(kind="procedural")
+def _Buildable(cfg: PlantSceneConfig) -> bool:
+    """True if the plant generator builds ``cfg`` as requested from the
+    default camera (its occlusion is reachable, the fruit hangs on the
+    branch; several fruits: their leaves fit clear of each other)."""
+    from lmap_drake.plants.generator import PlantGenerationError
+    from lmap_drake.scenario import DefaultCameraConfig
+    p_WC = DefaultCameraConfig().X_PB.GetDeterministicValue().translation()
+    try:
+        if cfg.kind == "multi":
+            from lmap_drake.plants.multi import GenerateMultiPlant
+            GenerateMultiPlant(cfg, p_WC)
+        else:
+            from lmap_drake.plants.generator import GeneratePlant
+            GeneratePlant(cfg, p_WC)
+    except PlantGenerationError:
+        return False
+    return True
+
+
+def RandomMultiSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneConfig]:
+    """``n`` random multi-fruit plants from ``seed`` (deterministic): 2-4
+    fruits of random procedural shape, colour, size (5.5-7.5 cm) and tilt,
+    spread up the stem on alternating sides, each under 0-2 leaves hiding
+    40-85 % of it, and up to one free leaf more (at most 6 leaves). A draw
+    the generator cannot build is replaced by the next one."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for i in range(n):
+        for _ in range(max_draws):
+            cfg = _RandomMultiScene(rng)
+            if _Buildable(cfg):
+                break
+        else:
+            raise ValueError(f"RandomMultiSuite({n}, {seed}): no buildable plant in "
+                             f"{max_draws} draws")
+        cfg.name = f"random_multi_{seed}_{i:03d}"
+        out[cfg.name] = cfg
+    return out
+
+
+def _RandomMultiScene(rng) -> PlantSceneConfig:
+    """One random multi-fruit plant drawn from ``rng``."""
+    from lmap_drake.scenario import MultiFruitConfig
+    nf = int(rng.integers(2, 5))
+    heights = 0.11 + np.arange(nf) * (0.27 / max(nf - 1, 1)) + rng.uniform(-0.01, 0.01, nf)
+    side = float(rng.choice([-1.0, 1.0]))
+    fruits = []
+    for j in range(nf):
+        leaves = int(rng.integers(0, 3))
+        f = MultiFruitConfig(height=float(heights[j]), side=side * (-1.0) ** j,
+                             occlusion=0.0 if leaves == 0 else float(rng.uniform(0.4, 0.85)),
+                             num_leaves=leaves)
+        _RandomPepper(rng, f.fruit)
+        size = float(rng.uniform(0.055, 0.075))
+        f.fruit.size = [size, size * float(rng.uniform(0.9, 1.0)),
+                        size * float(rng.uniform(1.0, 1.25))]
+        fruits.append(f)
+    cfg = PlantSceneConfig(kind="multi")
+    cfg.multi.fruits = fruits
+    cfg.multi.num_leaves = int(min(6, max(2, sum(f.num_leaves for f in fruits)
+                                          + int(rng.integers(0, 2)))))
+    return cfg
+
+
+def _RandomPepper(rng, f: FruitConfig) -> None:
+    """A random procedural pepper's shape, colour and tilt into ``f``."""
     shape = SamplePepperShape(rng)
-    f = cfg.fruit
     f.variant, f.size, f.lobes = shape.variant, list(shape.size), shape.lobes
     f.lobe_depth, f.squareness, f.shoulder = shape.lobe_depth, shape.squareness, shape.shoulder
     f.taper, f.cone = shape.taper, shape.cone
@@ -128,6 +177,12 @@ def _RandomScene(rng) -> PlantSceneConfig:
     f.stripes = int(rng.choice([0, 0, 3, 4]))
     f.tilt_deg = float(rng.uniform(0, 20))
     f.tilt_azimuth_deg = float(rng.uniform(0, 360))
+
+
+def _RandomScene(rng) -> PlantSceneConfig:
+    """One random plant scene drawn from ``rng``."""
+    cfg = PlantSceneConfig(kind="procedural")
+    _RandomPepper(rng, cfg.fruit)
     cfg.leaf.length = float(rng.uniform(0.08, 0.15))
     cfg.leaf.width = float(cfg.leaf.length * rng.uniform(0.45, 0.65))
     cfg.leaf.shape = str(rng.choice(["ovate", "elliptic"]))

@@ -190,3 +190,26 @@ def test_multi_suite_file_is_the_multi_suite():
         assert s.planner.targets == "all"
         assert np.allclose(s.robot.X_WB.GetDeterministicValue().translation(), [0.1, -0.25, 0])
     assert two >= 2
+
+
+def test_random_multi_plants_are_buildable_varied_and_fixed_by_their_seed(tmp_path):
+    """``make_suite.py --multi --random``: plants of 2-4 fruits and at most 6
+    leaves that the generator builds as drawn, the same for one seed."""
+    from lmap_drake.plants.suite import RandomMultiSuite, SuiteYaml, MULTI_SCENE_EXTRA
+    a, b = RandomMultiSuite(1, seed=11), RandomMultiSuite(1, seed=11)
+    c = RandomMultiSuite(1, seed=12)
+    sizes = lambda s: [[f.fruit.size for f in x.multi.fruits] for x in s.values()]
+    assert sizes(a) == sizes(b) and sizes(a) != sizes(c)
+    for cfg in a.values():
+        assert 2 <= len(cfg.multi.fruits) <= 4 and cfg.multi.num_leaves <= 6
+        model = GenerateMultiPlant(cfg, P_WC)
+        assert len(model.fruits) == len(cfg.multi.fruits)
+        for f, m in zip(cfg.multi.fruits, model.fruits):
+            if f.num_leaves and f.occlusion > 0:    # hidden as drawn
+                assert abs(m.occlusion_predicted - f.occlusion) <= OCCLUSION_TOLERANCE + 1e-9
+    path = tmp_path / "random_multi.yaml"
+    path.write_text(SuiteYaml(a, "# test", MULTI_SCENE_EXTRA))
+    for name in a:
+        s = LoadScenario(filename=path, scenario_name=name)
+        assert s.plant_scene.kind == "multi" and s.planner.targets == "all"
+        assert sizes({name: s.plant_scene}) == sizes({name: a[name]})
