@@ -212,7 +212,8 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
 
 
 def SaveTargetPlanFigures(result, out: Path) -> list[str]:
-    """Several fruits: ``plan_fruit<k>.png`` for each target with an action,
+    """Several fruits: ``plan_target<n>.png`` for the n-th target (the
+    episode's ``targets[n]``) if it had an action,
     the prediction beside what happened: left, the plan over the view it was
     made in (``PlanOnImage``); right, the same predicted leaf and fruit
     estimate over the view taken while the leaf was held."""
@@ -241,9 +242,7 @@ def SaveTargetPlanFigures(result, out: Path) -> list[str]:
                       f"predicted leaf (green) and fruit estimate (magenta)",
                       fill=(255, 255, 255))
             panels.append(np.asarray(held))
-        fruit = (t.get("target") or {}).get("fruit_id", n)
-        name = f"plan_fruit{fruit}.png" if f"plan_fruit{fruit}.png" not in files else \
-            f"plan_fruit{fruit}_{n}.png"
+        name = f"plan_target{n}.png"
         Image.fromarray(np.hstack(panels)).save(out / name)
         files.append(name)
     return files

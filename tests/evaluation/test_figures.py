@@ -26,7 +26,7 @@ def test_overlay_tints_each_class_in_a_contrasting_colour_with_outlines():
 
 
 def test_each_target_gets_its_prediction_beside_the_view_taken_while_held(tmp_path):
-    """Several fruits: plan_fruit<k>.png puts the predicted leaf (green) on
+    """Several fruits: plan_target<n>.png puts the predicted leaf (green) on
     the view the plan was made in and on the view taken while held; a target
     without an action gets no picture."""
     from types import SimpleNamespace
@@ -58,8 +58,8 @@ def test_each_target_gets_its_prediction_beside_the_view_taken_while_held(tmp_pa
                {"plan": None, "view_plan": 2, "view_after": None, "target": {"fruit_id": 0}}]
     result = SimpleNamespace(views=views, status=SimpleNamespace(targets=targets),
                              world=SimpleNamespace(scenario=scenario))
-    assert SaveTargetPlanFigures(result, tmp_path) == ["plan_fruit2.png"]
-    img = np.asarray(Image.open(tmp_path / "plan_fruit2.png").convert("RGB")).astype(int)
+    assert SaveTargetPlanFigures(result, tmp_path) == ["plan_target0.png"]
+    img = np.asarray(Image.open(tmp_path / "plan_target0.png").convert("RGB")).astype(int)
     assert img.shape == (cam.height, 2 * cam.width, 3)
     u, v = np.round(ProjectPoints(p_WO[None], K, X_WC)[0]).astype(int)
     green = lambda px: px[1] > 200 and px[0] < 120 and px[2] < 120
