@@ -236,7 +236,9 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     key = (method, repr(P), float(free_space_voxel), np.round(np.asarray(semantic.X_WC, float),
                                                            6).tobytes())
 
-    def complete(g, into: dict):
+    def complete(g, into: dict, keep=None):
+        """The fit of instances ``g``; kept in ``memo`` unless ``keep(fit)``
+        is False (a union that does not hold its fragments)."""
         mine = np.isin(inst, g)
         hood = None
         if memo is not None:
@@ -246,7 +248,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                 return est
         est = _CompleteFruit(semantic, pts[mine], pts[~mine], out.branch, decoder,
                              mean_latent, P, method, free_space_voxel, into)
-        if memo is not None:
+        if memo is not None and (keep is None or keep(est)):
             memo.Add(key, pts[mine], hood, est)
         return est
 
@@ -273,8 +275,10 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                 pa, pb = pts[np.isin(inst, groups[a])], pts[np.isin(inst, groups[b])]
                 if FruitsOverlap(ests[a], ests[b]) or PointsOnFruit(ests[a], pb, merge_distance) \
                         or PointsOnFruit(ests[b], pa, merge_distance):
-                    union = complete(groups[a] + groups[b], timings)
-                    if UnionExplains(union, [(pa, ests[a]), (pb, ests[b])], merge_tolerance):
+                    parts = [(pa, ests[a]), (pb, ests[b])]
+                    holds = lambda u: UnionExplains(u, parts, merge_tolerance)  # noqa: E731
+                    union = complete(groups[a] + groups[b], timings, keep=holds)
+                    if holds(union):
                         groups[a] = groups[a] + groups.pop(b)
                         ests.pop(b)
                         ests[a] = union

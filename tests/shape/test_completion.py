@@ -196,6 +196,15 @@ def test_fragments_merge_only_if_one_fit_holds_them_all(monkeypatch):
     inst = plant.semantic.fruit_instance
     assert (inst[:len(fruit)] == plant.fruit_ids[0]).all() and (inst[len(fruit):] == -1).all()
     assert "fruit_fragment_dropped:1" in plant.semantic.flags
+    # Seen again with a memo of fits: the same answer; a union that did not
+    # hold its fragments was never kept for reuse.
+    memo = completion.FitMemo(0.005)
+    for _ in range(2):
+        again = completion.CompletePlant(sem, method="homa", branch_params=None,
+                                         leaf_split_angle_deg=0, memo=memo)
+        assert len(again.fruits) == 1
+        assert np.allclose(again.fruits[0].center_W, c0, atol=1e-6)
+        assert (again.semantic.fruit_instance[len(fruit):] == -1).all()
     # Without the check the union takes the patch and its sphere moves up.
     loose = completion.CompletePlant(sem, method="homa", branch_params=None,
                                      leaf_split_angle_deg=0, merge_tolerance=np.inf)
