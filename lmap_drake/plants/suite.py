@@ -87,16 +87,24 @@ def RandomSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneC
     """``n`` random plant scenes from ``seed`` (deterministic). A draw the
     plant generator cannot build as requested (e.g. a small leaf that cannot
     hide the drawn occlusion) is replaced by the next draw."""
+    return _BuildableDraws(n, seed, _RandomScene, "random", max_draws)
+
+
+def _BuildableDraws(n: int, seed: int, draw, prefix: str, max_draws: int
+                    ) -> dict[str, PlantSceneConfig]:
+    """``n`` scenes ``draw(rng)`` named ``<prefix>_<seed>_<i>``, each the
+    first buildable one of at most ``max_draws`` draws."""
     rng = np.random.default_rng(seed)
     out = {}
     for i in range(n):
         for _ in range(max_draws):
-            cfg = _RandomScene(rng)
+            cfg = draw(rng)
             if _Buildable(cfg):
                 break
         else:
-            raise ValueError(f"RandomSuite({n}, {seed}): no buildable scene in {max_draws} draws")
-        cfg.name = f"random_{seed}_{i:03d}"
+            raise ValueError(f"{prefix} suite ({n} scenes, seed {seed}): no buildable scene "
+                             f"in {max_draws} draws")
+        cfg.name = f"{prefix}_{seed}_{i:03d}"
         out[cfg.name] = cfg
     return out
 
@@ -126,19 +134,7 @@ def RandomMultiSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantS
     spread up the stem on alternating sides, each under 0-2 leaves hiding
     40-85 % of it, and up to one free leaf more (at most 6 leaves). A draw
     the generator cannot build is replaced by the next one."""
-    rng = np.random.default_rng(seed)
-    out = {}
-    for i in range(n):
-        for _ in range(max_draws):
-            cfg = _RandomMultiScene(rng)
-            if _Buildable(cfg):
-                break
-        else:
-            raise ValueError(f"RandomMultiSuite({n}, {seed}): no buildable plant in "
-                             f"{max_draws} draws")
-        cfg.name = f"random_multi_{seed}_{i:03d}"
-        out[cfg.name] = cfg
-    return out
+    return _BuildableDraws(n, seed, _RandomMultiScene, "random_multi", max_draws)
 
 
 def _RandomMultiScene(rng) -> PlantSceneConfig:
