@@ -52,17 +52,18 @@ def OccludingLeaves(fruit: FruitEstimate, plant: PlantEstimate, X_WC: np.ndarray
     return out
 
 
-def TargetScene(plant: PlantEstimate, k: int, leaf_id: int) -> SceneEstimate:
+def TargetScene(plant: PlantEstimate, k: int, leaf_id: int | None) -> SceneEstimate:
     """The single-fruit planner's view of target ``k`` (``plant.fruits[k]``)
     moving leaf instance ``leaf_id``: that leaf is the one to grasp, every
     other leaf point is an obstacle and occluder (``other_leaves_W``), the
-    other fruits are obstacles and occluders (``other_fruits``)."""
+    other fruits are obstacles and occluders (``other_fruits``). ``leaf_id``
+    None: no leaf to move (every leaf point is in ``other_leaves_W``)."""
     sem = plant.semantic
     leaf_W = np.asarray(sem.leaf_points_W, float).reshape(-1, 3)
     leaf_inst = np.asarray(sem.leaf_instance)
     fruit_W = np.asarray(sem.fruit_points_W, float).reshape(-1, 3)
     fruit_inst = np.asarray(sem.fruit_instance)
-    mine_leaf = leaf_inst == leaf_id
+    mine_leaf = (leaf_inst == leaf_id) if leaf_id is not None else np.zeros(len(leaf_W), bool)
     mine_fruit = fruit_inst == plant.fruit_ids[k]
     target = dc.replace(sem, leaf_points_W=leaf_W[mine_leaf], leaf_instance=leaf_inst[mine_leaf],
                         fruit_points_W=fruit_W[mine_fruit],

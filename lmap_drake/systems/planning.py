@@ -326,10 +326,11 @@ class PlantPlanning(LeafSystem):
         plan = self._plan_port.Eval(context)
         plant = self._plant.Eval(context)
         t = plan.target
-        if t is None or t.get("leaf_id") is None:
+        if t is None or t.get("fruit_index") is None:
             output.set_value(SceneEstimate(semantic=plant.semantic, branch=plant.branch))
             return
-        output.set_value(TargetScene(plant, t["fruit_index"], t["leaf_id"]))
+        # a target without a leaf to move still carries its fruit's estimate
+        output.set_value(TargetScene(plant, t["fruit_index"], t.get("leaf_id")))
 
 
 class TargetReestimate(LeafSystem):

@@ -124,3 +124,11 @@ def test_plan_target_weighs_both_leaves_over_one_fruit():
     assert t.plan is not None and t.plan.status == "ok", t.why
     assert t.leaf_id in (0, 1) and f"leaf {t.leaf_id}" in t.why
     assert t.plan is dict(t.options)[t.leaf_id]
+
+
+def test_target_scene_without_a_leaf_to_move_keeps_every_leaf_as_an_obstacle():
+    plant, leaves = _plant()
+    t = TargetScene(plant, 1, leaf_id=None)
+    assert len(t.semantic.leaf_points_W) == 0
+    assert len(t.other_leaves_W) == sum(len(p) for p in leaves)
+    assert t.fruit is plant.fruits[1] and t.other_fruits == [plant.fruits[0]]

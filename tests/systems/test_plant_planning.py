@@ -171,3 +171,33 @@ def test_a_fruit_whose_motion_cannot_be_executed_is_skipped(monkeypatch):
     assert outcomes[1].startswith("revealed")
     modes = [m for _, m in st.mode_log]
     assert modes.count("pull") == 1 and "aborted" not in modes
+
+
+def test_a_fruit_without_a_feasible_action_is_recorded_with_its_estimate(monkeypatch):
+    """The first fruit has no leaf with a feasible action: its record keeps
+    the estimate it was planned on (for its shape metrics), it is not
+    planned again, and the other fruit is revealed."""
+    import lmap_drake.planning.targets as targets
+    real = targets.PlanTarget
+    calls = []
+
+    def first_infeasible(plant, k, *args, **kw):
+        calls.append(k)
+        if len(calls) == 1:
+            occ = kw.get("occluders") or {"visible": 0.3, "leaves": []}
+            return targets.TargetPlan(k, plant.fruit_ids[k], occ["visible"], occ["leaves"],
+                                      why="no leaf has a feasible action")
+        return real(plant, k, *args, **kw)
+    monkeypatch.setattr(targets, "PlanTarget", first_infeasible)
+    plant = TwoFruitPlant()
+    st = _RunToEnd(_Scenario(), plant)
+    assert st.mode == "done", st.message
+    assert len(st.targets) == 2 and len(set(calls)) == 2
+    first = st.targets[0]
+    assert first["outcome"].startswith("no_feasible_action")
+    assert first["target"]["leaf_id"] is None
+    k = first["target"]["fruit_index"]
+    for key in ("initial_estimate", "final_estimate"):      # (copies: Drake clones state)
+        fruit = first[key].fruit
+        assert fruit is not None and np.allclose(fruit.center_W, plant.fruits[k].center_W)
+    assert st.targets[1]["outcome"].startswith("revealed")
