@@ -876,8 +876,8 @@ def _explain(err: Exception, raw: dict | None, root: str, where: str) -> Scenari
             return ScenarioError(msg)
         bad = _bad_scalars(Scenario, raw, root)
         if bad:
-            return ScenarioError(f"bad value(s) in {where}: {'; '.join(bad)} "
-                                 f"(Drake said: {msg})")
+            return ScenarioError(f"could not load scenario from {where}: bad value(s): "
+                                 f"{'; '.join(bad)} (Drake said: {msg})")
     return ScenarioError(f"could not load scenario from {where}: {msg}")
 
 
