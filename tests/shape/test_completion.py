@@ -205,6 +205,17 @@ def test_fragments_merge_only_if_one_fit_holds_them_all(monkeypatch):
         assert len(again.fruits) == 1
         assert np.allclose(again.fruits[0].center_W, c0, atol=1e-6)
         assert (again.semantic.fruit_instance[len(fruit):] == -1).all()
+    # Two pieces of comparable size that one fit cannot hold are still
+    # merged (dropping either could lose a fruit).
+    other = c0 + [0.0, 0.0, 0.025] + 0.03 * cap[cap[:, 2] > 0.3]
+    assert len(other) > 0.5 * len(fruit[frag == 1])
+    both = SemanticScene(X_WC=np.eye(4), fruit_points_W=np.vstack([fruit[frag == 1], other]),
+                         fruit_instance=np.r_[np.zeros((frag == 1).sum(), int),
+                                              np.ones(len(other), int)])
+    kept = completion.CompletePlant(both, method="homa", branch_params=None,
+                                    leaf_split_angle_deg=0)
+    assert len(kept.fruits) == 1 and (kept.semantic.fruit_instance >= 0).all()
+    assert not any(f.startswith("fruit_fragment_dropped") for f in kept.semantic.flags)
     # Without the check the union takes the patch and its sphere moves up.
     loose = completion.CompletePlant(sem, method="homa", branch_params=None,
                                      leaf_split_angle_deg=0, merge_tolerance=np.inf)
