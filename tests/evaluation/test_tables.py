@@ -217,5 +217,12 @@ def test_fruit_table_counts_reveals_among_the_fruits_one_leaf_can_reveal():
     assert t["fruits"] == 5 and t["revealed"] == 3
     assert t["one_leaf_reachable"] == 3 and t["revealed_of_reachable"] == 2
     assert t["revealed_union"] == 4         # records without it count their final view
+    # the final shape over every fruit with an estimate, and over the moved ones
+    a["fruits"][0]["action"] = {"family": "pull"}
+    a["fruits"][2].update(action={"family": "arc"}, shape_final={"chamfer_cm": 0.4})
+    t = T.FruitTable([a, b])["lmap"]["adaptive"]
+    assert abs(t["shape_final"]["chamfer_cm"]["mean"] - 0.24) < 1e-9
+    assert abs(t["shape_final_moved"]["chamfer_cm"]["mean"] - 0.3) < 1e-9
+    assert t["shape_final_moved"]["chamfer_cm"]["n"] == 2
     md = T.FruitMarkdown(T.FruitTable([a, b]))
     assert "| 3 (0.60) | 2 of 3 | 4 |" in md
