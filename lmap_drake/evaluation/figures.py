@@ -221,6 +221,8 @@ def SaveTargetPlanFigures(result, out: Path) -> list[str]:
     st = result.status
     if not views:
         return []
+    from PIL import ImageDraw
+
     from lmap_drake.perception.points import Intrinsics
     cam = result.world.scenario.cameras["camera0"]
     K = Intrinsics.FromCameraConfig(cam)
@@ -235,7 +237,6 @@ def SaveTargetPlanFigures(result, out: Path) -> list[str]:
         if k_after is not None and 0 <= k_after < len(views):
             held = Image.fromarray(PlanOnImage(views[k_after].rgb, plan, est, K, X_WC,
                                                observed_leaf=False, max_dots=400))
-            from PIL import ImageDraw
             draw = ImageDraw.Draw(held)
             draw.rectangle([0, 0, held.width, 66], fill=(0, 0, 0))
             draw.text((7, 5), f"what happened: view {k_after}, leaf held, with the "

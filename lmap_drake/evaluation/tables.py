@@ -613,7 +613,7 @@ def FruitMarkdown(t: dict) -> str:
                      f"{_f(r['visibility_final']['mean'])} | "
                      f"{_f(r['shape_initial']['chamfer_cm']['mean'])} → "
                      f"{_f(r['shape_final']['chamfer_cm']['mean'])} (moved: "
-                     f"{_f(r.get('shape_final_moved', {}).get('chamfer_cm', {}).get('mean'))}) "
+                     f"{_f(r['shape_final_moved']['chamfer_cm']['mean'])}) "
                      f"| {walls} |")
     return "\n".join(L) + "\n"
 

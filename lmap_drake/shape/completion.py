@@ -281,7 +281,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                 pa, pb = pts[np.isin(inst, groups[a])], pts[np.isin(inst, groups[b])]
                 if FruitsOverlap(ests[a], ests[b]) or PointsOnFruit(ests[a], pb, merge_distance) \
                         or PointsOnFruit(ests[b], pa, merge_distance):
-                    parts = [(pa, ests[a]), (pb, ests[b])]
+                    parts = [(p, MedianAbsSdf(e, p)) for p, e in ((pa, ests[a]), (pb, ests[b]))]
                     holds = lambda u: UnionExplains(u, parts, merge_tolerance)  # noqa: E731
                     union = complete(groups[a] + groups[b], timings, keep=holds)
                     if holds(union) or min(len(pa), len(pb)) > DROP_FRACTION * max(
@@ -306,27 +306,28 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
         for g in groups:
             inst[np.isin(inst, g)] = g[0]
         inst[np.isin(inst, dropped)] = -1
-        out.semantic = dc.replace(semantic, fruit_instance=inst)
-    if dropped:
-        out.semantic.flags = list(out.semantic.flags) + [
-            f"fruit_fragment_dropped:{len(dropped)}"]
+        flags = list(semantic.flags) + ([f"fruit_fragment_dropped:{len(dropped)}"]
+                                        if dropped else [])
+        out.semantic = dc.replace(semantic, fruit_instance=inst, flags=flags)
     return out
 
 
 def UnionExplains(union, parts, tolerance: float = MERGE_RESIDUAL_TOLERANCE) -> bool:
     """The union's fit puts every part's points (``parts``: (points, the
-    part's own fit)) within ``tolerance`` (m) of the median |SDF| the part's
-    own fit gave them."""
+    median |SDF| the part's own fit gave them, NaN = unknown)) within
+    ``tolerance`` (m) of that median."""
     if union is None or union.sdf_W is None:
         return False
-    for points, own in parts:
-        if own is None or own.sdf_W is None or len(points) == 0:
-            continue
-        mine = float(np.median(np.abs(np.asarray(own.sdf_W(points), float))))
-        theirs = float(np.median(np.abs(np.asarray(union.sdf_W(points), float))))
-        if not theirs <= mine + tolerance:
-            return False
-    return True
+    return all(not len(points) or np.isnan(mine) or
+               MedianAbsSdf(union, points) <= mine + tolerance for points, mine in parts)
+
+
+def MedianAbsSdf(est, points: np.ndarray) -> float:
+    """Median |SDF| (m) of ``points`` to ``est``'s completed surface; NaN
+    without an estimate, an SDF or points."""
+    if est is None or est.sdf_W is None or len(points) == 0:
+        return float("nan")
+    return float(np.median(np.abs(np.asarray(est.sdf_W(points), float))))
 
 
 def FruitsOverlap(a, b, fraction: float = 0.6) -> bool:
@@ -342,6 +343,4 @@ def FruitsOverlap(a, b, fraction: float = 0.6) -> bool:
 def PointsOnFruit(est, points: np.ndarray, distance: float) -> bool:
     """``points`` (another fragment's) lie on ``est``'s completed surface:
     their median |SDF| is below ``distance`` (m)."""
-    if est is None or est.sdf_W is None or len(points) == 0:
-        return False
-    return float(np.median(np.abs(np.asarray(est.sdf_W(points), float)))) < distance
+    return MedianAbsSdf(est, points) < distance     # False for NaN
