@@ -22,6 +22,8 @@ def main() -> None:
     p.add_argument("--out", default=None)
     p.add_argument("--multi", action="store_true", help="the multi-fruit plant scenes")
     a = p.parse_args()
+    if a.seed < 0 or a.random < 0:
+        p.error(f"--seed and --random must be >= 0, got --seed {a.seed} --random {a.random}")
     extra = ""
     if a.multi and a.random > 0:
         suite, extra = RandomMultiSuite(a.random, a.seed), MULTI_SCENE_EXTRA

@@ -213,3 +213,15 @@ def test_random_multi_plants_are_buildable_varied_and_fixed_by_their_seed(tmp_pa
         s = LoadScenario(filename=path, scenario_name=name)
         assert s.plant_scene.kind == "multi" and s.planner.targets == "all"
         assert sizes({name: s.plant_scene}) == sizes({name: a[name]})
+
+
+def test_make_suite_refuses_a_negative_seed_in_one_line(tmp_path):
+    import subprocess
+    import sys
+    from lmap_drake.paths import REPO_ROOT
+    out = tmp_path / "s.yaml"
+    r = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "make_suite.py"), "--multi",
+                        "--random", "2", "--seed", "-1", "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "--seed and --random must be >= 0" in r.stderr
+    assert "Traceback" not in r.stderr and not out.exists()
