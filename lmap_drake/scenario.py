@@ -582,6 +582,13 @@ class PlannerConfig:
     also bounded by ``hardware.ur.joint_speed_limit``. ``release_and_retreat``
     ends the episode by opening the gripper and backing out to the start
     pose (false: the episode ends holding the leaf after the re-estimation).
+    ``approach_speed`` (m/s): the TCP's mean speed on the final approach
+    (pre-grasp -> grasp, open gripper) and on the way back out after the
+    release; near a wrist singularity the joints (at most half their
+    velocity limit) set a slower pace. Until stop 39 the approach was timed
+    by the joints alone at 0.15 of their limit: 5 cm took 1.0 s on a
+    typical grasp but 4.4 s (1.1 cm/s) where the wrist turned 1.3 rad along
+    it; 0.05 keeps the typical pace and ends the slow ones.
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the
@@ -700,6 +707,7 @@ class PlannerConfig:
     force_action: list[float] = dc.field(default_factory=list)
     method: str = "lmap"  # lmap | random | upward | min_overlap
     speed_scale: float = 1.0
+    approach_speed: float = 0.05
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
@@ -1123,6 +1131,7 @@ _RULES = {
     "planner.energy_weight": ">=0",
     "planner.max_energy_per_node": ">=0",
     "planner.speed_scale": "(0,1]",
+    "planner.approach_speed": ">0",
     "planner.arc_angles_deg": "+x>0",
     "planner.twist_angles_deg": "+x>0",
     "planner.num_arc_axes": ">=1",

@@ -210,6 +210,7 @@ class ArmController(LeafSystem):
         self._speed_scale = float(scenario.planner.speed_scale)
         self._settle, self._hold = settle_time, hold_time
         self._pull_speed = pull_speed * self._speed_scale
+        self._approach_speed = scenario.planner.approach_speed * self._speed_scale
         self._release_time = 0.5
         self.progress = progress or (lambda msg: None)
         cfg = scenario.planner
@@ -304,13 +305,13 @@ class ArmController(LeafSystem):
         self.progress(f"{mode}" + (f": {message}" if message else ""))
 
     def _TimePath(self, t: float, q0, waypoints: list, fraction: float,
-                  duration: float | None = None):
+                  duration: float | None = None, min_segment: float = 0.05):
         """A joint trajectory from ``q0`` through ``waypoints`` at
         ``fraction`` x speed_scale of the UR5 velocity limit, retimed so that
         no joint exceeds 95 % of ``max_joint_speed``; then checked."""
         limit = 0.95 * self._options.max_joint_speed
         f = min(fraction * self._speed_scale, limit / UR5_VELOCITY_LIMIT)
-        traj = TimeJointPath(t, q0, waypoints, f, 0.05, duration)
+        traj = TimeJointPath(t, q0, waypoints, f, min_segment, duration)
         for _ in range(4):
             times = np.arange(traj.start_time(), traj.end_time() + 0.005, 0.005)
             qs = np.array([traj.value(min(x, traj.end_time())).ravel() for x in times])
@@ -318,7 +319,7 @@ class ArmController(LeafSystem):
             if speed <= limit:
                 break
             stretched = (traj.end_time() - t) * speed / limit * 1.02
-            traj = TimeJointPath(t, q0, waypoints, f, 0.05, stretched)
+            traj = TimeJointPath(t, q0, waypoints, f, min_segment, stretched)
         if self._options.trajectory_check is not None:
             period = 0.01
             times = np.arange(traj.start_time(), traj.end_time() + 0.5 * period, period)
@@ -331,10 +332,19 @@ class ArmController(LeafSystem):
         return traj
 
     def _start_path(self, st: ControllerStatus, t: float, waypoints: list, fraction: float,
-                    duration: float | None = None) -> None:
+                    duration: float | None = None, min_segment: float = 0.05) -> None:
         q0 = st.trajectory.value(t).ravel() if st.trajectory is not None else st.q_hold
-        st.trajectory = self._TimePath(t, q0, waypoints, fraction, duration)
+        st.trajectory = self._TimePath(t, q0, waypoints, fraction, duration, min_segment)
         st.q_hold = np.asarray(waypoints[-1], float)
+
+    def _ApproachTiming(self, waypoints: list) -> dict:
+        """``_TimePath`` arguments for the final approach (pre-grasp <->
+        grasp, ``planner.pregrasp_distance`` in len(waypoints) equal
+        Cartesian steps): each step at the TCP speed ``planner.approach_speed``
+        unless a joint would exceed 0.5 of its velocity limit (near a wrist
+        singularity), then as fast as that allows."""
+        step = self._scenario.planner.pregrasp_distance / max(len(waypoints), 1)
+        return dict(fraction=0.5, min_segment=max(0.05, step / self._approach_speed))
 
     def _traj_done(self, st: ControllerStatus, t: float) -> bool:
         return st.trajectory is None or t >= st.trajectory.end_time()
@@ -402,7 +412,8 @@ class ArmController(LeafSystem):
                             + "; nothing moved")
         elif mode == "pregrasp":
             if self._traj_done(st, t):
-                self._start_path(st, t, st.segments.pop(0), 0.15)
+                path = st.segments.pop(0)
+                self._start_path(st, t, path, **self._ApproachTiming(path))
                 self._enter(st, "approach", t)
         elif mode == "approach":
             if self._traj_done(st, t):
@@ -583,7 +594,8 @@ class ArmController(LeafSystem):
         # The whole motion is checked before anything moves (timing does not
         # depend on the start time, so the checks hold at execution).
         pre = self._TimePath(t, st.q_hold, st.pregrasp_path, 0.5)
-        app = self._TimePath(pre.end_time(), st.pregrasp_path[-1], approach.to_grasp, 0.15)
+        app = self._TimePath(pre.end_time(), st.pregrasp_path[-1], approach.to_grasp,
+                             **self._ApproachTiming(approach.to_grasp))
         self._TimePath(app.end_time(), approach.to_grasp[-1], st.pull_path, 0.3,
                        self._pull_duration(st))
         return approach
@@ -690,5 +702,5 @@ class ArmController(LeafSystem):
         then the joint move to the episode's start pose."""
         out = st.grasp_path[::-1][1:] + [st.pregrasp_path[-1]]
         st.segments = [(st.pregrasp_path[::-1][1:], 0.5), ([self._q_start.copy()], 0.5)]
-        self._start_path(st, t, out, 0.15)
+        self._start_path(st, t, out, **self._ApproachTiming(out))
         self._enter(st, "retreat", t)

@@ -41,6 +41,8 @@ state.
 """
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
@@ -78,6 +80,16 @@ class _Fused:
         return self
 
 
+def _Fingerprint(*arrays) -> bytes:
+    """A digest of the arrays' shapes and bytes (None counts as empty)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a if a is not None else np.zeros(0))
+        h.update(repr((a.shape, a.dtype.str)).encode())
+        h.update(a.data)
+    return h.digest()
+
+
 class Perception(LeafSystem):
     """RGB-D (+ optional labels) -> SemanticScene; see the module docstring
     for ports, frames and units."""
@@ -93,6 +105,7 @@ class Perception(LeafSystem):
         self._params = PointParams.FromConfig(config)
         self._segmenter = segmenter if segmenter is not None else MakeSegmenter(config, self._K)
         self._X_WC_default = _camera_pose(camera_config)
+        self._last = None       # (input fingerprint, scene) of the last ComputeScene
         name = camera_config.name
         self._rgb = self.DeclareAbstractInputPort(
             f"{name}.rgb_image", AbstractValue.Make(ImageRgba8U()))
@@ -131,7 +144,12 @@ class Perception(LeafSystem):
         return self._X_WC_default
 
     def ComputeScene(self, context: Context) -> SemanticScene:
-        """Segments the current images and builds the world-frame point sets."""
+        """Segments the current images and builds the world-frame point sets.
+        The same images, pose and joints as the last call give the last
+        scene back without segmenting again: Drake recomputes this port
+        after every step (the view recorder's per-step update touches its
+        state even when it holds the same view), and planning asks for the
+        scene of a view Perception has already fused."""
         if not (self._rgb.HasValue(context) and self._depth.HasValue(context)):
             raise SegmenterError("perception needs camera0.rgb_image and camera0.depth_image "
                                  "connected (or fixed)")
@@ -144,15 +162,20 @@ class Perception(LeafSystem):
                     f"segmenter '{self._segmenter.name}' needs camera0.label_image "
                     "connected (simulation only); use segmenter: color_depth otherwise")
             label = self._label.Eval(context).data
-        seg = self._segmenter.Segment(rgb, depth, label)
         X_WC = self.CameraPose(context).GetAsMatrix4()
-        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._params, seg.flags)
         distance = self._config.robot_filter_distance
-        if self._robot is not None and self._q.HasValue(context) and distance > 0:
-            q = self._q.Eval(context)
+        q = (self._q.Eval(context).copy() if self._robot is not None and distance > 0
+             and self._q.HasValue(context) else None)
+        key = _Fingerprint(rgb, depth, label, X_WC, q)
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        seg = self._segmenter.Segment(rgb, depth, label)
+        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._params, seg.flags)
+        if q is not None:
             robot_W = np.vstack([self._robot.SurfacePoints(q, h)
                                  for h in (0.0, 0.5 * GRIPPER_MAX_WIDTH)])
             scene, _ = RemovePointsNear(scene, robot_W, distance)
+        self._last = (key, scene)
         return scene
 
     def _calc_scene(self, context: Context, output) -> None:

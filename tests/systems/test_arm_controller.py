@@ -120,3 +120,25 @@ def test_closing_never_asks_the_gripper_to_open(plans):
     assert len(closing) > 5 and "pull" in [m for m, _ in log]
     assert all(b <= a + 1e-9 for a, b in zip(closing, closing[1:])), closing
     assert closing[-1] <= Scenario().planner.grasp_close_width + 1e-9
+
+
+def test_the_final_approach_keeps_its_tcp_pace_unless_a_wrist_must_turn_fast():
+    """Pre-grasp -> grasp: planner.approach_speed sets the pace, unless a
+    joint would then exceed half its velocity limit (near a singularity)."""
+    from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
+    s = Scenario()
+    c = ArmController(s)
+    q0 = np.asarray(s.robot.initial_q, float)
+    paced = s.planner.pregrasp_distance / s.planner.approach_speed
+    small = [q0 + 0.01 * (k + 1) for k in range(4)]
+    traj = c._TimePath(0.0, q0, small, **c._ApproachTiming(small))
+    assert traj.end_time() == pytest.approx(paced)
+    wrist = [q0 + np.r_[0, 0, 0, 0.4 * (k + 1), 0, 0] for k in range(4)]
+    traj = c._TimePath(0.0, q0, wrist, **c._ApproachTiming(wrist))
+    assert traj.end_time() > 1.3 * paced
+    t = np.linspace(0.0, traj.end_time(), 2001)
+    qd = np.abs(np.diff([traj.value(x).ravel() for x in t], axis=0)).max() / (t[1] - t[0])
+    assert 0.3 * UR5_VELOCITY_LIMIT < qd <= 0.55 * UR5_VELOCITY_LIMIT
+    s.planner.approach_speed = 0.5 * s.planner.approach_speed      # slower pace: longer
+    assert ArmController(s)._TimePath(0.0, q0, small, **ArmController(s)._ApproachTiming(
+        small)).end_time() == pytest.approx(2 * paced)

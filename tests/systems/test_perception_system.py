@@ -115,3 +115,49 @@ def test_capture_port_fuses_views_during_simulation():
     # in place, instead of copying its points.
     clone = p.GetMyContextFromRoot(sim.get_context().Clone())
     assert clone.get_abstract_state(0).get_value().scene is fused2
+
+
+def test_a_captured_view_is_segmented_once_however_often_it_is_asked_for():
+    """Wired as in the episode (station -> ViewRecorder -> Perception): the
+    scene of a held view is not segmented again while the station moves on
+    (Drake recomputes the port after every step), e.g. when planning asks
+    for the view that was fused."""
+    from lmap_drake.systems.view_recorder import ViewRecorder
+    s = LoadScenario(scenario_text=[SMALL + "\nperception: {segmenter: label}"])
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakePlantStation(s))
+    p = builder.AddSystem(Perception(s.cameras["camera0"], s.perception))
+    builder.Connect(builder.AddSystem(ConstantVectorSource(s.robot.initial_q)).get_output_port(),
+                    station.GetInputPort("ur5.position"))
+    builder.Connect(builder.AddSystem(ConstantVectorSource([0.085])).get_output_port(),
+                    station.GetInputPort("gripper.position"))
+    views = builder.AddSystem(ViewRecorder())
+    for name in ("rgb_image", "depth_image", "label_image"):
+        builder.Connect(station.GetOutputPort(f"camera0.{name}"),
+                        views.GetInputPort(f"camera0.{name}"))
+        builder.Connect(views.GetOutputPort(name), p.GetInputPort(f"camera0.{name}"))
+    for name in ("ur5.state_estimated", "gripper.state_measured"):
+        builder.Connect(station.GetOutputPort(name), views.GetInputPort(name))
+    builder.Connect(builder.AddSystem(ConstantVectorSource([1.0])).get_output_port(),
+                    views.GetInputPort("capture"))
+    builder.Connect(views.GetOutputPort("ur5.position"), p.GetInputPort("ur5.position"))
+    builder.Connect(views.GetOutputPort("num_views"), p.GetInputPort("capture"))
+    sim = Simulator(builder.Build())
+    calls = []
+    segment = p.segmenter.Segment
+    p.segmenter.Segment = lambda *a: calls.append(1) or segment(*a)
+    sim.AdvanceTo(0.05)         # captured, then fused
+    pc = p.GetMyContextFromRoot(sim.get_context())
+    assert p.GetOutputPort("num_views_fused").Eval(pc)[0] == 1 and len(calls) == 1
+    for t in (0.1, 0.15):        # the station's state changes at every step
+        sim.AdvanceTo(t)
+        scene = p.GetOutputPort("semantic_scene").Eval(p.GetMyContextFromRoot(sim.get_context()))
+        assert len(scene.fruit_points_W) > 0
+    assert len(calls) == 1
+    # a different view is segmented
+    pc = p.GetMyContextFromRoot(sim.get_context())
+    depth = p.GetInputPort("camera0.depth_image").Eval(pc)
+    depth.mutable_data[:] += 0.01
+    p.GetInputPort("camera0.depth_image").FixValue(pc, depth)
+    p.GetOutputPort("semantic_scene").Eval(pc)
+    assert len(calls) == 2
