@@ -586,9 +586,11 @@ class PlannerConfig:
     (pre-grasp -> grasp, open gripper) and on the way back out after the
     release; near a wrist singularity the joints (at most half their
     velocity limit) set a slower pace. Until stop 39 the approach was timed
-    by the joints alone at 0.15 of their limit: 5 cm took 1.0 s on a
-    typical grasp but 4.4 s (1.1 cm/s) where the wrist turned 1.3 rad along
-    it; 0.05 keeps the typical pace and ends the slow ones.
+    by the joints alone at 0.15 of their limit: 5 cm took 0.42-0.74 s on
+    the single-fruit suite's grasps (7-12 cm/s) but 4.4 s (1.1 cm/s) where
+    the wrist turned 1.3 rad along it (``three_fruits_default``); 0.1 keeps
+    the typical pace and ends the slow ones (0.05 made every single-fruit
+    episode about 1 simulated second longer).
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the
@@ -707,7 +709,7 @@ class PlannerConfig:
     force_action: list[float] = dc.field(default_factory=list)
     method: str = "lmap"  # lmap | random | upward | min_overlap
     speed_scale: float = 1.0
-    approach_speed: float = 0.05
+    approach_speed: float = 0.1
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
