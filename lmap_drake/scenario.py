@@ -591,6 +591,9 @@ class PlannerConfig:
     the wrist turned 1.3 rad along it (``three_fruits_default``); 0.1 keeps
     the typical pace and ends the slow ones (0.05 made every single-fruit
     episode about 1 simulated second longer).
+    ``return_speed_scale``: the held leaf is carried back to where it was
+    grasped (before the release) this many times faster than it was moved
+    (the pull's pace: 3 cm/s, turns at 0.5 rad/s).
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the
@@ -710,6 +713,7 @@ class PlannerConfig:
     method: str = "lmap"  # lmap | random | upward | min_overlap
     speed_scale: float = 1.0
     approach_speed: float = 0.1
+    return_speed_scale: float = 1.0
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
@@ -1134,6 +1138,7 @@ _RULES = {
     "planner.max_energy_per_node": ">=0",
     "planner.speed_scale": "(0,1]",
     "planner.approach_speed": ">0",
+    "planner.return_speed_scale": ">0",
     "planner.arc_angles_deg": "+x>0",
     "planner.twist_angles_deg": "+x>0",
     "planner.num_arc_axes": ">=1",

@@ -630,7 +630,8 @@ class ArmController(LeafSystem):
             return
         back = [q for path in st.motion_paths[::-1] for q in path[::-1]][1:]
         self._start_path(st, t, back + [st.grasp_path[-1]], 0.3,
-                         self._pull_duration(st, all_motions=True))
+                         self._pull_duration(st, all_motions=True)
+                         / self._scenario.planner.return_speed_scale)
         self._enter(st, "release", t, f"{n} motion(s) executed; {message}; "
                     "returning the leaf, then releasing it")
 

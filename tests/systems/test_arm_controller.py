@@ -24,10 +24,12 @@ def plans():
     return first, cont
 
 
-def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None):
+def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None,
+         return_speed_scale=1.0):
     first, cont = plans
     s = Scenario()
     s.planner.max_replans = max_replans
+    s.planner.return_speed_scale = return_speed_scale
     b = DiagramBuilder()
     log = []
     c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
@@ -100,6 +102,18 @@ def test_no_replans_means_one_motion(plans):
     st, asked, _ = _Run(plans, [True], max_replans=0)
     assert asked == [False] and [m for _, m in st.mode_log].count("pull") == 1
     assert st.replan_log == [] and st.mode == "done"
+
+
+def test_the_leaf_is_carried_back_at_return_speed_scale_times_the_pull_pace(plans):
+    def Seconds(st, mode):
+        log = st.mode_log
+        return next(log[i + 1][0] - t for i, (t, m) in enumerate(log) if m == mode)
+    runs = [_Run(plans, [True], max_replans=0, return_speed_scale=k)[0] for k in (1.0, 2.0)]
+    pull = [Seconds(st, "pull") for st in runs]
+    back = [Seconds(st, "release") - 0.5 for st in runs]     # minus the open gripper's wait
+    assert pull[0] == pytest.approx(pull[1], abs=0.11)
+    assert back[0] == pytest.approx(pull[0], abs=0.21)       # the test steps every 0.1 s
+    assert back[1] == pytest.approx(0.5 * back[0], abs=0.21)
 
 
 def _Lagging(w: float, cmd: float):
