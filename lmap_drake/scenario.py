@@ -585,7 +585,7 @@ class PlannerConfig:
     ``approach_speed`` (m/s): the TCP's mean speed on the final approach
     (pre-grasp -> grasp, open gripper) and on the way back out after the
     release; near a wrist singularity the joints (at most half their
-    velocity limit) set a slower pace. Until stop 39 the approach was timed
+    velocity limit) set a slower pace. Until 2026-11-26 the approach was timed
     by the joints alone at 0.15 of their limit: 5 cm took 0.42-0.74 s on
     the single-fruit suite's grasps (7-12 cm/s) but 4.4 s (1.1 cm/s) where
     the wrist turned 1.3 rad along it (``three_fruits_default``); 0.1 keeps
