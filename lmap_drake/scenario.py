@@ -727,6 +727,7 @@ class PlannerConfig:
     max_hinge_deg: float = 50.0
     petiole_torsion_ratio: float = 0.25
     max_tether_elongation: float = 0.015
+    max_pull_distance: float = 0.035
 
 
 @dc.dataclass
@@ -1132,6 +1133,7 @@ _RULES = {
     "planner.min_usable_grasps": ">=0",
     "planner.petiole_torsion_ratio": ">=0",
     "planner.max_tether_elongation": ">=0",
+    "planner.max_pull_distance": ">=0",
     "planner.visibility_voxel": ">0",
     "planner.collision_margin": ">=0",
     "planner.energy_weight": ">=0",

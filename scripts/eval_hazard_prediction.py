@@ -30,6 +30,20 @@ diagrams/suite.yaml):
    loading. Spearman rank correlations between each predicted measure and
    each FEM measure, per scenario and pooled, per family and over both.
 
+Multi-fruit plants (``plant_scene.kind: multi``, e.g. a file from
+``scripts/make_suite.py --multi --random N --seed S``) are studied from the
+grasps the planner itself chooses (``EvaluateMultiScenario``): the first
+view is segmented and completed as in an episode, every fruit is planned,
+the best grasp of each weighed leaf is approached and closed in the plant
+world, and straight pulls are executed from it. Rows carry the predicted
+tether elongation (the planner's hinge estimate) and the true one (the
+grasped leaf's petiole base); ``grasps`` gives each grasp's hinge error.
+
+    python scripts/make_suite.py --multi --random 3 --seed 5151 --out out/rm.yaml
+    python scripts/eval_hazard_prediction.py --out out/hazard_multi.json \
+        --scenario_file out/rm.yaml --scenarios random_multi_5151_000 \
+        --families pull --pull_distances 0.015 0.025 0.035 0.045
+
 Writes JSON after every scenario (partial results survive an interruption).
 """
 from __future__ import annotations
@@ -162,6 +176,135 @@ def EvaluateScenario(scenario, args, log) -> dict:
             "mesh_note": mesh_note}
 
 
+def EvaluateMultiScenario(scenario, args, log) -> dict:
+    """``plant_scene.kind: multi``: the grasps the planner itself would use.
+    The first view is segmented and completed as in an episode
+    (``CompletePlant``), every fruit is planned (``PlanTarget``) and, per
+    weighed leaf option, the grasp of its best candidate (the chosen one, or
+    the best by score among those only the hazard limits rejected) is
+    approached and closed in the plant world. From it, straight pulls (the
+    branch-angle rule, ``--pull_distances``) run on forks, each scored by
+    the FEM. ``tether_elongation_m`` is measured against the planner's own
+    hinge estimate (``plan.hinge_W``), ``true_tether_elongation_m`` against
+    the grasped leaf's true petiole base."""
+    import dataclasses as dc
+
+    from lmap_drake.deformation.action import Action, PullDirections
+    from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
+    from lmap_drake.perception.observe import SemanticSceneFromImages
+    from lmap_drake.planning.candidates import DirectionsForGrasp
+    from lmap_drake.planning.hazard import HazardMeasures
+    from lmap_drake.planning.motion import MotionError
+    from lmap_drake.planning.lmap import AttachLeaf, PlanningContext
+    from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
+    from lmap_drake.plants.simworld import PlantWorldSim
+    from lmap_drake.shape.completion import CompletePlant
+    from lmap_drake.shape.deepsdf import LoadDecoder
+    from lmap_drake.shape.ssc import SscParams
+    from lmap_drake.systems.planning import _ImageTangents
+    from lmap_drake.systems.shape_completion import BranchParamsFromConfig
+    from tqdm import tqdm
+
+    if "pull" not in args.families:
+        raise SystemExit("multi-fruit scenes are studied with straight pulls: pass "
+                         "--families pull")
+    world = PlantWorldSim(scenario, progress=lambda m: None)
+    world.Hold(0.3)
+    im = world.Images()
+    pcfg = scenario.perception if not args.segmenter else dc.replace(
+        scenario.perception, segmenter=args.segmenter)
+    sem = SemanticSceneFromImages(im["rgb_image"], im["depth_image"], im["label_image"],
+                                  scenario.cameras["camera0"], pcfg)
+    dec, mean, _ = LoadDecoder(scenario.shape.weights_file)
+    plant = CompletePlant(sem, dec, mean, SscParams.FromConfig(scenario.shape), "ssc",
+                          scenario.shape.free_space_voxel, BranchParamsFromConfig(scenario.shape),
+                          leaf_split_angle_deg=scenario.shape.leaf_split_angle_deg)
+    X_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
+    tan = _ImageTangents(scenario)
+    order, occ = FruitOrder(plant, X_WC, scenario.planner, tan)
+    hazard_reasons = ("pulls the grasp", "turns the leaf", "beyond the distance")
+    grasps, rows = [], []
+    notes = [f"{f}: not studied on multi-fruit plants (straight pulls only)"
+             for f in args.families if f != "pull"]
+    for k in order:
+        t = PlanTarget(plant, k, X_WC, world.robot, world.q_cmd, scenario.planner,
+                       scenario.deformation, tan, occluders=occ[k])
+        for lid, plan in t.options:
+            ok = [c for c in plan.candidates if c.approach is not None and (
+                c.feasible or c.reason.startswith(hazard_reasons))]
+            if not ok or plan.hinge_W is None:
+                notes.append(f"fruit {k} leaf {lid}: no grasp to try ({plan.status})")
+                continue
+            best = plan.chosen or max(ok, key=lambda c: (c.n_vis, -c.action.distance))
+            key = (tuple(np.round(best.action.p_WG, 3)), lid)
+            if key not in [g[0] for g in grasps]:
+                grasps.append((key, best, np.asarray(plan.hinge_W, float), k, lid))
+    log(f"{len(grasps)} planner grasps; " + "; ".join(notes))
+    dirs_all = PullDirections()
+    out_grasps = []
+    for (_, lid), best, hinge, k, _lid in grasps:
+        g = world.Fork()
+        ap = best.approach
+        try:
+            g.SetGripper(ap.opening, 0.0)
+            g.MoveJoints([ap.via], speed_fraction=0.8)
+            g.MoveJoints(ap.to_ready, speed_fraction=0.5)
+            g.MoveJoints(ap.to_pregrasp, speed_fraction=0.5)
+            g.MoveJoints(ap.to_grasp, speed_fraction=0.15)
+            g.CloseOnLeaf()
+            gs = g.Grasp()
+        except (RuntimeError, MotionError) as err:
+            notes.append(f"fruit {k} leaf {lid}: grasp failed: {err}")
+            continue
+        true_leaf = gs.grasp.leaf
+        X_WT = g.X_WT()
+        p_WG, R_WG = X_WT.translation(), X_WT.rotation().matrix()
+        attach = np.asarray(world.model.leaves[true_leaf].attach_W, float)
+        ctx_b = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan)
+        dirs, ids = DirectionsForGrasp(p_WG, ctx_b.branch_all_W,
+                                       scenario.planner.max_branch_angle_deg,
+                                       dirs_all[:scenario.planner.num_directions])
+        actions = [Action(p_WG, R_WG, d * u, direction_id=int(j))
+                   for u, j in zip(dirs, ids) for d in args.pull_distances]
+        # the planner's own inputs for this target and leaf
+        ctx = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan)
+        attached, _ = AttachLeaf(ctx.scene, scenario.deformation)
+        leaf_in = np.vstack([ctx.leaf_W, attached.leaf_attachment_W])
+        preds = PredictDeformations(leaf_in, ctx.branch_all_W, actions, scenario.deformation,
+                                    skip_unmodelled=True)
+        modelled = [not isinstance(p, UnmodelledGrasp) for p in preds]
+        measures = iter(HazardMeasures([a for a, m in zip(actions, modelled) if m],
+                                       [p for p, m in zip(preds, modelled) if m], hinge))
+        info = {"fruit": int(k), "leaf_estimate": int(lid), "leaf_true": int(true_leaf),
+                "p_WG": p_WG.round(4).tolist(), "hinge_W": hinge.round(4).tolist(),
+                "true_attach_W": attach.round(4).tolist(),
+                "hinge_error_m": round(float(np.linalg.norm(hinge - attach)), 4),
+                "chosen_action": best.action.Describe()}
+        out_grasps.append(info)
+        name = f"{scenario_name_of(scenario)} fruit {k} leaf {lid}"
+        for a, p, ok in tqdm(list(zip(actions, preds, modelled)), desc=name, unit="pull",
+                             file=sys.stderr):
+            r = {"family": a.family, "direction_id": a.direction_id,
+                 "distance_m": round(a.distance, 4), "angle_deg": 0.0,
+                 "grasp": len(out_grasps) - 1,
+                 "true_tether_elongation_m": float(
+                     np.linalg.norm(a.p_WG + a.dp_W - attach) - np.linalg.norm(a.p_WG - attach))}
+            if ok:
+                r.update(PlannerEnergy(a, p, hinge, scenario.planner.hinge_bending_weight))
+                r.update(next(measures))
+            else:   # the deformation graph cannot model it: the tether alone
+                r.update({"energy_per_node": float("nan"), "planner_energy_per_node": float("nan"),
+                          "hinge_deg": float("nan"), "petiole_stretch": float("nan"),
+                          "tether_elongation_m": float(np.linalg.norm(a.p_WG + a.dp_W - hinge)
+                                                       - np.linalg.norm(a.p_WG - hinge))})
+            try:
+                r.update(_Execute(g, a, args.speed, args.hold))
+            except MotionError as err:
+                r["error"] = str(err)
+            rows.append(r)
+    return {"rows": rows, "grasps": out_grasps, "notes": notes}
+
+
 def scenario_name_of(s) -> str:
     return getattr(s, "_name", "scenario")
 
@@ -263,7 +406,8 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         s = LoadScenario(filename=str(a.scenario_file), scenario_name=name)
         s._name = name
-        res = EvaluateScenario(s, a, lambda m: print(m, file=sys.stderr))
+        evaluate = EvaluateMultiScenario if s.plant_scene.kind == "multi" else EvaluateScenario
+        res = evaluate(s, a, lambda m: print(m, file=sys.stderr))
         res["correlation"] = Correlations(res["rows"])
         res["seconds"] = round(time.perf_counter() - t0, 1)
         out["scenarios"][name] = res

@@ -75,6 +75,7 @@ def test_bad_values_are_rejected():
     for text, key in (("{planner: {twist_angles_deg: [200]}}", r"planner\.twist_angles_deg"),
                       ("{planner: {petiole_torsion_ratio: -1}}",
                        r"planner\.petiole_torsion_ratio"),
+                      ("{planner: {max_pull_distance: -0.01}}", r"planner\.max_pull_distance"),
                       ("{planner: {action_families: [pull, screw]}}",
                        r"planner\.action_families"),
                       ("{planner: {targets: some}}", r"planner\.targets"),

@@ -638,6 +638,25 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
                 break
 
 
+# The grasp-attachment lever (m) at which ``planner.max_pull_distance`` holds.
+PULL_LEVER_REFERENCE = 0.10
+
+
+def PullDistances(cfg: PlannerConfig, p_WG: np.ndarray | None = None,
+                  hinge_W: np.ndarray | None = None) -> list[float]:
+    """The straight pulls' lengths (m) allowed from grasp ``p_WG``:
+    ``planner.distances`` up to ``planner.max_pull_distance`` times (L /
+    ``PULL_LEVER_REFERENCE``)^2, L the grasp's distance to the estimated
+    attachment ``hinge_W`` (the leaf as a beam clamped at its petiole: a tip
+    moved by d bends the root by a moment that grows as d / L^2). Without a
+    hinge the cap is not scaled; 0 = no cap."""
+    cap = cfg.max_pull_distance
+    if cap > 0 and p_WG is not None and hinge_W is not None:
+        lever = float(np.linalg.norm(np.asarray(p_WG, float) - np.asarray(hinge_W, float)))
+        cap *= (lever / PULL_LEVER_REFERENCE) ** 2
+    return [float(s) for s in cfg.distances if cap <= 0 or s <= cap + 1e-9]
+
+
 def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all_dirs
                   ) -> list[Action]:
     """Every configured motion (pulls, arcs, twists) from grasp ``g``."""
@@ -646,7 +665,7 @@ def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, al
         dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
                                            cfg.max_branch_angle_deg, all_dirs)
         actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
-                    for u, j in zip(dirs, dir_ids) for s in cfg.distances]
+                    for u, j in zip(dirs, dir_ids) for s in PullDistances(cfg, g.p_WG, pivot)]
     if pivot is not None and np.linalg.norm(g.p_WG - pivot) > 0.02:
         if "arc" in cfg.action_families:
             actions += MakeArcActions(g.p_WG, g.R_WG, pivot,
@@ -958,7 +977,7 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
         dirs, ids = DirectionsForGrasp(p, ctx.branch_all_W, cfg.max_branch_angle_deg,
                                        PullDirections()[:cfg.num_directions])
         actions += [Action(p, R, s * u, grasp_id=0, direction_id=int(j))
-                    for u, j in zip(dirs, ids) for s in cfg.distances]
+                    for u, j in zip(dirs, ids) for s in PullDistances(cfg, p, held.hinge_W)]
     if held.hinge_W is not None and np.linalg.norm(p - held.hinge_W) > 0.02:
         if "arc" in families:
             actions += MakeArcActions(p, R, held.hinge_W, HingeAxes(p, held.hinge_W,

@@ -43,14 +43,15 @@ def _X_WC():
 
 def _plan(scene, energy_weight=1.0, max_energy=None, force_action=None, planner=None):
     s = Scenario()
+    s.planner.num_grasps = 6
+    s.planner.distances = [0.04, 0.08]
+    s.planner.max_pull_distance = 0.0     # the pull cap has its own test
     for k, v in (planner or {}).items():
         setattr(s.planner, k, v)
     if force_action is not None:
         s.planner.force_action = force_action
     if max_energy is not None:
         s.planner.max_energy_per_node = max_energy
-    s.planner.num_grasps = 6
-    s.planner.distances = [0.04, 0.08]
     s.planner.energy_weight = energy_weight
     b = DiagramBuilder()
     cand = b.AddNamedSystem("action_candidates", ActionCandidates(s))
@@ -177,6 +178,33 @@ def test_plan_offers_hinge_arcs_with_the_petiole_term():
     assert tight.status != "ok" or tether(tight.chosen) <= 0.01
 
 
+def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment():
+    """Pulls up to max_pull_distance at a 10 cm grasp-attachment lever,
+    scaled by (lever / 10 cm)^2; turns about the hinge are not capped."""
+    from lmap_drake.planning.lmap import PULL_LEVER_REFERENCE
+    distances = [0.02, 0.04, 0.08]
+    capped = _plan(_scene(), max_energy=0.0, planner={"distances": distances,
+                                                      "max_pull_distance": 0.035})
+    by_grasp: dict = {}
+    for c in capped.candidates:
+        if c.action.family == "pull":
+            by_grasp.setdefault(c.action.grasp_id, (c.action.p_WG, set()))[1].add(
+                round(c.action.distance, 3))
+    assert by_grasp
+    cut = 0
+    for p_WG, got in by_grasp.values():
+        lever = np.linalg.norm(p_WG - capped.hinge_W)
+        want = {d for d in distances if d <= 0.035 * (lever / PULL_LEVER_REFERENCE) ** 2 + 1e-9}
+        assert got == want
+        cut += len(want) < len(distances)
+    assert cut > 0                 # the cap removed pulls from some grasps
+    assert any(c.action.family == "arc" and c.action.distance > 0.04 and c.feasible
+               for c in capped.candidates)
+    free = _plan(_scene(), max_energy=0.0, planner={"distances": distances})
+    assert {round(c.action.distance, 3) for c in free.candidates
+            if c.action.family == "pull"} == set(distances)
+
+
 def HeldAfterShortPull():
     """(first plan: the least revealing 4 cm pull, forced; a PlanningContext
     whose leaf is that pull's predicted leaf, at its joints; the scenario;
@@ -194,6 +222,7 @@ def HeldAfterShortPull():
     s.planner.continuation_families = ["pull", "arc", "twist"]
     s.planner.continue_after_pull = True
     s.planner.distances = [0.04, 0.08]
+    s.planner.max_pull_distance = 0.0
     s.planner.max_energy_per_node = 0.0
     scene = _scene()
     moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
