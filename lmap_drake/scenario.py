@@ -727,7 +727,7 @@ class PlannerConfig:
     max_hinge_deg: float = 50.0
     petiole_torsion_ratio: float = 0.25
     max_tether_elongation: float = 0.015
-    max_pull_distance: float = 0.035
+    max_pull_distance: float = 0.03
 
 
 @dc.dataclass
