@@ -689,7 +689,27 @@ class PlannerConfig:
     distance by more than 2 cm loaded the petiole past 15 N 33 times in 37,
     by 1.5-2 cm 4 in 12, by at most 1.5 cm 15 in 111 (arcs and twists keep
     it); two straight 8 cm lifts on multi-fruit plants loaded it 19.7 and
-    23.6 N."""
+    23.6 N.
+
+    ``max_pull_distance`` (m): the longest straight pull from a grasp 10 cm
+    from the estimated attachment, scaled by (L / 10 cm)^2 for a grasp L
+    from it (``planning.lmap.MaxPullDistance``; 0 = no cap; arcs and twists
+    turn about the attachment and are not capped). Like
+    ``max_energy_per_node`` it vetoes after the scores are normalised over
+    every action that passed the checks, so it does not re-rank the rest
+    (removing the longer pulls first turned the single-fruit suite's 45°
+    arcs into 30° ones: visibility 0.99 -> 0.95). The leaf acts as a beam
+    clamped at its petiole: moving the grasp by d bends the petiole by a
+    moment that grows as d / L^2. Measured on five random multi-fruit
+    plants from the planner's own grasps (``scripts/eval_hazard_prediction.py``
+    on ``make_suite.py --multi --random`` seeds 5151 and 5252; 380 pulls of
+    1.5-4.5 cm): at a lever of 6.2-7 cm a 1.5 cm pull loaded the petiole
+    13.8-14.8 N, at 10-12 cm 4-5 N. Of the 296 pulls that passed the energy,
+    hinge and tether limits, 13 went past 15 N (up to 30.2 N); with this
+    cap none of the 166 left did, the largest 11.9 N (3.5 cm: 14.9 N, where
+    the attachment estimate was 3 cm off). On the single-fruit suite's four
+    hazard scenes the same cap keeps 97 of 144 such pulls, the largest
+    9.6 N."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14

@@ -642,19 +642,21 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
 PULL_LEVER_REFERENCE = 0.10
 
 
-def PullDistances(cfg: PlannerConfig, p_WG: np.ndarray | None = None,
-                  hinge_W: np.ndarray | None = None) -> list[float]:
-    """The straight pulls' lengths (m) allowed from grasp ``p_WG``:
-    ``planner.distances`` up to ``planner.max_pull_distance`` times (L /
-    ``PULL_LEVER_REFERENCE``)^2, L the grasp's distance to the estimated
-    attachment ``hinge_W`` (the leaf as a beam clamped at its petiole: a tip
-    moved by d bends the root by a moment that grows as d / L^2). Without a
-    hinge the cap is not scaled; 0 = no cap."""
+def MaxPullDistance(cfg: PlannerConfig, p_WG: np.ndarray,
+                    hinge_W: np.ndarray | None) -> float:
+    """The longest straight pull (m) allowed from grasp ``p_WG``:
+    ``planner.max_pull_distance`` times (L / ``PULL_LEVER_REFERENCE``)^2, L
+    the grasp's distance to the estimated attachment ``hinge_W`` (the leaf
+    as a beam clamped at its petiole: a grasp moved by d bends the petiole
+    with a moment that grows as d / L^2). Without a hinge the cap is not
+    scaled; inf when ``max_pull_distance`` is 0 (no cap)."""
     cap = cfg.max_pull_distance
-    if cap > 0 and p_WG is not None and hinge_W is not None:
+    if cap <= 0:
+        return float("inf")
+    if hinge_W is not None:
         lever = float(np.linalg.norm(np.asarray(p_WG, float) - np.asarray(hinge_W, float)))
         cap *= (lever / PULL_LEVER_REFERENCE) ** 2
-    return [float(s) for s in cfg.distances if cap <= 0 or s <= cap + 1e-9]
+    return cap
 
 
 def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all_dirs
@@ -665,7 +667,7 @@ def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, al
         dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
                                            cfg.max_branch_angle_deg, all_dirs)
         actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
-                    for u, j in zip(dirs, dir_ids) for s in PullDistances(cfg, g.p_WG, pivot)]
+                    for u, j in zip(dirs, dir_ids) for s in cfg.distances]
     if pivot is not None and np.linalg.norm(g.p_WG - pivot) > 0.02:
         if "arc" in cfg.action_families:
             actions += MakeArcActions(g.p_WG, g.R_WG, pivot,
@@ -820,9 +822,19 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     feasible = [c for c in cands if c.feasible]
     if feasible:
         # The paper's score, normalised over every action that passed the
-        # checks; the energy cap then filters (normalising over the capped set
-        # instead would shift the lambda trade-off toward short pulls).
+        # checks; the energy cap and the pull cap then filter (normalising
+        # over the capped set instead would shift the lambda trade-off: a
+        # veto should not re-rank what it leaves).
         SelectAction(feasible, cfg.energy_weight)
+        for c in feasible:
+            if c.action.family == "pull":
+                longest = MaxPullDistance(cfg, c.action.p_WG, cset.hinge_W)
+                if c.action.distance > longest + 1e-9:
+                    c.reason = (f"a {c.action.distance * 100:.0f} cm straight pull from a grasp "
+                                f"this near the attachment (at most {longest * 100:.1f} cm: "
+                                f"max_pull_distance {cfg.max_pull_distance:g} m at a "
+                                f"{PULL_LEVER_REFERENCE * 100:.0f} cm lever)")
+        feasible = [c for c in feasible if c.feasible]
         cap = cfg.max_energy_per_node
         if cap > 0:
             for c in feasible:
@@ -977,7 +989,7 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
         dirs, ids = DirectionsForGrasp(p, ctx.branch_all_W, cfg.max_branch_angle_deg,
                                        PullDirections()[:cfg.num_directions])
         actions += [Action(p, R, s * u, grasp_id=0, direction_id=int(j))
-                    for u, j in zip(dirs, ids) for s in PullDistances(cfg, p, held.hinge_W)]
+                    for u, j in zip(dirs, ids) for s in cfg.distances]
     if held.hinge_W is not None and np.linalg.norm(p - held.hinge_W) > 0.02:
         if "arc" in families:
             actions += MakeArcActions(p, R, held.hinge_W, HingeAxes(p, held.hinge_W,

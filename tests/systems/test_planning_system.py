@@ -179,30 +179,36 @@ def test_plan_offers_hinge_arcs_with_the_petiole_term():
 
 
 def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment():
-    """Pulls up to max_pull_distance at a 10 cm grasp-attachment lever,
-    scaled by (lever / 10 cm)^2; turns about the hinge are not capped."""
+    """No pull longer than max_pull_distance at a 10 cm grasp-attachment
+    lever, scaled by (lever / 10 cm)^2, is chosen; the capped pulls still
+    count in the score's normalisation (the same choice among the rest as
+    without the cap); turns about the hinge are not capped."""
     from lmap_drake.planning.lmap import PULL_LEVER_REFERENCE
     distances = [0.02, 0.04, 0.08]
-    capped = _plan(_scene(), max_energy=0.0, planner={"distances": distances,
-                                                      "max_pull_distance": 0.03})
-    by_grasp: dict = {}
+    capped = _plan(_scene(), planner={"distances": distances, "max_pull_distance": 0.03})
+    free = _plan(_scene(), planner={"distances": distances})
+    n_capped = 0
     for c in capped.candidates:
-        if c.action.family == "pull":
-            by_grasp.setdefault(c.action.grasp_id, (c.action.p_WG, set()))[1].add(
-                round(c.action.distance, 3))
-    assert by_grasp
-    cut = 0
-    for p_WG, got in by_grasp.values():
-        lever = np.linalg.norm(p_WG - capped.hinge_W)
-        want = {d for d in distances if d <= 0.03 * (lever / PULL_LEVER_REFERENCE) ** 2 + 1e-9}
-        assert got == want
-        cut += len(want) < len(distances)
-    assert cut > 0                 # the cap removed pulls from some grasps
+        if c.action.family != "pull" or c.score != c.score:     # unscored: failed before
+            continue
+        lever = np.linalg.norm(c.action.p_WG - capped.hinge_W)
+        over = c.action.distance > 0.03 * (lever / PULL_LEVER_REFERENCE) ** 2 + 1e-9
+        assert over == ("max_pull_distance 0.03" in c.reason)
+        n_capped += over
+    assert n_capped > 0
+    assert capped.status == "ok" and "max_pull_distance" not in capped.chosen.reason
+    # the scores are the uncapped planner's: the cap only vetoes
+    def key(c):
+        return (c.action.grasp_id, c.action.direction_id, round(c.action.distance, 4),
+                round(c.action.angle, 4))
+    s_free = {key(c): c.score for c in free.candidates}
+    assert len(s_free) == len(free.candidates) == len(capped.candidates)
+    for c in capped.candidates:
+        assert np.isclose(c.score, s_free[key(c)], equal_nan=True)
+    if free.chosen.action.family != "pull" or free.chosen.action.distance <= 0.02:
+        assert capped.chosen.action.Describe() == free.chosen.action.Describe()
     assert any(c.action.family == "arc" and c.action.distance > 0.04 and c.feasible
                for c in capped.candidates)
-    free = _plan(_scene(), max_energy=0.0, planner={"distances": distances})
-    assert {round(c.action.distance, 3) for c in free.candidates
-            if c.action.family == "pull"} == set(distances)
 
 
 def HeldAfterShortPull():
