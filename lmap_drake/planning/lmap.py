@@ -205,6 +205,27 @@ def _LeafObstacles(ctx: PlanningContext) -> tuple:
     return cached
 
 
+def _OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
+    """'' or why the robot's surface samples ``pts`` (at a moved pose, the
+    gripper closed) come within ``planner.collision_margin`` of a leaf that
+    is not the one held (``ctx.other_leaves_W``): the arm would push a
+    neighbouring leaf along the motion and drag it on the way back."""
+    tree = getattr(ctx, "_other_leaf_tree", None)
+    if tree is None:
+        from scipy.spatial import cKDTree
+        others = ctx.other_leaves_W
+        tree = ((cKDTree(others), others.min(0) - cfg.collision_margin,
+                 others.max(0) + cfg.collision_margin) if len(others) else (None, None, None))
+        ctx._other_leaf_tree = tree
+    kd, lo, hi = tree
+    if kd is None:
+        return ""
+    near = NearBox(pts, lo, hi)
+    if len(near) and kd.query(near)[0].min() < cfg.collision_margin:
+        return "robot-leaf (another leaf)"
+    return ""
+
+
 class _ApproachChecks:
     """Robot checks along an approach with the pads ``half_open`` (m) apart:
     fruit, branch and every observed leaf keep the margin from the robot
@@ -347,7 +368,8 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
                   q_grasp: np.ndarray) -> list[Candidate]:
     """IK for each action's end pose (and an arc's midway pose), warm-started
     along each direction's distances from ``q_grasp`` (the joints holding
-    the grasp), and robot-vs-fruit/branch checks there (gripper closed)."""
+    the grasp), and robot-vs-fruit/branch checks there (gripper closed), and
+    robot vs the leaves not held (``_OtherLeafReason``)."""
     robot = ctx.robot
     seeds: dict[int, np.ndarray] = {}
     solved: dict[tuple, tuple] = {}
@@ -371,8 +393,11 @@ def _MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidat
                 r, pose_why = solved[key]
             else:
                 r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
-                pose_why = "" if not r.success else _RobotPoseReason(
-                    robot, r.q, 0.0, robot.SurfacePointsByBody(r.q, 0.0), ctx, cfg)
+                pose_why = ""
+                if r.success:
+                    pts = robot.SurfacePointsByBody(r.q, 0.0)
+                    pose_why = (_RobotPoseReason(robot, r.q, 0.0, pts, ctx, cfg)
+                                or _OtherLeafReason(ctx, cfg, pts))
                 if key is not None:
                     solved[key] = (r, pose_why)
             if not r.success:

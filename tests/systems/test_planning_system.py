@@ -211,6 +211,35 @@ def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment():
                for c in capped.candidates)
 
 
+def test_the_arm_may_not_push_another_leaf_at_a_moved_pose():
+    """A leaf that is not held is an obstacle for the arm at the moved
+    poses too (four_fruits: the wrist pressed a neighbouring leaf 30-100 N
+    through the hold and the carry-back)."""
+    import dataclasses as dc
+
+    from lmap_drake.planning.robot_model import RobotModel
+    plain = _plan(_scene(), max_energy=0.0)
+    c = max((c for c in plain.candidates if c.feasible), key=lambda c: np.linalg.norm(
+        c.q_pulled - c.q_grasp))
+    robot = RobotModel(Scenario().robot.X_WB.GetDeterministicValue())
+    moved = robot.SurfacePoints(c.q_pulled)
+    ap = c.approach
+    q0 = np.asarray(Scenario().robot.initial_q, float)
+    approach_qs = ([q0 + f * (ap.via - q0) for f in np.linspace(0, 1, 8)]
+                   + list(ap.to_ready) + list(ap.to_pregrasp) + list(ap.to_grasp))
+    on_approach = np.vstack([robot.SurfacePoints(q, 0.05) for q in approach_qs])
+    # a neighbouring leaf where the arm is only after the motion
+    from scipy.spatial import cKDTree
+    far = cKDTree(on_approach).query(moved)[0] > 0.03
+    assert far.sum() > 20
+    other = moved[far][::max(1, int(far.sum()) // 200)]
+    blocked = _plan(dc.replace(_scene(), other_leaves_W=other), max_energy=0.0)
+    same = next(b for b in blocked.candidates if b.action.Describe() == c.action.Describe()
+                and b.action.grasp_id == c.action.grasp_id)
+    assert "robot-leaf (another leaf)" in same.reason
+    assert not any("another leaf" in x.reason for x in plain.candidates)
+
+
 def HeldAfterShortPull():
     """(first plan: the least revealing 4 cm pull, forced; a PlanningContext
     whose leaf is that pull's predicted leaf, at its joints; the scenario;
