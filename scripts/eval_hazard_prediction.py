@@ -260,14 +260,13 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
         X_WT = g.X_WT()
         p_WG, R_WG = X_WT.translation(), X_WT.rotation().matrix()
         attach = np.asarray(world.model.leaves[true_leaf].attach_W, float)
-        ctx_b = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan)
-        dirs, ids = DirectionsForGrasp(p_WG, ctx_b.branch_all_W,
+        # the planner's own inputs for this target and leaf
+        ctx = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan)
+        dirs, ids = DirectionsForGrasp(p_WG, ctx.branch_all_W,
                                        scenario.planner.max_branch_angle_deg,
                                        dirs_all[:scenario.planner.num_directions])
         actions = [Action(p_WG, R_WG, d * u, direction_id=int(j))
                    for u, j in zip(dirs, ids) for d in args.pull_distances]
-        # the planner's own inputs for this target and leaf
-        ctx = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan)
         attached, _ = AttachLeaf(ctx.scene, scenario.deformation)
         leaf_in = np.vstack([ctx.leaf_W, attached.leaf_attachment_W])
         preds = PredictDeformations(leaf_in, ctx.branch_all_W, actions, scenario.deformation,
@@ -279,6 +278,7 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
                 "p_WG": p_WG.round(4).tolist(), "hinge_W": hinge.round(4).tolist(),
                 "true_attach_W": attach.round(4).tolist(),
                 "hinge_error_m": round(float(np.linalg.norm(hinge - attach)), 4),
+                "lever_m": round(float(np.linalg.norm(p_WG - hinge)), 4),   # MaxPullDistance's L
                 "chosen_action": best.action.Describe()}
         out_grasps.append(info)
         name = f"{scenario_name_of(scenario)} fruit {k} leaf {lid}"
