@@ -193,7 +193,7 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
     from lmap_drake.perception.observe import SemanticSceneFromImages
     from lmap_drake.planning.candidates import DirectionsForGrasp
-    from lmap_drake.planning.hazard import HazardMeasures
+    from lmap_drake.planning.hazard import HazardMeasures, TetherElongation
     from lmap_drake.planning.motion import MotionError
     from lmap_drake.planning.lmap import AttachLeaf, PlanningContext
     from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
@@ -222,7 +222,8 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     X_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
     tan = _ImageTangents(scenario)
     order, occ = FruitOrder(plant, X_WC, scenario.planner, tan)
-    hazard_reasons = ("pulls the grasp", "turns the leaf", "beyond the distance")
+    hazard_reasons = ("pulls the grasp", "turns the leaf", "beyond the distance",
+                      "straight pull from a grasp")   # (the last: max_pull_distance)
     grasps, rows = [], []
     notes = [f"{f}: not studied on multi-fruit plants (straight pulls only)"
              for f in args.families if f != "pull"]
@@ -231,18 +232,18 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
                        scenario.deformation, tan, occluders=occ[k])
         for lid, plan in t.options:
             ok = [c for c in plan.candidates if c.approach is not None and (
-                c.feasible or c.reason.startswith(hazard_reasons))]
+                c.feasible or any(h in c.reason for h in hazard_reasons))]
             if not ok or plan.hinge_W is None:
                 notes.append(f"fruit {k} leaf {lid}: no grasp to try ({plan.status})")
                 continue
             best = plan.chosen or max(ok, key=lambda c: (c.n_vis, -c.action.distance))
             key = (tuple(np.round(best.action.p_WG, 3)), lid)
             if key not in [g[0] for g in grasps]:
-                grasps.append((key, best, np.asarray(plan.hinge_W, float), k, lid))
+                grasps.append((key, best, np.asarray(plan.hinge_W, float), k))
     log(f"{len(grasps)} planner grasps; " + "; ".join(notes))
     dirs_all = PullDirections()
     out_grasps = []
-    for (_, lid), best, hinge, k, _lid in grasps:
+    for (_, lid), best, hinge, k in grasps:
         g = world.Fork()
         ap = best.approach
         try:
@@ -287,16 +288,15 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
             r = {"family": a.family, "direction_id": a.direction_id,
                  "distance_m": round(a.distance, 4), "angle_deg": 0.0,
                  "grasp": len(out_grasps) - 1,
-                 "true_tether_elongation_m": float(
-                     np.linalg.norm(a.p_WG + a.dp_W - attach) - np.linalg.norm(a.p_WG - attach))}
+                 "true_tether_elongation_m": TetherElongation(a.p_WG, a.p_WG + a.dp_W, attach)}
             if ok:
                 r.update(PlannerEnergy(a, p, hinge, scenario.planner.hinge_bending_weight))
                 r.update(next(measures))
             else:   # the deformation graph cannot model it: the tether alone
                 r.update({"energy_per_node": float("nan"), "planner_energy_per_node": float("nan"),
                           "hinge_deg": float("nan"), "petiole_stretch": float("nan"),
-                          "tether_elongation_m": float(np.linalg.norm(a.p_WG + a.dp_W - hinge)
-                                                       - np.linalg.norm(a.p_WG - hinge))})
+                          "tether_elongation_m": TetherElongation(a.p_WG, a.p_WG + a.dp_W,
+                                                                  hinge)})
             try:
                 r.update(_Execute(g, a, args.speed, args.hold))
             except MotionError as err:

@@ -19,6 +19,14 @@ import numpy as np
 from lmap_drake.deformation.graph import FREE
 
 
+def TetherElongation(p_from_W: np.ndarray, p_to_W: np.ndarray, hinge_W: np.ndarray) -> float:
+    """How much farther from the hinge (m) a grasp moved from ``p_from_W``
+    to ``p_to_W`` ends: |p_to - a| - |p_from - a|."""
+    h = np.asarray(hinge_W, float)
+    return float(np.linalg.norm(np.asarray(p_to_W, float) - h)
+                 - np.linalg.norm(np.asarray(p_from_W, float) - h))
+
+
 def HazardMeasures(actions: list, predictions: list, hinge_W: np.ndarray | None,
                    radius: float = 0.03) -> list[dict]:
     """Per action (aligned with ``predictions``, ``PredictedDeformation``):
@@ -29,7 +37,7 @@ def HazardMeasures(actions: list, predictions: list, hinge_W: np.ndarray | None,
             out.append({"tether_elongation_m": float("nan"), "petiole_stretch": float("nan")})
             continue
         h = np.asarray(hinge_W, float)
-        tether = float(np.linalg.norm(a.p_WG + a.dp_W - h) - np.linalg.norm(a.p_WG - h))
+        tether = TetherElongation(a.p_WG, a.p_WG + a.dp_W, h)
         free = np.asarray(p.node_kind) == FREE
         x0 = np.asarray(p.nodes_W)[free]
         x1 = np.asarray(p.deformed_nodes_W)[free]

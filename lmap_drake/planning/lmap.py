@@ -20,6 +20,7 @@ from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
 from lmap_drake.planning.candidates import DirectionsForGrasp, GraspCandidates, PlanningError
 from lmap_drake.planning.collision import (BranchDistance, LeafFruitCollisionReason,
                                            NearBox, RobotCollisionReason, UnionSdf)
+from lmap_drake.planning.hazard import TetherElongation
 from lmap_drake.planning.robot_model import SELF_MARGIN, RobotModel
 from lmap_drake.planning.visibility import CountNewlySeen, VisibilityModel
 from lmap_drake.scenario import DeformationConfig, PlannerConfig
@@ -191,17 +192,20 @@ def _RobotPoseReason(robot, q: np.ndarray, half_open: float, points_W: np.ndarra
                                 cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
 
 
-def _LeafObstacles(ctx: PlanningContext) -> tuple:
-    """(KD-tree of every leaf's observed points or None, their box (lo,
-    hi)): the approach's leaf obstacles, built once per planning context
-    (cached on it)."""
-    cached = getattr(ctx, "_leaf_obstacles", None)
+def _LeafObstacles(ctx: PlanningContext, held: bool = True) -> tuple:
+    """(KD-tree of the observed leaf points or None, their box (lo, hi)),
+    built once per planning context (cached on it): every leaf (the
+    approach's obstacles), or with ``held`` False only the leaves not held
+    (``ctx.other_leaves_W``, the moved poses' obstacles)."""
+    attr = "_leaf_obstacles" if held else "_other_leaf_obstacles"
+    cached = getattr(ctx, attr, None)
     if cached is None:
         from scipy.spatial import cKDTree
-        leaves_W = np.vstack([ctx.leaf_W, ctx.other_leaves_W])
+        leaves_W = (np.vstack([ctx.leaf_W, ctx.other_leaves_W]) if held
+                    else ctx.other_leaves_W)
         cached = ((cKDTree(leaves_W), (leaves_W.min(0), leaves_W.max(0))) if len(leaves_W)
                   else (None, None))
-        ctx._leaf_obstacles = cached
+        setattr(ctx, attr, cached)
     return cached
 
 
@@ -210,18 +214,12 @@ def _OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
     gripper closed) come within ``planner.collision_margin`` of a leaf that
     is not the one held (``ctx.other_leaves_W``): the arm would push a
     neighbouring leaf along the motion and drag it on the way back."""
-    tree = getattr(ctx, "_other_leaf_tree", None)
+    tree, box = _LeafObstacles(ctx, held=False)
     if tree is None:
-        from scipy.spatial import cKDTree
-        others = ctx.other_leaves_W
-        tree = ((cKDTree(others), others.min(0) - cfg.collision_margin,
-                 others.max(0) + cfg.collision_margin) if len(others) else (None, None, None))
-        ctx._other_leaf_tree = tree
-    kd, lo, hi = tree
-    if kd is None:
         return ""
-    near = NearBox(pts, lo, hi)
-    if len(near) and kd.query(near)[0].min() < cfg.collision_margin:
+    m = cfg.collision_margin
+    near = NearBox(pts, box[0] - m, box[1] + m)
+    if len(near) and tree.query(near)[0].min() < m:
         return "robot-leaf (another leaf)"
     return ""
 
@@ -795,8 +793,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         elif cset.hinge_W is not None and cfg.max_tether_elongation > 0:
             # the petiole is stiff along its axis: pulling the grasp away
             # from the attachment loads it, whatever the blade does
-            tether = float(np.linalg.norm(c.action.p_WG + c.action.dp_W - cset.hinge_W)
-                           - np.linalg.norm(ref - cset.hinge_W))
+            tether = TetherElongation(ref, c.action.p_WG + c.action.dp_W, cset.hinge_W)
             if tether > cfg.max_tether_elongation:
                 c.reason = (f"pulls the grasp {tether * 100:.1f} cm farther from the petiole "
                             f"attachment (max_tether_elongation {cfg.max_tether_elongation:g} m)")
