@@ -263,12 +263,21 @@ class SimWorld:
         def vis(i, k):
             return sim.Visibility(label[k], fruit=i) if 0 <= k < len(label) and \
                 label[k] is not None else sim.Visibility(fruit=i)
+        def during(t):
+            return [s for s in sim.samples
+                    if t["t_start"] - 1e-9 <= s.t <= t["t_end"] + 1e-9]
+
         def worst_load(t):
             """The sample of largest petiole force (any leaf) while target
             ``t`` was handled, or None."""
-            during = [s for s in sim.samples
-                      if t["t_start"] - 1e-9 <= s.t <= t["t_end"] + 1e-9]
-            return max(during, key=lambda s: s.petiole_force) if during else None
+            d = during(t)
+            return max(d, key=lambda s: s.petiole_force) if d else None
+
+        def worst_strain(t):
+            """The largest blade strain percentile (any leaf) while target
+            ``t`` was handled, or None."""
+            d = during(t)
+            return float(max(s.strain_percentile for s in d)) if d else None
         from lmap_drake.perception.points import Intrinsics
         from lmap_drake.plants.outcome import TruthFruitOfInstance
         K = Intrinsics.FromCameraConfig(self.scenario.cameras["camera0"])
@@ -305,7 +314,8 @@ class SimWorld:
                                          if p.chosen is not None][:t["motions"]],
                              "t_start": t["t_start"], "t_end": t["t_end"],
                              "max_petiole_force": (None if worst is None
-                                                   else float(worst.petiole_force))})
+                                                   else float(worst.petiole_force)),
+                             "max_strain_percentile": worst_strain(t)})
         record["targets"] = rows
         record["phantom_targets"] = sum(r["phantom"] for r in rows)
         fruits = []
@@ -339,7 +349,8 @@ class SimWorld:
                 worst = worst_load(t)
                 if worst is not None:
                     entry.update(max_petiole_force=float(worst.petiole_force),
-                                 max_petiole_force_t=float(worst.t))
+                                 max_petiole_force_t=float(worst.t),
+                                 max_strain_percentile=worst_strain(t))
             # every captured view together: what the fused views saw of it
             # (a fruit under two leaves shows different parts as each is moved)
             shown = [x for x in label if x is not None]

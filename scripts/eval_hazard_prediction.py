@@ -35,7 +35,8 @@ Multi-fruit plants (``plant_scene.kind: multi``, e.g. a file from
 grasps the planner itself chooses (``EvaluateMultiScenario``): the first
 view is segmented and completed as in an episode, every fruit is planned,
 the best grasp of each weighed leaf is approached and closed in the plant
-world, and straight pulls are executed from it. Rows carry the predicted
+world, and straight pulls, arcs and twists are executed from it (arcs and
+twists about the planner's own hinge estimate). Rows carry the predicted
 tether elongation (the planner's hinge estimate) and the true one (the
 grasped leaf's petiole base); ``grasps`` gives each grasp's hinge error.
 
@@ -183,16 +184,21 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     weighed leaf option, the grasp of its best candidate (the chosen one, or
     the best by score among those only the hazard limits rejected) is
     approached and closed in the plant world. From it, straight pulls (the
-    branch-angle rule, ``--pull_distances``) run on forks, each scored by
-    the FEM. ``tether_elongation_m`` is measured against the planner's own
+    branch-angle rule, ``--pull_distances``), arcs and twists about the
+    planner's hinge estimate (``--arc_angles``, ``--twist_angles``; as
+    ``--families`` selects) run on forks, each scored by the FEM (petiole
+    force and blade strain). ``leaf_fruit`` and ``leaf_branch`` give the
+    planner's leaf checks on each prediction ('' = passes). ``tether_elongation_m`` is measured against the planner's own
     hinge estimate (``plan.hinge_W``), ``true_tether_elongation_m`` against
     the grasped leaf's true petiole base."""
     import dataclasses as dc
 
-    from lmap_drake.deformation.action import Action, PullDirections
+    from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions,
+                                               MakeTwistActions, PullDirections)
     from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
     from lmap_drake.perception.observe import SemanticSceneFromImages
     from lmap_drake.planning.candidates import DirectionsForGrasp
+    from lmap_drake.planning.collision import LeafCollisionReason
     from lmap_drake.planning.hazard import HazardMeasures, TetherElongation
     from lmap_drake.planning.motion import MotionError
     from lmap_drake.planning.lmap import AttachLeaf, PlanningContext
@@ -205,9 +211,6 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     from lmap_drake.systems.shape_completion import BranchParamsFromConfig
     from tqdm import tqdm
 
-    if "pull" not in args.families:
-        raise SystemExit("multi-fruit scenes are studied with straight pulls: pass "
-                         "--families pull")
     world = PlantWorldSim(scenario, progress=lambda m: None)
     world.Hold(0.3)
     im = world.Images()
@@ -225,8 +228,7 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     hazard_reasons = ("pulls the grasp", "turns the leaf", "beyond the distance",
                       "straight pull from a grasp")   # (the last: max_pull_distance)
     grasps, rows = [], []
-    notes = [f"{f}: not studied on multi-fruit plants (straight pulls only)"
-             for f in args.families if f != "pull"]
+    notes = []
     for k in order:
         t = PlanTarget(plant, k, X_WC, world.robot, world.q_cmd, scenario.planner,
                        scenario.deformation, tan, occluders=occ[k])
@@ -266,8 +268,14 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
         dirs, ids = DirectionsForGrasp(p_WG, ctx.branch_all_W,
                                        scenario.planner.max_branch_angle_deg,
                                        dirs_all[:scenario.planner.num_directions])
-        actions = [Action(p_WG, R_WG, d * u, direction_id=int(j))
-                   for u, j in zip(dirs, ids) for d in args.pull_distances]
+        actions = [] if "pull" not in args.families else [
+            Action(p_WG, R_WG, d * u, direction_id=int(j))
+            for u, j in zip(dirs, ids) for d in args.pull_distances]
+        if "arc" in args.families:   # about the planner's hinge estimate, as it plans them
+            actions += MakeArcActions(p_WG, R_WG, hinge, HingeAxes(p_WG, hinge, args.num_axes),
+                                      np.deg2rad(args.arc_angles))
+        if "twist" in args.families:
+            actions += MakeTwistActions(p_WG, R_WG, hinge, np.deg2rad(args.twist_angles))
         attached, _ = AttachLeaf(ctx.scene, scenario.deformation)
         leaf_in = np.vstack([ctx.leaf_W, attached.leaf_attachment_W])
         preds = PredictDeformations(leaf_in, ctx.branch_all_W, actions, scenario.deformation,
@@ -286,12 +294,20 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
         for a, p, ok in tqdm(list(zip(actions, preds, modelled)), desc=name, unit="pull",
                              file=sys.stderr):
             r = {"family": a.family, "direction_id": a.direction_id,
-                 "distance_m": round(a.distance, 4), "angle_deg": 0.0,
+                 "distance_m": round(a.distance, 4), "angle_deg": round(np.rad2deg(a.angle), 1),
                  "grasp": len(out_grasps) - 1,
                  "true_tether_elongation_m": TetherElongation(a.p_WG, a.p_WG + a.dp_W, attach)}
             if ok:
                 r.update(PlannerEnergy(a, p, hinge, scenario.planner.hinge_bending_weight))
                 r.update(next(measures))
+                # the planner's leaf checks on this prediction ('' = passes)
+                moved = np.asarray(p.leaf_points_W)[:len(ctx.leaf_W)]
+                margin = scenario.planner.collision_margin
+                r["leaf_fruit"] = LeafCollisionReason(ctx.leaf_W, moved, ctx.fruit_sdf, margin,
+                                                      ctx.fruit_box)
+                r["leaf_branch"] = LeafCollisionReason(ctx.leaf_W, moved, ctx.branch_distance,
+                                                       margin, ctx.branch_box, what="branch",
+                                                       ignore_touching=True)
             else:   # the deformation graph cannot model it: the tether alone
                 r.update({"energy_per_node": float("nan"), "planner_energy_per_node": float("nan"),
                           "hinge_deg": float("nan"), "petiole_stretch": float("nan"),

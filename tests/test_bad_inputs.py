@@ -395,11 +395,11 @@ def test_eval_workers_die_with_their_parent(tmp_path):
 
 # --------------------------------------------------------------- 5. planner guards
 def test_nan_fruit_sdf_rejects_the_candidate():
-    from lmap_drake.planning.collision import LeafFruitCollisionReason, RobotCollisionReason
+    from lmap_drake.planning.collision import LeafCollisionReason, RobotCollisionReason
     nan_sdf = lambda p: np.full(len(p), np.nan)      # noqa: E731
     pts = np.zeros((5, 3))
     assert "non-finite" in RobotCollisionReason(pts, nan_sdf, None, 0.005)
-    assert "non-finite" in LeafFruitCollisionReason(pts, pts + 0.01, nan_sdf, 0.005)
+    assert "non-finite" in LeafCollisionReason(pts, pts + 0.01, nan_sdf, 0.005)
     # the baselines' "no check" margin is unaffected
     assert RobotCollisionReason(pts, nan_sdf, None, -np.inf) == ""
 

@@ -1,6 +1,6 @@
 """Collision checks of the LMAP planner (paper Sec. III-C-1): robot vs fruit
 and deformed leaf vs fruit through the completed fruit's SDF, robot vs branch
-through the distance to the completed branch mesh (Open3D ray-casting scene,
+and deformed leaf vs branch through the distance to the completed branch mesh (Open3D ray-casting scene,
 batched). Margin in metres; world frame W."""
 from __future__ import annotations
 
@@ -95,17 +95,41 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
     return ""
 
 
-def LeafFruitCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, fruit_sdf,
-                             margin: float, fruit_box=None, rest_sdf=None) -> str:
-    """'' unless a leaf point ends within ``margin`` of the fruit surface (or
-    inside it) after moving toward the fruit. Leaf points that already rest
+def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
+                        margin: float, box=None, rest_distance=None, what: str = "fruit",
+                        ignore_touching: bool = False) -> str:
+    """'' unless a leaf point ends within ``margin`` of an object (or inside
+    it) after moving toward it: ``distance`` maps (N, 3) points to the
+    object's signed (the fruit's SDF) or unsigned (``BranchDistance``)
+    distance, ``what`` names it in the reason. Leaf points that already rest
     that close and do not approach are not counted (a leaf lying on its
-    fruit is not a collision caused by the action). ``fruit_box`` (lo, hi):
+    fruit is not a collision caused by the action); with
+    ``ignore_touching`` points resting within ``margin`` are not counted at
+    all (the petiole's base at the branch it grows from). ``box`` (lo, hi):
     only deformed points within ``margin`` of it are evaluated (the others
-    are farther than ``margin`` from the fruit); ``rest_sdf``: the SDF at
-    ``rest_W``, when already known (one evaluation for many actions)."""
-    if fruit_sdf is None or deformed_W is None or len(deformed_W) == 0:
+    are farther than ``margin`` from the object); ``rest_distance``: the
+    distance at ``rest_W``, when already known (one evaluation for many
+    actions)."""
+    if distance is None or deformed_W is None or len(deformed_W) == 0:
         return ""
+    deformed_W = np.asarray(deformed_W, float)
+    sel = np.ones(len(deformed_W), bool)
+    if box is not None:
+        lo, hi = np.asarray(box[0]) - margin, np.asarray(box[1]) + margin
+        sel = np.all((deformed_W >= lo) & (deformed_W <= hi), axis=1)
+        if not sel.any():
+            return ""
+    d1 = np.asarray(distance(deformed_W[sel]), float)
+    d0 = (np.asarray(rest_distance, float)[sel] if rest_distance is not None
+          else np.asarray(distance(np.asarray(rest_W)[sel]), float))
+    if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):
+        return f"leaf-{what} (non-finite {what} distance)"
+    bad = (d1 < margin) & (d1 < d0 - 1e-3)
+    if ignore_touching:
+        bad &= d0 >= margin
+    if bad.any():
+        return f"leaf-{what} ({d1[bad].min() * 1000:.1f} mm)"
+    return ""
     deformed_W = np.asarray(deformed_W, float)
     sel = np.ones(len(deformed_W), bool)
     if fruit_box is not None:

@@ -70,14 +70,15 @@ class SurfaceSamples:
     """The robot's surface samples at one pose, per geometry (see
     ``RobotModel.SurfacePointsByBody``): ``samples[i]`` (N_i, 3, world) is
     computed when first read; ``boxes`` (G, 2, 3) at once from 8 corners
-    per geometry."""
+    per geometry, ``corners`` (G, 8, 3) those corners in the world."""
 
     def __init__(self, local: list, corners: list, X: list):
         self._local, self._X = local, X
         self._world: dict[int, np.ndarray] = {}
         self.boxes = np.empty((len(local), 2, 3))
+        self.corners = np.empty((len(local), 8, 3))
         for i, (c, Xi) in enumerate(zip(corners, X)):
-            w = c @ Xi[:3, :3].T + Xi[:3, 3]
+            w = self.corners[i] = c @ Xi[:3, :3].T + Xi[:3, 3]
             self.boxes[i] = w.min(axis=0), w.max(axis=0)
 
     def __len__(self) -> int:

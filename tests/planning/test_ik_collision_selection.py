@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
+import trimesh
 from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.deformation.action import Action
-from lmap_drake.planning.collision import LeafFruitCollisionReason, RobotCollisionReason
+from lmap_drake.planning.collision import LeafCollisionReason, RobotCollisionReason
 from lmap_drake.planning.lmap import Candidate, SelectAction
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import RobotConfig
@@ -56,8 +57,31 @@ def test_leaf_pushed_into_the_fruit_is_rejected():
     center, radius = np.zeros(3), 0.035
     sdf = lambda p: np.linalg.norm(p - center, axis=1) - radius  # noqa: E731
     leaf = np.c_[np.linspace(-0.02, 0.02, 20), np.full(20, -0.06), np.zeros(20)]
-    assert LeafFruitCollisionReason(leaf, leaf + [0, 0, 0.02], sdf, 0.005) == ""
-    assert LeafFruitCollisionReason(leaf, leaf + [0, 0.03, 0], sdf, 0.005).startswith("leaf")
+    assert LeafCollisionReason(leaf, leaf + [0, 0, 0.02], sdf, 0.005) == ""
+    assert LeafCollisionReason(leaf, leaf + [0, 0.03, 0], sdf, 0.005).startswith("leaf")
+
+
+def test_leaf_swung_into_a_branch_is_rejected_but_not_its_petiole_base():
+    from lmap_drake.planning.collision import BranchDistance
+    cyl = trimesh.creation.cylinder(0.005, segment=[[0, 0, -0.2], [0, 0, 0.2]])
+    dist = BranchDistance(cyl.vertices, cyl.faces)
+    # a blade from 2 cm to 8 cm in front of the stem along +x, its base
+    # point resting on it (the petiole's base)
+    leaf = np.c_[np.linspace(0.02, 0.08, 25), np.zeros(25), np.zeros(25)]
+    leaf = np.vstack([[0.009, 0, 0], leaf])
+    # moved along the stem: nothing; pushed onto it: rejected
+    assert LeafCollisionReason(leaf, leaf + [0, 0, 0.03], dist, 0.005, what="branch",
+                               ignore_touching=True) == ""
+    onto = leaf.copy()
+    onto[1:, 0] -= 0.02                   # the blade slid 2 cm toward the stem
+    why = LeafCollisionReason(leaf, onto, dist, 0.005, what="branch", ignore_touching=True)
+    assert why.startswith("leaf-branch")
+    # the base point alone moving closer: not counted with ignore_touching
+    base = leaf.copy()
+    base[0, 0] = 0.0055
+    assert LeafCollisionReason(leaf, base, dist, 0.005, what="branch",
+                               ignore_touching=True) == ""
+    assert LeafCollisionReason(leaf, base, dist, 0.005, what="branch").startswith("leaf-branch")
 
 
 def _cand(n_vis, energy):
@@ -193,3 +217,24 @@ def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
     assert np.linalg.norm(X_ready.translation() - (p + [0, 0, 0.07])) < 0.003
     X_grasp = robot.TcpPose(c.approach.to_grasp[-1])
     assert np.linalg.norm(X_grasp.translation() - p) < 0.002
+
+
+def test_a_free_joint_move_is_checked_every_centimetre(robot):
+    """The joint move to the via pose (and the retreat's last move back) is
+    checked at poses no robot point moves more than ``FREE_MOVE_STEP``
+    between; eight even samples let the wrist skip many centimetres."""
+    from lmap_drake.planning.lmap import FREE_MOVE_STEP, FreeMoveFractions
+    q0 = np.array(RobotConfig().initial_q)
+    q1 = q0 + np.array([0.8, -0.5, 0.6, 0.4, 0.9, 1.2])
+
+    def largest_move(fractions):
+        C = np.stack([robot.SurfacePointsByBody(q0 + f * (q1 - q0), 0.0175).corners
+                      for f in fractions])
+        return np.linalg.norm(np.diff(C, axis=0), axis=-1).max()
+    f = FreeMoveFractions(robot, q0, q1, 0.0175)
+    assert np.all((f > 0) & (f < 1)) and np.all(np.diff(f) > 0)
+    assert largest_move(np.r_[0.0, f, 1.0]) <= FREE_MOVE_STEP + 1e-9
+    assert largest_move(np.linspace(0, 1, 8)) > 5 * FREE_MOVE_STEP
+    # a short move needs no more than the eight
+    near = FreeMoveFractions(robot, q0, q0 + 0.001, 0.0175)
+    assert len(near) == 6
