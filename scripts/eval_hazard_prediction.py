@@ -188,7 +188,9 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     planner's hinge estimate (``--arc_angles``, ``--twist_angles``; as
     ``--families`` selects) run on forks, each scored by the FEM (petiole
     force and blade strain). ``leaf_fruit`` and ``leaf_branch`` give the
-    planner's leaf checks on each prediction ('' = passes). ``tether_elongation_m`` is measured against the planner's own
+    planner's leaf checks on each prediction ('' = passes);
+    ``leaf_branch_away_from_hinge`` a variant that counts every leaf point
+    farther than 2 cm from the hinge estimate, touching or not. ``tether_elongation_m`` is measured against the planner's own
     hinge estimate (``plan.hinge_W``), ``true_tether_elongation_m`` against
     the grasped leaf's true petiole base."""
     import dataclasses as dc
@@ -308,6 +310,10 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
                 r["leaf_branch"] = LeafCollisionReason(ctx.leaf_W, moved, ctx.branch_distance,
                                                        margin, ctx.branch_box, what="branch",
                                                        ignore_touching=True)
+                far = np.linalg.norm(ctx.leaf_W - hinge, axis=1) > 0.02
+                r["leaf_branch_away_from_hinge"] = LeafCollisionReason(
+                    ctx.leaf_W[far], moved[far], ctx.branch_distance, margin, ctx.branch_box,
+                    what="branch")
             else:   # the deformation graph cannot model it: the tether alone
                 r.update({"energy_per_node": float("nan"), "planner_energy_per_node": float("nan"),
                           "hinge_deg": float("nan"), "petiole_stretch": float("nan"),
