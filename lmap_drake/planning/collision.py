@@ -1,7 +1,7 @@
 """Collision checks of the LMAP planner (paper Sec. III-C-1): robot vs fruit
 and deformed leaf vs fruit through the completed fruit's SDF, robot vs branch
-and deformed leaf vs branch through the distance to the completed branch mesh (Open3D ray-casting scene,
-batched). Margin in metres; world frame W."""
+and deformed leaf vs branch through the distance to the completed branch
+mesh (Open3D ray-casting scene, batched). Margin in metres; world frame W."""
 from __future__ import annotations
 
 import numpy as np
@@ -129,20 +129,4 @@ def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
         bad &= d0 >= margin
     if bad.any():
         return f"leaf-{what} ({d1[bad].min() * 1000:.1f} mm)"
-    return ""
-    deformed_W = np.asarray(deformed_W, float)
-    sel = np.ones(len(deformed_W), bool)
-    if fruit_box is not None:
-        lo, hi = np.asarray(fruit_box[0]) - margin, np.asarray(fruit_box[1]) + margin
-        sel = np.all((deformed_W >= lo) & (deformed_W <= hi), axis=1)
-        if not sel.any():
-            return ""
-    d1 = np.asarray(fruit_sdf(deformed_W[sel]), float)
-    d0 = (np.asarray(rest_sdf, float)[sel] if rest_sdf is not None
-          else np.asarray(fruit_sdf(np.asarray(rest_W)[sel]), float))
-    if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):
-        return "leaf-fruit (non-finite fruit SDF)"
-    bad = (d1 < margin) & (d1 < d0 - 1e-3)
-    if bad.any():
-        return f"leaf-fruit ({d1[bad].min() * 1000:.1f} mm)"
     return ""
