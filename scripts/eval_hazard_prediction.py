@@ -190,9 +190,10 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     force and blade strain). ``leaf_fruit`` and ``leaf_branch`` give the
     planner's leaf checks on each prediction ('' = passes);
     ``leaf_branch_away_from_hinge`` a variant that counts every leaf point
-    farther than 2 cm from the hinge estimate, touching or not. ``tether_elongation_m`` is measured against the planner's own
-    hinge estimate (``plan.hinge_W``), ``true_tether_elongation_m`` against
-    the grasped leaf's true petiole base."""
+    farther than 2 cm from the hinge estimate, touching or not.
+    ``tether_elongation_m`` is measured against the planner's own hinge
+    estimate (``plan.hinge_W``), ``true_tether_elongation_m`` against the
+    grasped leaf's true petiole base."""
     import dataclasses as dc
 
     from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions,

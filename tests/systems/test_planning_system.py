@@ -235,7 +235,8 @@ def test_the_arm_may_not_push_another_leaf_at_a_moved_pose():
     other = moved[far][::max(1, int(far.sum()) // 200)]
     blocked = _plan(dc.replace(_scene(), other_leaves_W=other), max_energy=0.0)
     same = next(b for b in blocked.candidates if b.action.Describe() == c.action.Describe()
-                and b.action.grasp_id == c.action.grasp_id)
+                and b.action.grasp_id == c.action.grasp_id
+                and b.action.direction_id == c.action.direction_id)
     assert "robot-leaf (another leaf)" in same.reason
     assert not any("another leaf" in x.reason for x in plain.candidates)
 
