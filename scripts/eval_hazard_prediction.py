@@ -196,15 +196,15 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     grasped leaf's true petiole base."""
     import dataclasses as dc
 
-    from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions,
-                                               MakeTwistActions, PullDirections)
+    from types import SimpleNamespace
+
+    from lmap_drake.deformation.action import PullDirections
     from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
     from lmap_drake.perception.observe import SemanticSceneFromImages
-    from lmap_drake.planning.candidates import DirectionsForGrasp
     from lmap_drake.planning.collision import LeafCollisionReason
     from lmap_drake.planning.hazard import HazardMeasures, TetherElongation
     from lmap_drake.planning.motion import MotionError
-    from lmap_drake.planning.lmap import AttachLeaf, PlanningContext
+    from lmap_drake.planning.lmap import AttachLeaf, PlanningContext, _GraspActions
     from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
     from lmap_drake.plants.simworld import PlantWorldSim
     from lmap_drake.shape.completion import CompletePlant
@@ -268,17 +268,14 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
         attach = np.asarray(world.model.leaves[true_leaf].attach_W, float)
         # the planner's own inputs for this target and leaf
         ctx = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan)
-        dirs, ids = DirectionsForGrasp(p_WG, ctx.branch_all_W,
-                                       scenario.planner.max_branch_angle_deg,
-                                       dirs_all[:scenario.planner.num_directions])
-        actions = [] if "pull" not in args.families else [
-            Action(p_WG, R_WG, d * u, direction_id=int(j))
-            for u, j in zip(dirs, ids) for d in args.pull_distances]
-        if "arc" in args.families:   # about the planner's hinge estimate, as it plans them
-            actions += MakeArcActions(p_WG, R_WG, hinge, HingeAxes(p_WG, hinge, args.num_axes),
-                                      np.deg2rad(args.arc_angles))
-        if "twist" in args.families:
-            actions += MakeTwistActions(p_WG, R_WG, hinge, np.deg2rad(args.twist_angles))
+        # the planner's own generator (arcs and twists about its hinge
+        # estimate), with the study's distances and angles
+        study = dc.replace(scenario.planner, action_families=list(args.families),
+                           distances=list(args.pull_distances), num_arc_axes=args.num_axes,
+                           twist_angles_deg=list(args.twist_angles))
+        actions = _GraspActions(ctx, study, SimpleNamespace(p_WG=p_WG, R_WG=R_WG, grasp_id=0),
+                                hinge, np.deg2rad(args.arc_angles),
+                                dirs_all[:scenario.planner.num_directions])
         attached, _ = AttachLeaf(ctx.scene, scenario.deformation)
         leaf_in = np.vstack([ctx.leaf_W, attached.leaf_attachment_W])
         preds = PredictDeformations(leaf_in, ctx.branch_all_W, actions, scenario.deformation,

@@ -209,19 +209,25 @@ def _LeafObstacles(ctx: PlanningContext, held: bool = True) -> tuple:
     return cached
 
 
+def _TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> bool:
+    """Whether the robot's surface samples ``pts`` come within ``margin``
+    of an observed leaf (``_LeafObstacles``: every leaf, or with ``held``
+    False the leaves not held); only samples near the leaves' box are
+    queried."""
+    tree, box = _LeafObstacles(ctx, held)
+    if tree is None:
+        return False
+    near = NearBox(pts, box[0] - margin, box[1] + margin)
+    return bool(len(near)) and tree.query(near)[0].min() < margin
+
+
 def _OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
     """'' or why the robot's surface samples ``pts`` (at a moved pose, the
     gripper closed) come within ``planner.collision_margin`` of a leaf that
     is not the one held (``ctx.other_leaves_W``): the arm would push a
     neighbouring leaf along the motion and drag it on the way back."""
-    tree, box = _LeafObstacles(ctx, held=False)
-    if tree is None:
-        return ""
-    m = cfg.collision_margin
-    near = NearBox(pts, box[0] - m, box[1] + m)
-    if len(near) and tree.query(near)[0].min() < m:
-        return "robot-leaf (another leaf)"
-    return ""
+    return ("robot-leaf (another leaf)"
+            if _TouchesLeaf(ctx, cfg.collision_margin, pts, held=False) else "")
 
 
 class _ApproachChecks:
@@ -240,10 +246,6 @@ class _ApproachChecks:
                  memo: dict | None = None):
         self.ctx, self.cfg, self.half_open = ctx, cfg, float(half_open)
         self.memo = {} if memo is None else memo
-        self.leaf_tree, box = _LeafObstacles(ctx)
-        if self.leaf_tree is not None:  # only robot points near the leaves' box can be close
-            self.leaf_lo = box[0] - cfg.collision_margin
-            self.leaf_hi = box[1] + cfg.collision_margin
 
     def _Reason(self, q: np.ndarray) -> str:
         """'' or the robot's reason at ``q`` without where: '...', or
@@ -254,10 +256,8 @@ class _ApproachChecks:
         robot, cfg = self.ctx.robot, self.cfg
         pts = robot.SurfacePointsByBody(q, self.half_open)
         why = _RobotPoseReason(robot, q, self.half_open, pts, self.ctx, cfg, SELF_MARGIN)
-        if not why and self.leaf_tree is not None:
-            near = NearBox(pts, self.leaf_lo, self.leaf_hi)
-            if len(near) and self.leaf_tree.query(near)[0].min() < cfg.collision_margin:
-                why = "robot-leaf"
+        if not why and _TouchesLeaf(self.ctx, cfg.collision_margin, pts):
+            why = "robot-leaf"
         self.memo[key] = why
         return why
 
