@@ -302,7 +302,7 @@ class SimWorld:
             if t.get("target"):
                 i, on_fruit = truth_of(t)
                 if i is not None:
-                    targets.setdefault(i, t)
+                    targets.setdefault(i, []).append(t)
                 worst = worst_load(t)
                 plans = ([t["plan"]] if t["plan"] is not None else []) + t["continuations"]
                 rows.append({"fruit": i, "phantom": i is None,
@@ -319,8 +319,13 @@ class SimWorld:
         record["targets"] = rows
         record["phantom_targets"] = sum(r["phantom"] for r in rows)
         fruits = []
+        def executed(u):
+            """The motions target ``u`` executed, as ``Candidate.Row()``s."""
+            plans = ([u["plan"]] if u["plan"] is not None else []) + u["continuations"]
+            return [p.chosen.Row() for p in plans if p.chosen is not None][:u["motions"]]
         for i, f in enumerate(model.fruits):
-            t = targets.get(i)
+            ts = targets.get(i, [])
+            t = ts[0] if ts else None
             v0 = vis(i, 0)
             entry = {"fruit": i, "occlusion_requested": f.occlusion_requested,
                      "occluders": list(f.occluders),
@@ -328,29 +333,41 @@ class SimWorld:
                      "visibility_initial": v0, "visibility_final": v0,
                      "targeted": t is not None, "shape_initial": None, "shape_final": None,
                      "action": None, "motions": [], "leaf_id": None, "why": "",
-                     "outcome": "not planned for (predicted visible, or not seen)"}
+                     "outcome": "not planned for (predicted visible, or not seen)",
+                     "reveals": []}
             if t is not None:
+                # a fruit under two leaves may be revealed twice, each time
+                # by another leaf: its final visibility is the best view a
+                # reveal gave, its final shape the last re-estimate's
                 ini = t["initial_estimate"].fruit if t["initial_estimate"] else None
-                fin = t["final_estimate"].fruit if t["final_estimate"] else None
-                plans = ([t["plan"]] if t["plan"] is not None else []) + t["continuations"]
+                last = next((u for u in ts[::-1] if u["final_estimate"] is not None
+                             and u["motions"]), t)
+                fin = last["final_estimate"].fruit if last["final_estimate"] else None
+                after = [vis(i, u["view_after"]) for u in ts if u["view_after"] is not None]
                 entry.update(
                     visibility_initial=vis(i, t["view_plan"]),
-                    visibility_final=(vis(i, t["view_after"]) if t["view_after"] is not None
-                                      else vis(i, t["view_plan"])),
+                    visibility_final=max(after) if after else vis(i, t["view_plan"]),
                     shape_initial=FruitShapeErrors(ini, f.mesh_W, f.peduncle_axis_W),
                     shape_final=FruitShapeErrors(fin or ini, f.mesh_W, f.peduncle_axis_W),
                     action=(t["plan"].chosen.Row() if t["plan"] is not None
                             and t["plan"].chosen is not None else None),
-                    motions=[p.chosen.Row() for p in plans if p.chosen is not None
-                             ][:t["motions"]],
+                    motions=[row for u in ts for row in executed(u)],
                     leaf_id=t["target"].get("leaf_id"), why=t["target"].get("why", ""),
-                    outcome=t["outcome"])
+                    outcome=t["outcome"],
+                    reveals=[{"leaf_id": u["target"].get("leaf_id"),
+                              "why": u["target"].get("why", ""), "outcome": u["outcome"],
+                              "motions": u["motions"],
+                              "visibility_after": (None if u["view_after"] is None
+                                                   else vis(i, u["view_after"]))}
+                             for u in ts])
                 # the petiole load while this fruit was handled (any leaf), N
-                worst = worst_load(t)
-                if worst is not None:
+                loads = [(worst_load(u), u) for u in ts]
+                loads = [(w, u) for w, u in loads if w is not None]
+                if loads:
+                    worst, _ = max(loads, key=lambda wu: wu[0].petiole_force)
                     entry.update(max_petiole_force=float(worst.petiole_force),
                                  max_petiole_force_t=float(worst.t),
-                                 max_strain_percentile=worst_strain(t))
+                                 max_strain_percentile=max(worst_strain(u) for _, u in loads))
             # every captured view together: what the fused views saw of it
             # (a fruit under two leaves shows different parts as each is moved)
             shown = [x for x in label if x is not None]

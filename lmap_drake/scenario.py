@@ -722,7 +722,21 @@ class PlannerConfig:
     ``scripts/eval_hazard_prediction.py``, column ``leaf_branch``) it
     caught none of the three motions that pressed the held leaf into the
     main stem (17-28 N) and rejected two harmless ones (4-9 N): the
-    prediction and the completed stem are not yet accurate enough for it."""
+    prediction and the completed stem are not yet accurate enough for it.
+
+    ``max_reveals_per_fruit`` (``targets: all``): how many times one fruit
+    may be revealed, each time by a leaf not moved before (1: one leaf per
+    fruit, as in the paper). A fruit under two leaves shows at most what
+    one leaf alone hides while that leaf is moved; the other leaf's part is
+    seen only when it is moved in turn (the views are fused, so the shape
+    re-estimate sees both parts). A fruit is revealed again after every
+    fruit's first reveal, and only if a leaf not moved yet alone hides at
+    least ``next_leaf_min_gain`` (fraction of its surface) in the current
+    view, the bar ``min_replan_gain`` sets for a further motion; that part
+    was hidden in every earlier view too, since that leaf never moved. The
+    leaf moved before is found in the current view by its points in the
+    view its move was planned in (``planning.targets.SeparateMovedLeaves``;
+    where the segmenter joined it to a touching blade, it is split off)."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -762,6 +776,8 @@ class PlannerConfig:
     max_tether_elongation: float = 0.015
     max_pull_distance: float = 0.03
     check_leaf_branch: bool = False
+    max_reveals_per_fruit: int = 2
+    next_leaf_min_gain: float = 0.05
 
 
 @dc.dataclass
@@ -1179,6 +1195,8 @@ _RULES = {
     "planner.twist_angles_deg": "+x>0",
     "planner.num_arc_axes": ">=1",
     "planner.max_replans": ">=0",
+    "planner.max_reveals_per_fruit": ">=1",
+    "planner.next_leaf_min_gain": "[0,1]",
     "planner.min_replan_gain": "[0,1]",
     "planner.hinge_bending_weight": ">=0",
     "planner.max_hinge_deg": "(0,180]",

@@ -398,6 +398,9 @@ def FruitTable(records: list[dict], revealed: float = 0.9) -> dict | None:
                                   for f in fruits),
             "visibility_union": _mean_std(f.get("visibility_union", f["visibility_final"])
                                           for f in fruits),
+            # fruits revealed again by a second leaf (planner.max_reveals_per_fruit)
+            "revealed_again": sum(sum(1 for x in f.get("reveals", []) if x.get("motions")) > 1
+                                  for f in fruits),
             "visibility_initial": _mean_std(f["visibility_initial"] for f in fruits),
             "visibility_final": _mean_std(f["visibility_final"] for f in fruits),
             "shape_initial": {k: _mean_std((f["shape_initial"] or {}).get(k) for f in fruits)
@@ -596,10 +599,11 @@ def FruitMarkdown(t: dict) -> str:
     L = ["", "## Plants with several fruits (per fruit)", "",
          "| Method | Move distance | Episodes | Unsafe | Fruits | Revealed (final vis >= "
          "0.9) | Revealed of those one leaf can reveal | Seen >= 0.9 over all views | "
+         "Revealed again by another leaf | "
          "Visibility initial → final | Chamfer initial → final (cm; moved: the fruits whose "
          "leaf was moved) | Wall s / episode "
          "(by fruits) |",
-         "|---|---|---|---|---|---|---|---|---|---|---|"]
+         "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for m, rows in t.items():
         for d, r in rows.items():
             walls = ", ".join(f"{k}: {_f(v['mean'], '{:.0f}')}"
@@ -609,6 +613,7 @@ def FruitMarkdown(t: dict) -> str:
                      f"{r.get('revealed_of_reachable', '-')} of "
                      f"{r.get('one_leaf_reachable', '-')} | "
                      f"{r.get('revealed_union', '-')} | "
+                     f"{r.get('revealed_again', '-')} | "
                      f"{_f(r['visibility_initial']['mean'])} → "
                      f"{_f(r['visibility_final']['mean'])} | "
                      f"{_f(r['shape_initial']['chamfer_cm']['mean'])} → "

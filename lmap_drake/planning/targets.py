@@ -74,6 +74,64 @@ def TargetScene(plant: PlantEstimate, k: int, leaf_id: int | None) -> SceneEstim
                          other_leaves_W=leaf_W[~mine_leaf])
 
 
+def SeparateMovedLeaves(semantic, moved_leaf_points_W: list, radius: float = 0.015,
+                        min_points: int = 30, other_leaf_points_W: list | None = None):
+    """Finds the leaves moved before in this view (instance ids are not kept
+    between views). ``moved_leaf_points_W``: one (N, 3) array (W, m) per
+    moved leaf, its points in the view its move was planned in; released, a
+    leaf hangs back near its rest. ``other_leaf_points_W`` (optional, one
+    array per moved leaf): the other leaves' points in that view. A point
+    here is the moved leaf's when it lies within ``radius`` (m) of it and
+    nearer to it than to those other leaves; its instance is the one holding
+    most such points. Where that instance also holds at least half a leaf
+    more (the moved blade and a touching one segmented as one), the rest
+    becomes an instance of its own. Returns (the ``SemanticScene``, with
+    such instances split; the moved leaves' instance ids)."""
+    from scipy.spatial import cKDTree
+    leaf_W = np.asarray(semantic.leaf_points_W, float).reshape(-1, 3)
+    ids = np.asarray(semantic.leaf_instance).copy()
+    if len(ids) != len(leaf_W) or not np.any(ids >= 0):
+        return semantic, []
+    moved, split = [], False
+    others = other_leaf_points_W or [None] * len(moved_leaf_points_W)
+    for pts, other in zip(moved_leaf_points_W, others):
+        pts = np.asarray(pts, float).reshape(-1, 3)
+        if len(pts) == 0:
+            continue
+        d = cKDTree(pts).query(leaf_W, distance_upper_bound=radius)[0]
+        near = d <= radius
+        other = np.zeros((0, 3)) if other is None else np.asarray(other, float).reshape(-1, 3)
+        if len(other) and near.any():
+            near[near] = d[near] < cKDTree(other).query(leaf_W[near])[0]
+        held = ids[near & (ids >= 0)]
+        if len(held) < min_points:
+            continue
+        u, n = np.unique(held, return_counts=True)
+        j = int(u[np.argmax(n)])
+        rest = (ids == j) & ~near
+        if rest.sum() >= max(min_points, 0.5 * len(pts)):
+            ids[rest] = ids.max() + 1
+            split = True
+        moved.append(j)
+    if split:
+        semantic = dc.replace(semantic, leaf_instance=ids,
+                              flags=list(semantic.flags) + ["moved_leaf_separated"])
+    return semantic, sorted(set(moved))
+
+
+def NextLeafOccluders(occluders: dict, moved: list[int], min_gain: float) -> dict | None:
+    """A fruit revealed once and still hidden by another leaf: its
+    ``OccludingLeaves`` without the leaves already moved, or None when none
+    of the others alone hides at least ``min_gain`` of it. The part a leaf
+    alone hides in this view was hidden in every earlier view too (that
+    leaf never moved, the camera is fixed), so the gain is surface no view
+    has shown yet."""
+    rest = [d for d in occluders["leaves"] if d["leaf_id"] not in set(moved)]
+    if not rest or rest[0]["gain"] < min_gain:
+        return None
+    return dict(occluders, leaves=rest)
+
+
 def OrderTargets(visible: list[float], done_fraction: float = 0.95) -> list[int]:
     """The order in which fruits are revealed: the least visible first (the
     one the estimate knows least about gains most from a reveal, and an

@@ -36,8 +36,11 @@ candidates and ActionSelection runs the baseline at the largest of
            status: ``targets``, the fruits handled so far).
   outputs: ``plan`` (abstract PlanResult for the next fruit: the least
            visible one not yet handled, its leaf chosen among the leaves
-           hiding it; ``target`` says which and why; ``no_action_needed``
-           when every fruit is visible or handled), ``scene_estimate``
+           hiding it; then, up to ``planner.max_reveals_per_fruit``, a
+           fruit again by a leaf not moved yet; ``target`` says which and
+           why; ``no_action_needed`` when every fruit is visible or
+           handled; the leaves moved before are found in the newest view
+           and split from a touching blade), ``scene_estimate``
            (abstract SceneEstimate: that target's scene, the rest of the
            plant as obstacles and occluders).
 ``TargetReestimate``
@@ -223,8 +226,9 @@ class ContinuationPlanning(LeafSystem):
 SAME_FRUIT_DISTANCE = 0.03
 
 
-def _Handled(plant, status) -> list[bool]:
-    """Per fruit of ``plant``: is it a target already handled? By centre
+def _FruitTargets(plant, status) -> list[list[dict]]:
+    """Per fruit of ``plant``: the targets already handled that were this
+    fruit (the ``ArmController`` status's ``targets`` records). By centre
     distance (``SAME_FRUIT_DISTANCE``) or by the tests that merge the
     fragments of one fruit in ``CompletePlant``: its points lie on the
     target's latest estimate within ``MERGE_DISTANCE`` (the re-estimate
@@ -238,16 +242,78 @@ def _Handled(plant, status) -> list[bool]:
             continue
         est = next((e.fruit for e in (t.get("final_estimate"), t.get("initial_estimate"))
                     if getattr(e, "fruit", None) is not None), None)
-        done.append((np.asarray(t["target"]["center_W"], float), est))
+        done.append((np.asarray(t["target"]["center_W"], float), est, t))
     sem = plant.semantic
     pts, inst = np.asarray(sem.fruit_points_W, float), np.asarray(sem.fruit_instance)
     out = []
     for k, f in enumerate(plant.fruits):
         mine = pts[inst == plant.fruit_ids[k]] if k < len(plant.fruit_ids) and \
             len(inst) == len(pts) else np.zeros((0, 3))
-        out.append(any(np.linalg.norm(f.center_W - c) < SAME_FRUIT_DISTANCE or
-                       FruitsOverlap(f, est) or PointsOnFruit(est, mine, MERGE_DISTANCE)
-                       for c, est in done))
+        out.append([t for c, est, t in done
+                    if np.linalg.norm(f.center_W - c) < SAME_FRUIT_DISTANCE or
+                    FruitsOverlap(f, est) or PointsOnFruit(est, mine, MERGE_DISTANCE)])
+    return out
+
+
+def _Handled(plant, status) -> list[bool]:
+    """Per fruit of ``plant``: is it a target already handled
+    (``_FruitTargets``)?"""
+    return [bool(ts) for ts in _FruitTargets(plant, status)]
+
+
+def _MovedLeafPoints(t: dict) -> np.ndarray | None:
+    """The leaf a handled target moved, as seen in the view its move was
+    planned in (W, m, (N, 3)); None when it moved none."""
+    if not t.get("motions") or t.get("initial_estimate") is None:
+        return None
+    return np.asarray(t["initial_estimate"].semantic.leaf_points_W, float).reshape(-1, 3)
+
+
+def _OtherLeafPoints(t: dict) -> np.ndarray:
+    """The leaves other than the one a handled target moved, in the view
+    its move was planned in (W, m, (N, 3))."""
+    est = t.get("initial_estimate")
+    return np.zeros((0, 3)) if est is None else np.asarray(est.other_leaves_W, float)
+
+
+def _PlantAfterMoves(plant, per_fruit: list[list[dict]]):
+    """``plant`` with the leaves its handled targets moved found in this
+    view (``SeparateMovedLeaves``: a moved blade segmented together with a
+    touching one is split from it). Returns (that plant, the moved leaves'
+    instance ids)."""
+    from lmap_drake.planning.targets import SeparateMovedLeaves
+    done = [t for ts in per_fruit for t in ts if _MovedLeafPoints(t) is not None]
+    if not done:
+        return plant, []
+    sem, moved = SeparateMovedLeaves(plant.semantic, [_MovedLeafPoints(t) for t in done],
+                                     other_leaf_points_W=[_OtherLeafPoints(t) for t in done])
+    return (plant if sem is plant.semantic else dc.replace(plant, semantic=sem)), moved
+
+
+def _SecondReveals(plant, per_fruit: list[list[dict]], occ: list[dict], cfg
+                   ) -> dict[int, tuple[dict, list[int]]]:
+    """The fruits revealed before that may be revealed again by moving
+    another leaf (``planner.max_reveals_per_fruit``): every earlier target
+    on it moved a leaf, fewer than the maximum did, and a leaf not moved
+    yet hides at least ``planner.next_leaf_min_gain`` of it
+    (``NextLeafOccluders``). ``plant``: with the moved leaves separated
+    (``_PlantAfterMoves``). Per such fruit: its occluders without the
+    leaves it moved, and their instance ids in this view."""
+    from lmap_drake.planning.targets import SeparateMovedLeaves, NextLeafOccluders
+    out = {}
+    for k, ts in enumerate(per_fruit):
+        if not ts or len(ts) >= cfg.max_reveals_per_fruit:
+            continue
+        moved_pts = [_MovedLeafPoints(t) for t in ts]
+        if any(p is None for p in moved_pts):
+            continue            # a target on it moved nothing: it is not tried again
+        _, moved = SeparateMovedLeaves(plant.semantic, moved_pts,
+                                       other_leaf_points_W=[_OtherLeafPoints(t) for t in ts])
+        if not moved:
+            continue            # the moved leaf is not found: another could be it
+        rest = NextLeafOccluders(occ[k], moved, cfg.next_leaf_min_gain)
+        if rest is not None:
+            out[k] = (rest, moved)
     return out
 
 
@@ -285,10 +351,15 @@ class PlantPlanning(LeafSystem):
         status = self._status.Eval(context)
         if not plant.fruits:
             return PlanResult("no_fruit", cfg.method, message="no fruit seen")
-        handled = _Handled(plant, status)
+        per_fruit = _FruitTargets(plant, status)
+        plant, _ = _PlantAfterMoves(plant, per_fruit)
+        handled = [bool(ts) for ts in per_fruit]
         order, occ = FruitOrder(plant, self._X_WC, cfg, self._image_tan)
         visible = [o["visible"] for o in occ]
-        order = [k for k in order if not handled[k]]
+        # every fruit's first reveal before any second one: a first shows
+        # more, and an interrupted episode has spent its motions there
+        again = _SecondReveals(plant, per_fruit, occ, cfg)
+        order = [k for k in order if not handled[k]] + [k for k in order if k in again]
         if not order:
             n = sum(handled)
             return PlanResult("no_action_needed", cfg.method,
@@ -296,12 +367,20 @@ class PlantPlanning(LeafSystem):
                                       f"seen, {n} handled; visible "
                                       f"{', '.join(f'{v:.2f}' for v in visible)})")
         k = order[0]
+        occ_k, moved = again[k] if k in again else (occ[k], [])
         t = PlanTarget(plant, k, self._X_WC, self._robot, self._q.Eval(context), cfg, dcfg,
-                       self._image_tan, occluders=occ[k])
+                       self._image_tan, occluders=occ_k)
+        why = t.why
+        if k in again:
+            why = (f"reveal {len(per_fruit[k]) + 1} of this fruit: leaf "
+                   f"{occ_k['leaves'][0]['leaf_id']} alone hides "
+                   f"{occ_k['leaves'][0]['gain']:.0%} of it that no view has shown "
+                   f"(moved before: leaf {', '.join(map(str, moved))}); {why}")
         info = {"fruit_index": k, "fruit_id": t.fruit_id,
                 "center_W": np.round(plant.fruits[k].center_W, 4).tolist(),
                 "visible_predicted": round(t.visible, 3), "leaf_id": t.leaf_id,
-                "occluding_leaves": t.occluders, "why": t.why,
+                "occluding_leaves": t.occluders, "why": why,
+                "reveal": len(per_fruit[k]) + 1, "moved_before": moved,
                 "options": [{"leaf_id": j, "status": p.status,
                              "visibility": (None if p.chosen is None or not p.seen_max
                                             else round(p.chosen.seen / p.seen_max, 3)),
@@ -325,6 +404,7 @@ class PlantPlanning(LeafSystem):
         from lmap_drake.planning.targets import TargetScene
         plan = self._plan_port.Eval(context)
         plant = self._plant.Eval(context)
+        plant, _ = _PlantAfterMoves(plant, _FruitTargets(plant, self._status.Eval(context)))
         t = plan.target
         if t is None or t.get("fruit_index") is None:
             output.set_value(SceneEstimate(semantic=plant.semantic, branch=plant.branch))

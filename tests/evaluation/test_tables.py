@@ -210,6 +210,8 @@ def test_fruit_table_counts_reveals_among_the_fruits_one_leaf_can_reveal():
     a = rec(scenario="p0")
     a["fruits"] = [fruit(0.95, 1.0), fruit(0.7, 0.75), fruit(0.5, 1.0)]
     a["fruits"][1]["visibility_union"] = 0.93      # two leaves moved in turn: seen over two views
+    a["fruits"][1]["reveals"] = [{"motions": 1}, {"motions": 2}]
+    a["fruits"][2]["reveals"] = [{"motions": 1}, {"motions": 0}]   # the second found no action
     b = rec(scenario="p1")
     b["fruits"] = [fruit(0.92, 0.8), fruit(1.0, 1.0)]
     b["fruits"][1].pop("one_leaf_ceiling")        # an older record: counted as reachable
@@ -217,6 +219,7 @@ def test_fruit_table_counts_reveals_among_the_fruits_one_leaf_can_reveal():
     assert t["fruits"] == 5 and t["revealed"] == 3
     assert t["one_leaf_reachable"] == 3 and t["revealed_of_reachable"] == 2
     assert t["revealed_union"] == 4         # records without it count their final view
+    assert t["revealed_again"] == 1
     # the final shape over every fruit with an estimate, and over the moved ones
     a["fruits"][0]["action"] = {"family": "pull"}
     a["fruits"][2].update(action={"family": "arc"}, shape_final={"chamfer_cm": 0.4})
@@ -225,4 +228,4 @@ def test_fruit_table_counts_reveals_among_the_fruits_one_leaf_can_reveal():
     assert abs(t["shape_final_moved"]["chamfer_cm"]["mean"] - 0.3) < 1e-9
     assert t["shape_final_moved"]["chamfer_cm"]["n"] == 2
     md = T.FruitMarkdown(T.FruitTable([a, b]))
-    assert "| 3 (0.60) | 2 of 3 | 4 |" in md
+    assert "| 3 (0.60) | 2 of 3 | 4 | 1 |" in md

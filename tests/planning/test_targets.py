@@ -132,3 +132,49 @@ def test_target_scene_without_a_leaf_to_move_keeps_every_leaf_as_an_obstacle():
     assert len(t.semantic.leaf_points_W) == 0
     assert len(t.other_leaves_W) == sum(len(p) for p in leaves)
     assert t.fruit is plant.fruits[1] and t.other_fruits == [plant.fruits[0]]
+
+
+def test_a_moved_leaf_segmented_with_its_neighbour_is_split_off():
+    """Released, the moved leaf 0 lies back (3 mm off) beside leaf 1 and
+    the segmenter made one instance of both: the points nearer leaf 0's
+    points in the view its move was planned in than to the other leaves'
+    there stay its instance, the rest become one of their own."""
+    from lmap_drake.planning.targets import SeparateMovedLeaves
+    _, leaves = _plant()
+    before = leaves[0]
+    now = [leaves[0] + [0.003, 0.0, 0.0], leaves[1], leaves[2]]
+    sem = SemanticScene(leaf_points_W=np.vstack(now),
+                        leaf_instance=np.r_[np.zeros(len(now[0]) + len(now[1]), int),
+                                            np.ones(len(now[2]), int)], X_WC=X_WC)
+    out, moved = SeparateMovedLeaves(sem, [before],
+                                     other_leaf_points_W=[np.vstack(leaves[1:])])
+    ids = np.asarray(out.leaf_instance)
+    assert moved == [0] and "moved_leaf_separated" in out.flags
+    was0 = np.r_[np.ones(len(now[0]), bool), np.zeros(len(now[1]) + len(now[2]), bool)]
+    assert np.mean(ids[was0] == 0) > 0.99                      # the moved leaf kept whole
+    new = ids[len(now[0]):len(now[0]) + len(now[1])]
+    assert len(np.unique(new)) == 1 and new[0] not in (0, 1)   # its neighbour on its own
+    assert np.all(ids[-len(now[2]):] == 1)
+    # a view with the two apart: nothing to split, the moved one is found
+    apart = dc_replace(sem, leaf_instance=np.r_[np.zeros(len(now[0]), int),
+                                                np.full(len(now[1]), 2),
+                                                np.ones(len(now[2]), int)])
+    out, moved = SeparateMovedLeaves(apart, [before])
+    assert moved == [0] and out is apart
+    # a leaf nowhere near the moved one's rest: not found
+    assert SeparateMovedLeaves(apart, [before + [0.0, 0.0, 0.3]])[1] == []
+
+
+def dc_replace(obj, **kw):
+    import dataclasses
+    return dataclasses.replace(obj, **kw)
+
+
+def test_the_next_leaf_over_a_fruit_is_one_not_moved_that_hides_enough():
+    from lmap_drake.planning.targets import NextLeafOccluders
+    occ = {"visible": 0.3, "leaves": [{"leaf_id": 4, "gain": 0.5},
+                                      {"leaf_id": 2, "gain": 0.2}]}
+    assert NextLeafOccluders(occ, [4], 0.1)["leaves"] == [{"leaf_id": 2, "gain": 0.2}]
+    assert NextLeafOccluders(occ, [4], 0.25) is None
+    assert NextLeafOccluders(occ, [4, 2], 0.0) is None
+    assert NextLeafOccluders(occ, [], 0.1)["leaves"][0]["leaf_id"] == 4
