@@ -48,7 +48,9 @@ candidates and ActionSelection runs the baseline at the largest of
            ``ur5.position`` (6, rad; at the newest view), ``status``.
   output:  ``scene_estimate``: the current target's fruit re-estimated on
            the fused views, the leaf nearest the gripper as its leaf (what
-           ``observe`` and ``ContinuationPlanning`` use).
+           ``observe`` and ``ContinuationPlanning`` use); the fruits the
+           focused re-estimate left out are kept as obstacles from the
+           target's plan (``status.initial_estimate.other_fruits``).
 
 All outputs are computed on demand and cached by Drake until an input
 changes. The robot model (a MultibodyPlant for IK) is an attribute.
@@ -434,10 +436,20 @@ class TargetReestimate(LeafSystem):
         if not plant.fruits or c is None:
             output.set_value(SceneEstimate(semantic=plant.semantic, branch=plant.branch))
             return
+        status = self._status.Eval(context)
         k = int(np.argmin([np.linalg.norm(f.center_W - c) for f in plant.fruits]))
-        output.set_value(TargetScene(plant, k, HeldLeaf(plant.semantic,
-                                                        self._robot.TcpPose(
-                                                            self._q.Eval(context)).translation())))
+        scene = TargetScene(plant, k, HeldLeaf(plant.semantic,
+                                               self._robot.TcpPose(
+                                                   self._q.Eval(context)).translation()))
+        # The focused re-estimate holds only the fruits near the target; the
+        # others stay obstacles for a further motion, as estimated when the
+        # target was planned (fruits do not move).
+        planned = getattr(getattr(status, "initial_estimate", None), "other_fruits", None) or []
+        far = [f for f in planned if f is not None and all(
+            np.linalg.norm(f.center_W - g.center_W) >= SAME_FRUIT_DISTANCE for g in plant.fruits)]
+        if far:
+            scene = dc.replace(scene, other_fruits=list(scene.other_fruits) + far)
+        output.set_value(scene)
 
 
 def TargetCenter(status) -> np.ndarray | None:

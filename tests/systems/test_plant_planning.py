@@ -244,3 +244,34 @@ def test_a_fruit_under_two_leaves_is_revealed_again_by_the_other_leaf():
     s.planner.max_reveals_per_fruit = 2
     s.planner.next_leaf_min_gain = 0.99
     assert len(_RunToEnd(s, _FruitUnderTwoLeaves()).targets) == 1
+
+
+def test_the_reestimate_keeps_the_fruits_it_left_out_as_obstacles():
+    """The focused re-estimate completes only the fruits near the target:
+    the scene a further motion is planned on still has the far fruit (from
+    the target's plan) as an obstacle, and not twice the near one. Without
+    it the arm's wrist swung into a fruit 20 cm above the target during a
+    continuation arc (206 N)."""
+    import types
+
+    from lmap_drake.systems.planning import TargetReestimate
+    plant = TwoFruitPlant()
+    A, B = plant.fruits
+    focused = PlantEstimate(semantic=plant.semantic, branch=plant.branch, fruits=[A],
+                            fruit_ids=[3])
+    s = _Scenario()
+    sys_ = TargetReestimate(s)
+    ctx = sys_.CreateDefaultContext()
+    sys_.GetInputPort("plant_estimate").FixValue(ctx, AbstractValue.Make(focused))
+    sys_.GetInputPort("ur5.position").FixValue(ctx, s.robot.initial_q)
+    plan = types.SimpleNamespace(target={"center_W": A.center_W.tolist()})
+    planned = SceneEstimate(plant.semantic, fruit=A, other_fruits=[B, A])
+    sys_.GetInputPort("status").FixValue(ctx, AbstractValue.Make(
+        types.SimpleNamespace(plan=plan, initial_estimate=planned)))
+    out = sys_.GetOutputPort("scene_estimate").Eval(ctx)
+    # (Drake hands out copies: compare by centre)
+    assert np.allclose(out.fruit.center_W, A.center_W)
+    assert len(out.other_fruits) == 1 and np.allclose(out.other_fruits[0].center_W, B.center_W)
+    sys_.GetInputPort("status").FixValue(ctx, AbstractValue.Make(
+        types.SimpleNamespace(plan=plan, initial_estimate=None)))
+    assert sys_.GetOutputPort("scene_estimate").Eval(ctx).other_fruits == []
