@@ -728,8 +728,9 @@ class PlannerConfig:
     may be revealed, each time by a leaf not moved before (1, the default:
     one leaf per fruit, as in the paper; 2 is an option, see the README:
     on the multi-fruit suite it raised the fruits seen >= 0.9 over the
-    fused views from 12 to 15 of 18, but one of its four second reveals
-    pressed a leaf into a fruit). A fruit under two leaves shows at most what
+    fused views from 12 to 15 of 18, at the cost of a grasp cycle per
+    second reveal: a 3-fruit episode then takes more than 90 s). A fruit
+    under two leaves shows at most what
     one leaf alone hides while that leaf is moved; the other leaf's part is
     seen only when it is moved in turn (the views are fused, so the shape
     re-estimate sees both parts). A fruit is revealed again after every
