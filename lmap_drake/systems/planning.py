@@ -301,7 +301,7 @@ def _SecondReveals(plant, per_fruit: list[list[dict]], occ: list[dict], cfg
     (``NextLeafOccluders``). ``plant``: with the moved leaves separated
     (``_PlantAfterMoves``). Per such fruit: its occluders without the
     leaves it moved, and their instance ids in this view."""
-    from lmap_drake.planning.targets import SeparateMovedLeaves, NextLeafOccluders
+    from lmap_drake.planning.targets import NextLeafOccluders, SeparateMovedLeaves
     out = {}
     for k, ts in enumerate(per_fruit):
         if not ts or len(ts) >= cfg.max_reveals_per_fruit:
