@@ -85,8 +85,10 @@ def SeparateMovedLeaves(semantic, moved_leaf_points_W: list, radius: float = 0.0
     nearer to it than to those other leaves; its instance is the one holding
     most such points. Where that instance also holds at least half a leaf
     more (the moved blade and a touching one segmented as one), the rest
-    becomes an instance of its own. Returns (the ``SemanticScene``, with
-    such instances split; the moved leaves' instance ids)."""
+    becomes an instance of its own; an instance most of whose points are
+    such points (the moved blade segmented in pieces) is the moved leaf too.
+    Returns (the ``SemanticScene``, with such instances split; the moved
+    leaves' instance ids)."""
     from scipy.spatial import cKDTree
     leaf_W = np.asarray(semantic.leaf_points_W, float).reshape(-1, 3)
     ids = np.asarray(semantic.leaf_instance).copy()
@@ -113,6 +115,8 @@ def SeparateMovedLeaves(semantic, moved_leaf_points_W: list, radius: float = 0.0
             ids[rest] = ids.max() + 1
             split = True
         moved.append(j)
+        moved += [int(i) for i, c in zip(u, n) if i != j and c >= min_points
+                  and c >= 0.5 * np.count_nonzero(ids == i)]
     if split:
         semantic = dc.replace(semantic, leaf_instance=ids,
                               flags=list(semantic.flags) + ["moved_leaf_separated"])

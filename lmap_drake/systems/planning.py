@@ -271,6 +271,14 @@ def _MovedLeafPoints(t: dict) -> np.ndarray | None:
     return np.asarray(t["initial_estimate"].semantic.leaf_points_W, float).reshape(-1, 3)
 
 
+def _HeldVisibility(t: dict) -> float:
+    """How much of its fruit a handled target's last view with the leaf held
+    showed, as the planner's visibility model saw it (its re-plan's
+    current visibility); 0 when it did not re-plan."""
+    done = [p for p in t.get("replan_results", []) if getattr(p, "seen_max", 0)]
+    return done[-1].seen_init / done[-1].seen_max if done else 0.0
+
+
 def _OtherLeafPoints(t: dict) -> np.ndarray:
     """The leaves other than the one a handled target moved, in the view
     its move was planned in (W, m, (N, 3))."""
@@ -296,7 +304,8 @@ def _SecondReveals(plant, per_fruit: list[list[dict]], occ: list[dict], cfg
                    ) -> dict[int, tuple[dict, list[int]]]:
     """The fruits revealed before that may be revealed again by moving
     another leaf (``planner.max_reveals_per_fruit``): every earlier target
-    on it moved a leaf, fewer than the maximum did, and a leaf not moved
+    on it moved a leaf, fewer than the maximum did, no view with a leaf
+    held showed ``planner.early_stop_fraction`` of it, and a leaf not moved
     yet hides at least ``planner.next_leaf_min_gain`` of it
     (``NextLeafOccluders``). ``plant``: with the moved leaves separated
     (``_PlantAfterMoves``). Per such fruit: its occluders without the
@@ -309,6 +318,8 @@ def _SecondReveals(plant, per_fruit: list[list[dict]], occ: list[dict], cfg
         moved_pts = [_MovedLeafPoints(t) for t in ts]
         if any(p is None for p in moved_pts):
             continue            # a target on it moved nothing: it is not tried again
+        if max(map(_HeldVisibility, ts)) >= cfg.early_stop_fraction:
+            continue            # a held view already showed it (early-stop fraction)
         _, moved = SeparateMovedLeaves(plant.semantic, moved_pts,
                                        other_leaf_points_W=[_OtherLeafPoints(t) for t in ts])
         if not moved:

@@ -178,3 +178,15 @@ def test_the_next_leaf_over_a_fruit_is_one_not_moved_that_hides_enough():
     assert NextLeafOccluders(occ, [4], 0.25) is None
     assert NextLeafOccluders(occ, [4, 2], 0.0) is None
     assert NextLeafOccluders(occ, [], 0.1)["leaves"][0]["leaf_id"] == 4
+
+
+def test_a_moved_leaf_segmented_in_pieces_is_moved_as_a_whole():
+    from lmap_drake.planning.targets import SeparateMovedLeaves
+    _, leaves = _plant()
+    piece = leaves[0][:, 2] > 0.30
+    now = np.vstack(leaves)
+    ids = np.r_[np.where(piece, 0, 5), np.ones(len(leaves[1]), int),
+                np.full(len(leaves[2]), 2)]
+    sem = SemanticScene(leaf_points_W=now, leaf_instance=ids, X_WC=X_WC)
+    _, moved = SeparateMovedLeaves(sem, [leaves[0]], other_leaf_points_W=[np.vstack(leaves[1:])])
+    assert moved == [0, 5]

@@ -275,3 +275,32 @@ def test_the_reestimate_keeps_the_fruits_it_left_out_as_obstacles():
     sys_.GetInputPort("status").FixValue(ctx, AbstractValue.Make(
         types.SimpleNamespace(plan=plan, initial_estimate=None)))
     assert sys_.GetOutputPort("scene_estimate").Eval(ctx).other_fruits == []
+
+
+def test_a_second_reveal_needs_a_leaf_not_moved_and_a_fruit_not_yet_shown():
+    """Fruit A hides behind leaves 0 and 1, and leaf 0 was moved: leaf 1 is
+    its next leaf, unless a view with leaf 0 held already showed 95 % of
+    it, or the fruit may be revealed once only."""
+    from lmap_drake.planning.lmap import PlanResult
+    from lmap_drake.planning.targets import FruitOrder
+    from lmap_drake.scenario import Scenario
+    from lmap_drake.systems.planning import _SecondReveals
+    from tests.planning.test_targets import X_WC, _plant
+    plant, leaves = _plant()
+    cfg = Scenario().planner
+    cfg.max_reveals_per_fruit = 2
+    _, occ = FruitOrder(plant, X_WC, cfg)
+
+    def target(seen):
+        moved = SemanticScene(leaf_points_W=leaves[0], leaf_instance=np.zeros(len(leaves[0]),
+                                                                              int))
+        return {"motions": 1, "target": {"center_W": [0.45, 0.0, 0.3]},
+                "initial_estimate": SceneEstimate(moved, other_leaves_W=np.vstack(leaves[1:])),
+                "replan_results": [PlanResult("ok", "lmap", seen_init=seen, seen_max=100)]}
+    again = _SecondReveals(plant, [[target(50)], []], occ, cfg)
+    assert list(again) == [0]
+    rest, moved = again[0]
+    assert moved == [0] and [d["leaf_id"] for d in rest["leaves"]] == [1]
+    assert _SecondReveals(plant, [[target(97)], []], occ, cfg) == {}
+    cfg.max_reveals_per_fruit = 1
+    assert _SecondReveals(plant, [[target(50)], []], occ, cfg) == {}
