@@ -296,6 +296,12 @@ class SimWorld:
                     return found
             c = np.asarray(t["target"]["center_W"], float)
             return int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits])), None
+
+        def executed(u):
+            """The candidates target ``u`` executed (its plan, then its
+            continuations), in order."""
+            plans = ([u["plan"]] if u["plan"] is not None else []) + u["continuations"]
+            return [p.chosen for p in plans if p.chosen is not None][:u["motions"]]
         targets = {}
         rows = []           # every target in turn, also a second one on the same fruit
         for t in st.targets:
@@ -304,14 +310,12 @@ class SimWorld:
                 if i is not None:
                     targets.setdefault(i, []).append(t)
                 worst = worst_load(t)
-                plans = ([t["plan"]] if t["plan"] is not None else []) + t["continuations"]
                 rows.append({"fruit": i, "phantom": i is None,
                              "points_on_fruit": None if on_fruit is None else round(on_fruit, 3),
                              "fruit_id": t["target"].get("fruit_id"),
                              "center_W": t["target"]["center_W"],
                              "leaf_id": t["target"].get("leaf_id"), "outcome": t["outcome"],
-                             "motions": [p.chosen.action.Describe() for p in plans
-                                         if p.chosen is not None][:t["motions"]],
+                             "motions": [c.action.Describe() for c in executed(t)],
                              "t_start": t["t_start"], "t_end": t["t_end"],
                              "max_petiole_force": (None if worst is None
                                                    else float(worst.petiole_force)),
@@ -319,10 +323,6 @@ class SimWorld:
         record["targets"] = rows
         record["phantom_targets"] = sum(r["phantom"] for r in rows)
         fruits = []
-        def executed(u):
-            """The motions target ``u`` executed, as ``Candidate.Row()``s."""
-            plans = ([u["plan"]] if u["plan"] is not None else []) + u["continuations"]
-            return [p.chosen.Row() for p in plans if p.chosen is not None][:u["motions"]]
         for i, f in enumerate(model.fruits):
             ts = targets.get(i, [])
             t = ts[0] if ts else None
@@ -351,7 +351,7 @@ class SimWorld:
                     shape_final=FruitShapeErrors(fin or ini, f.mesh_W, f.peduncle_axis_W),
                     action=(t["plan"].chosen.Row() if t["plan"] is not None
                             and t["plan"].chosen is not None else None),
-                    motions=[row for u in ts for row in executed(u)],
+                    motions=[c.Row() for u in ts for c in executed(u)],
                     leaf_id=t["target"].get("leaf_id"), why=t["target"].get("why", ""),
                     outcome=t["outcome"],
                     reveals=[{"leaf_id": u["target"].get("leaf_id"),

@@ -61,7 +61,7 @@ import dataclasses as dc
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, HeldGrasp,
                                       PlanBaseline, PlanContinuation, PlanningContext,
@@ -289,44 +289,44 @@ def _OtherLeafPoints(t: dict) -> np.ndarray:
 def _PlantAfterMoves(plant, per_fruit: list[list[dict]]):
     """``plant`` with the leaves its handled targets moved found in this
     view (``SeparateMovedLeaves``: a moved blade segmented together with a
-    touching one is split from it). Returns (that plant, the moved leaves'
-    instance ids)."""
+    touching one is split from it). Returns (that plant, per fruit the
+    instance ids of the leaves its targets moved)."""
     from lmap_drake.planning.targets import SeparateMovedLeaves
-    done = [t for ts in per_fruit for t in ts if _MovedLeafPoints(t) is not None]
-    if not done:
-        return plant, []
-    sem, moved = SeparateMovedLeaves(plant.semantic, [_MovedLeafPoints(t) for t in done],
-                                     other_leaf_points_W=[_OtherLeafPoints(t) for t in done])
+    sem, moved = plant.semantic, [[] for _ in per_fruit]
+    for k, ts in enumerate(per_fruit):
+        for t in ts:
+            pts = _MovedLeafPoints(t)
+            if pts is not None:
+                sem, ids = SeparateMovedLeaves(sem, [pts],
+                                               other_leaf_points_W=[_OtherLeafPoints(t)])
+                moved[k] = sorted(set(moved[k]) | set(ids))
     return (plant if sem is plant.semantic else dc.replace(plant, semantic=sem)), moved
 
 
-def _SecondReveals(plant, per_fruit: list[list[dict]], occ: list[dict], cfg
-                   ) -> dict[int, tuple[dict, list[int]]]:
+def _SecondReveals(per_fruit: list[list[dict]], moved: list[list[int]], occ: list[dict],
+                   cfg) -> dict[int, dict]:
     """The fruits revealed before that may be revealed again by moving
     another leaf (``planner.max_reveals_per_fruit``): every earlier target
     on it moved a leaf, fewer than the maximum did, no view with a leaf
     held showed ``planner.early_stop_fraction`` of it, and a leaf not moved
     yet hides at least ``planner.next_leaf_min_gain`` of it
-    (``NextLeafOccluders``). ``plant``: with the moved leaves separated
-    (``_PlantAfterMoves``). Per such fruit: its occluders without the
-    leaves it moved, and their instance ids in this view."""
-    from lmap_drake.planning.targets import NextLeafOccluders, SeparateMovedLeaves
+    (``NextLeafOccluders``). ``moved``: per fruit, the instance ids of the
+    leaves its targets moved (``_PlantAfterMoves``). Per such fruit: its
+    occluders without those leaves."""
+    from lmap_drake.planning.targets import NextLeafOccluders
     out = {}
     for k, ts in enumerate(per_fruit):
         if not ts or len(ts) >= cfg.max_reveals_per_fruit:
             continue
-        moved_pts = [_MovedLeafPoints(t) for t in ts]
-        if any(p is None for p in moved_pts):
+        if any(_MovedLeafPoints(t) is None for t in ts):
             continue            # a target on it moved nothing: it is not tried again
         if max(map(_HeldVisibility, ts)) >= cfg.early_stop_fraction:
             continue            # a held view already showed it (early-stop fraction)
-        _, moved = SeparateMovedLeaves(plant.semantic, moved_pts,
-                                       other_leaf_points_W=[_OtherLeafPoints(t) for t in ts])
-        if not moved:
+        if not moved[k]:
             continue            # the moved leaf is not found: another could be it
-        rest = NextLeafOccluders(occ[k], moved, cfg.next_leaf_min_gain)
+        rest = NextLeafOccluders(occ[k], moved[k], cfg.next_leaf_min_gain)
         if rest is not None:
-            out[k] = (rest, moved)
+            out[k] = rest
     return out
 
 
@@ -348,6 +348,18 @@ class PlantPlanning(LeafSystem):
         self.DeclareAbstractOutputPort(
             "scene_estimate", lambda: AbstractValue.Make(SceneEstimate(SemanticScene())),
             self._calc_scene)
+        # (targets handled per fruit, the plant with the moved leaves found,
+        # their ids per fruit): shared by both outputs
+        self._after_moves = self.DeclareCacheEntry(
+            "plant_after_moves",
+            ValueProducer(allocate=AbstractValue.Make(object()).Clone,
+                          calc=self._CalcAfterMoves),
+            {self._plant.ticket(), self._status.ticket()})
+
+    def _CalcAfterMoves(self, context, value) -> None:
+        plant = self._plant.Eval(context)
+        per_fruit = _FruitTargets(plant, self._status.Eval(context))
+        value.set_value((per_fruit, *_PlantAfterMoves(plant, per_fruit)))
 
     def _calc(self, context, output) -> None:
         cfg = self._scenario.planner
@@ -360,18 +372,15 @@ class PlantPlanning(LeafSystem):
     def _Plan(self, context) -> PlanResult:
         from lmap_drake.planning.targets import FruitOrder, PlanTarget
         cfg, dcfg = self._scenario.planner, self._scenario.deformation
-        plant = self._plant.Eval(context)
-        status = self._status.Eval(context)
-        if not plant.fruits:
+        if not self._plant.Eval(context).fruits:
             return PlanResult("no_fruit", cfg.method, message="no fruit seen")
-        per_fruit = _FruitTargets(plant, status)
-        plant, _ = _PlantAfterMoves(plant, per_fruit)
+        per_fruit, plant, moved = self._after_moves.Eval(context)
         handled = [bool(ts) for ts in per_fruit]
         order, occ = FruitOrder(plant, self._X_WC, cfg, self._image_tan)
         visible = [o["visible"] for o in occ]
         # every fruit's first reveal before any second one: a first shows
         # more, and an interrupted episode has spent its motions there
-        again = _SecondReveals(plant, per_fruit, occ, cfg)
+        again = _SecondReveals(per_fruit, moved, occ, cfg)
         order = [k for k in order if not handled[k]] + [k for k in order if k in again]
         if not order:
             n = sum(handled)
@@ -380,7 +389,7 @@ class PlantPlanning(LeafSystem):
                                       f"seen, {n} handled; visible "
                                       f"{', '.join(f'{v:.2f}' for v in visible)})")
         k = order[0]
-        occ_k, moved = again[k] if k in again else (occ[k], [])
+        occ_k = again.get(k, occ[k])
         t = PlanTarget(plant, k, self._X_WC, self._robot, self._q.Eval(context), cfg, dcfg,
                        self._image_tan, occluders=occ_k)
         why = t.why
@@ -388,12 +397,13 @@ class PlantPlanning(LeafSystem):
             why = (f"reveal {len(per_fruit[k]) + 1} of this fruit: leaf "
                    f"{occ_k['leaves'][0]['leaf_id']} alone hides "
                    f"{occ_k['leaves'][0]['gain']:.0%} of it that no view has shown "
-                   f"(moved before: leaf {', '.join(map(str, moved))}); {why}")
+                   f"(moved before: leaf {', '.join(map(str, moved[k]))}); {why}")
         info = {"fruit_index": k, "fruit_id": t.fruit_id,
                 "center_W": np.round(plant.fruits[k].center_W, 4).tolist(),
                 "visible_predicted": round(t.visible, 3), "leaf_id": t.leaf_id,
                 "occluding_leaves": t.occluders, "why": why,
-                "reveal": len(per_fruit[k]) + 1, "moved_before": moved,
+                "reveal": len(per_fruit[k]) + 1,
+                "moved_before": moved[k] if k in again else [],
                 "options": [{"leaf_id": j, "status": p.status,
                              "visibility": (None if p.chosen is None or not p.seen_max
                                             else round(p.chosen.seen / p.seen_max, 3)),
@@ -416,8 +426,7 @@ class PlantPlanning(LeafSystem):
     def _calc_scene(self, context, output) -> None:
         from lmap_drake.planning.targets import TargetScene
         plan = self._plan_port.Eval(context)
-        plant = self._plant.Eval(context)
-        plant, _ = _PlantAfterMoves(plant, _FruitTargets(plant, self._status.Eval(context)))
+        _, plant, _ = self._after_moves.Eval(context)
         t = plan.target
         if t is None or t.get("fruit_index") is None:
             output.set_value(SceneEstimate(semantic=plant.semantic, branch=plant.branch))

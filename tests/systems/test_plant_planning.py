@@ -284,7 +284,7 @@ def test_a_second_reveal_needs_a_leaf_not_moved_and_a_fruit_not_yet_shown():
     from lmap_drake.planning.lmap import PlanResult
     from lmap_drake.planning.targets import FruitOrder
     from lmap_drake.scenario import Scenario
-    from lmap_drake.systems.planning import _SecondReveals
+    from lmap_drake.systems.planning import _PlantAfterMoves, _SecondReveals
     from tests.planning.test_targets import X_WC, _plant
     plant, leaves = _plant()
     cfg = Scenario().planner
@@ -297,10 +297,14 @@ def test_a_second_reveal_needs_a_leaf_not_moved_and_a_fruit_not_yet_shown():
         return {"motions": 1, "target": {"center_W": [0.45, 0.0, 0.3]},
                 "initial_estimate": SceneEstimate(moved, other_leaves_W=np.vstack(leaves[1:])),
                 "replan_results": [PlanResult("ok", "lmap", seen_init=seen, seen_max=100)]}
-    again = _SecondReveals(plant, [[target(50)], []], occ, cfg)
-    assert list(again) == [0]
-    rest, moved = again[0]
-    assert moved == [0] and [d["leaf_id"] for d in rest["leaves"]] == [1]
-    assert _SecondReveals(plant, [[target(97)], []], occ, cfg) == {}
+    def again(seen):
+        per_fruit = [[target(seen)], []]
+        _, moved = _PlantAfterMoves(plant, per_fruit)
+        return _SecondReveals(per_fruit, moved, occ, cfg), moved
+    out, moved = again(50)
+    assert list(out) == [0]
+    rest = out[0]
+    assert moved[0] == [0] and [d["leaf_id"] for d in rest["leaves"]] == [1]
+    assert again(97)[0] == {}
     cfg.max_reveals_per_fruit = 1
-    assert _SecondReveals(plant, [[target(50)], []], occ, cfg) == {}
+    assert again(50)[0] == {}
