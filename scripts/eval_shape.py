@@ -24,7 +24,11 @@ methods has to exceed). Rows of the DeepSDF methods also record how many
 iterations had an active negative loss (``neg_iters``) and an active
 peduncle loss (``ped_iters``), and how many negative points the estimate
 still has inside it (``neg_inside``: leaf, observed branch, free space,
-more than 0.5 mm deep).
+more than 0.5 mm deep). Every row splits the centre error along the view
+ray to the true centre (``center_depth_cm``, + = too far), the vertical
+across it (``center_up_cm``, + = too high) and the rest
+(``center_side_cm``); the means give their root mean squares
+(``center_depth_rms_cm`` ...).
 
 ``--fruit_mesh_dir DIR`` evaluates pepper meshes from files instead of the
 suite's procedural peppers: every ``DIR/NAME.{obj,ply,stl}`` (with
@@ -119,6 +123,23 @@ def Cases(source: str, num: int, fruit_files: dict | None = None, names=None):
                 lambda occ, i=i: benchmark.MakeSyntheticCase(i, occ)
 
 
+def CentreOffsetCm(est, case, sem) -> dict:
+    """The estimated centre minus the true one (cm), split along the view
+    ray from the camera to the true centre (``center_depth_cm``, + = too
+    far), the world vertical across it (``center_up_cm``, + = too high)
+    and the rest (``center_side_cm``, unsigned)."""
+    from lmap_drake.shape.metrics import MeshCentroid
+    c_true = MeshCentroid(case.gt_vertices_W, case.gt_faces)
+    off = (MeshCentroid(est.vertices_W, est.faces) - c_true) * 100.0
+    ray = c_true - np.asarray(sem.X_WC, float)[:3, 3]
+    ray /= np.linalg.norm(ray)
+    up = np.array([0.0, 0.0, 1.0]) - ray[2] * ray
+    up /= np.linalg.norm(up)
+    depth, height = float(off @ ray), float(off @ up)
+    side = float(np.linalg.norm(off - depth * ray - height * up))
+    return dict(center_depth_cm=depth, center_up_cm=height, center_side_cm=side)
+
+
 def Means(rows, methods) -> dict:
     """``{method: {condition: {metric: mean}}}`` over ``rows``."""
     out = {}
@@ -129,6 +150,10 @@ def Means(rows, methods) -> dict:
             out[m][cond] = {k: float(np.mean([r[k] for r in sel])) if sel else float("nan")
                             for k in METRICS}
             out[m][cond]["num_cases"] = len({r["case"] for r in sel})
+            for k in ("center_depth_cm", "center_up_cm", "center_side_cm"):
+                vals = [r[k] for r in sel if k in r]
+                out[m][cond][k.replace("_cm", "_rms_cm")] = (
+                    float(np.sqrt(np.mean(np.square(vals)))) if vals else float("nan"))
     return out
 
 
@@ -267,7 +292,8 @@ def main(argv=None):
                              volume_cm3=abs(MeshVolume(f.vertices_W, f.faces)) * 1e6,
                              gt_volume_cm3=abs(MeshVolume(case.gt_vertices_W,
                                                           case.gt_faces)) * 1e6,
-                             scale=float(np.cbrt(abs(np.linalg.det(f.X_WO[:3, :3])))))
+                             scale=float(np.cbrt(abs(np.linalg.det(f.X_WO[:3, :3])))),
+                             **CentreOffsetCm(f, case, sem))
                     if m != "supeps":
                         if negatives is None:
                             negatives = SceneNegatives(sem, cfg.free_space_voxel)

@@ -34,6 +34,9 @@ def test_eval_shape_on_a_folder_of_meshes(tmp_path):
                 assert np.isfinite(res[m][cond][k])
                 assert res["per_fruit"]["tiny"][m][cond][k] == res[m][cond][k]
     assert {r["fruit"] for r in res["rows"]} == {"tiny"}
+    for r in res["rows"]:   # the centre error split along the view ray, up and sideways
+        split = np.linalg.norm([r["center_depth_cm"], r["center_up_cm"], r["center_side_cm"]])
+        assert r["center_side_cm"] >= 0 and abs(split - r["center_err_cm"]) < 1e-3
     assert len(res["rows"]) == 6
     assert "| tiny |" in (tmp_path / "shape.md").read_text()
 
