@@ -12,7 +12,9 @@ the camera model (depth noise 0.5-2x, dropout and flying-pixel rates).
 Each sample ``NNNNN.npz`` holds the network input (``SegNetInputs``, float16,
 cropped to the plant and robot returns plus a margin) and the truth class
 map (uint8, background / branch / leaf / fruit; the robot is background),
-with ``fruit_kind`` (red / orange / yellow / green). Sample ``i`` depends only
+with ``fruit_kind`` (red / orange / yellow / green; ``mixed`` for a
+multi-fruit plant not all green) and ``multi`` (a multi-fruit plant,
+``--multi``). Sample ``i`` depends only
 on ``seed + i``, so a run can be extended or resumed (existing files are
 kept). Seeds used here must stay apart from the evaluation suites'
 (``RandomSuite(N, S)`` draws plants from its own seed ``S`` and never uses
@@ -45,7 +47,9 @@ def _ArmNearLeaf(s, rng) -> list[float]:
 
     from lmap_drake.planning.robot_model import RobotModel
     from lmap_drake.plants.world import GetPlantModel
-    leaf = GetPlantModel(s).leaf_rest_W
+    model = GetPlantModel(s)
+    leaf = (model.leaves[rng.integers(len(model.leaves))].rest_W if hasattr(model, "leaves")
+            else model.leaf_rest_W)      # a multi-fruit plant: one of its leaves
     p = leaf[rng.integers(len(leaf))]
     p_WC = s.cameras["camera0"].X_PB.GetDeterministicValue().translation()
     z = p - p_WC
@@ -60,32 +64,51 @@ def _ArmNearLeaf(s, rng) -> list[float]:
     return [float(v) for v in r.q] if r.success else list(s.robot.initial_q)
 
 
-def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0):
+def _RandomFruitColor(rng, fruit) -> str:
+    """A random fruit kind (half green) and colour on ``fruit`` (a
+    ``FruitConfig``); returns the kind."""
+    from pydrake.geometry import Rgba
+    kind = str(rng.choice(FRUIT_KINDS, p=[0.2, 0.15, 0.15, 0.5]))
+    lo, hi = FRUIT_HUES[kind]
+    if kind == "green":
+        fruit.color = _rgba(rng.uniform(lo, hi), rng.uniform(0.45, 0.9), rng.uniform(0.25, 0.65))
+    else:
+        fruit.color = _rgba(rng.uniform(lo, hi), rng.uniform(0.8, 1.0), rng.uniform(0.55, 0.95))
+    fruit.stripe_color = Rgba(*(np.asarray(fruit.color.rgba[:3]) * rng.uniform(0.6, 0.85)), 1.0)
+    return kind
+
+
+def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0.0):
     """(Scenario, fruit_kind) for sample ``seed``: a random procedural plant
     with randomised colours, lights, camera pose, arm pose and camera model;
-    with probability ``arm_near_leaf`` the gripper is at the leaf."""
+    with probability ``arm_near_leaf`` the gripper is at the leaf. With
+    probability ``multi`` the plant has 2-4 fruits on side shoots, each with
+    its stalk, and 2-6 leaves (``RandomMultiSuite``), each fruit its own
+    colour; its kind is then ``green`` if every fruit is, else ``mixed``."""
     from pydrake.common.schema import Rotation
     from pydrake.geometry import LightParameter, Rgba
     from pydrake.math import RollPitchYaw
 
-    from lmap_drake.plants.suite import RandomSuite
+    from lmap_drake.plants.suite import RandomMultiSuite, RandomSuite
     from lmap_drake.scenario import Scenario
 
     rng = np.random.default_rng(seed)
     s = Scenario()
     s.random_seed = int(seed)
-    plant = next(iter(RandomSuite(1, int(rng.integers(1 << 30))).values()))
-    plant.occlusion = float(rng.uniform(0.3, 0.95))
+    # (the coin has its own stream: a single plant's sample is the same
+    # whatever ``multi`` is)
+    is_multi = np.random.default_rng([seed, 1]).random() < multi
+    plant = next(iter((RandomMultiSuite if is_multi else RandomSuite)(
+        1, int(rng.integers(1 << 30))).values()))
+    if not is_multi:
+        plant.occlusion = float(rng.uniform(0.3, 0.95))
     plant.leaf.color = _rgba(rng.uniform(75, 135), rng.uniform(0.45, 0.85), rng.uniform(0.3, 0.7))
     plant.branch.color = _rgba(rng.uniform(40, 110), rng.uniform(0.3, 0.7), rng.uniform(0.22, 0.55))
-    kind = str(rng.choice(FRUIT_KINDS, p=[0.2, 0.15, 0.15, 0.5]))
-    lo, hi = FRUIT_HUES[kind]
-    if kind == "green":
-        plant.fruit.color = _rgba(rng.uniform(lo, hi), rng.uniform(0.45, 0.9), rng.uniform(0.25, 0.65))
+    if is_multi:
+        kinds = {_RandomFruitColor(rng, f.fruit) for f in plant.multi.fruits}
+        kind = "green" if kinds == {"green"} else "mixed"
     else:
-        plant.fruit.color = _rgba(rng.uniform(lo, hi), rng.uniform(0.8, 1.0), rng.uniform(0.55, 0.95))
-    plant.fruit.stripe_color = Rgba(*(np.asarray(plant.fruit.color.rgba[:3]) *
-                                      rng.uniform(0.6, 0.85)), 1.0)
+        kind = _RandomFruitColor(rng, plant.fruit)
     s.plant_scene = plant
 
     cam = s.cameras["camera0"]
@@ -126,14 +149,15 @@ def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0):
     return s, kind
 
 
-def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0) -> dict:
+def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
+                 multi: float = 0.0) -> dict:
     """Renders sample ``seed``; returns the arrays stored in its ``.npz``."""
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import TruthClassMap
     from lmap_drake.perception.segnet import CropBox, SegNetInputs
     from lmap_drake.plants.world import RenderStill
 
-    s, kind = RandomRenderScenario(seed, arm_near_leaf)
+    s, kind = RandomRenderScenario(seed, arm_near_leaf, multi)
     rgb, depth, label = RenderStill(s)
     truth = TruthClassMap(label).astype(np.uint8)
     K = Intrinsics.FromCameraConfig(s.cameras["camera0"])
@@ -142,16 +166,16 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0) -> dic
     if box is None or not (truth == 3).any():
         raise ValueError("no fruit in view")
     return {"inputs": x[:, box[0], box[1]].astype(np.float16), "truth": truth[box],
-            "fruit_kind": kind}
+            "fruit_kind": kind, "multi": s.plant_scene.kind == "multi"}
 
 
 def _work(args) -> str:
-    seed, out, arm_near_leaf = args
+    seed, out, arm_near_leaf, multi = args
     path = Path(out) / f"{seed:06d}.npz"
     if path.exists():
         return "kept"
     try:
-        sample = RenderSample(seed, arm_near_leaf=arm_near_leaf)
+        sample = RenderSample(seed, arm_near_leaf=arm_near_leaf, multi=multi)
     except Exception as err:  # a generator refusal or an empty view: skip the seed
         return f"skipped {seed}: {type(err).__name__}: {err}"
     tmp = path.with_suffix(".tmp.npz")
@@ -169,14 +193,21 @@ def main(argv=None) -> int:
     ap.add_argument("--arm_near_leaf", type=float, default=0.5,
                     help="fraction of scenes with the gripper at the leaf (the view after a "
                          "grasp); the rest keep the arm near its initial pose")
+    ap.add_argument("--multi", type=float, default=0.0,
+                    help="fraction of scenes with a multi-fruit plant (2-4 fruits on side "
+                         "shoots with their stalks, 2-6 leaves)")
     args = ap.parse_args(argv)
+    if not 0.0 <= args.multi <= 1.0 or not 0.0 <= args.arm_near_leaf <= 1.0:
+        print("error: --multi and --arm_near_leaf must lie in [0, 1]", file=sys.stderr)
+        return 2
     if args.count < 1 or args.workers < 1:
         print("error: --count and --workers must be >= 1", file=sys.stderr)
         return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from tqdm import tqdm
-    jobs = [(args.seed + i, str(out), args.arm_near_leaf) for i in range(args.count)]
+    jobs = [(args.seed + i, str(out), args.arm_near_leaf, args.multi)
+            for i in range(args.count)]
     t0 = time.time()
     counts: dict[str, int] = {}
     if args.workers == 1:

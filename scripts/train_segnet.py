@@ -35,7 +35,8 @@ def LoadSamples(folder: Path) -> list[dict]:
             continue
         d = np.load(f)
         out.append({"seed": int(f.stem), "x": d["inputs"], "y": d["truth"].astype(np.int64),
-                    "kind": str(d["fruit_kind"])})
+                    "kind": str(d["fruit_kind"]),
+                    "multi": bool(d["multi"]) if "multi" in d.files else False})
     return out
 
 
@@ -78,7 +79,7 @@ def Validate(net, samples: list[dict]) -> dict:
     rows = []
     for s in samples:
         pred = PredictLogits(net, s["x"].astype(np.float32)).argmax(0)
-        rows.append({"kind": s["kind"], **{k: Iou(pred, s["y"], c)
+        rows.append({"kind": s["kind"], "multi": s["multi"], **{k: Iou(pred, s["y"], c)
                                          for k, c in (("branch", 1), ("leaf", 2), ("fruit", 3))}})
     net.train()
 
@@ -87,8 +88,13 @@ def Validate(net, samples: list[dict]) -> dict:
         return round(float(np.mean(v)), 4) if v else None
     green = [r for r in rows if r["kind"] == "green"]
     other = [r for r in rows if r["kind"] != "green"]
-    return {"n": len(rows), "branch_iou": mean(rows, "branch"), "leaf_iou": mean(rows, "leaf"),
-            "fruit_iou_green": mean(green, "fruit"), "fruit_iou_other": mean(other, "fruit")}
+    out = {"n": len(rows), "branch_iou": mean(rows, "branch"), "leaf_iou": mean(rows, "leaf"),
+           "fruit_iou_green": mean(green, "fruit"), "fruit_iou_other": mean(other, "fruit")}
+    multi = [r for r in rows if r["multi"]]
+    if multi:       # the multi-fruit plants among them (side shoots and stalks)
+        out.update(n_multi=len(multi), fruit_iou_multi=mean(multi, "fruit"),
+                   branch_iou_multi=mean(multi, "branch"))
+    return out
 
 
 def main(argv=None) -> int:
@@ -137,7 +143,8 @@ def main(argv=None) -> int:
             bar.set_postfix(loss=f"{loss.item():.3f}")
     metrics = Validate(net, val)
     meta = {"init": args.init, "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
-            "batch": args.batch, "crop": CROP, "seconds": round(time.time() - t0, 1),
+            "batch": args.batch, "lr": args.lr, "crop": CROP,
+            "multi_samples": sum(s["multi"] for s in samples), "seconds": round(time.time() - t0, 1),
             "data": str(args.data), "seed_range": [min(s["seed"] for s in samples),
                                                    max(s["seed"] for s in samples)],
             "validation": metrics}
