@@ -711,6 +711,15 @@ class PlannerConfig:
     hazard scenes the same cap keeps 97 of 144 such pulls, the largest
     9.6 N.
 
+    ``robot_fruit_margin`` (m): every part of the robot but the two fingers
+    (arm, wrist, the gripper's body and coupling) keeps this far from every
+    estimated fruit; the fingers, which must reach a leaf lying on its
+    fruit, keep ``collision_margin``. A fruit's estimate is seen on one
+    side only, and its unseen side can be a centimetre off: in
+    ``four_fruits`` the gripper's coupling ended an arc 5.8 mm from the
+    estimate of a fully visible fruit and 5.1 mm inside the real one (237
+    N on the fruit). Off (below ``collision_margin``) means the one margin.
+
     ``check_leaf_branch``: reject an action whose predicted leaf ends within
     ``collision_margin`` of the completed branch (stems and shoots) after
     moving toward it, as the paper's leaf-fruit check does for the fruit
@@ -758,6 +767,7 @@ class PlannerConfig:
     targets: str = "largest"   # largest | all
     visibility_voxel: float = 0.003
     collision_margin: float = 0.005
+    robot_fruit_margin: float = 0.015
     energy_weight: float = 1.0
     max_energy_per_node: float = 5.9e-7
     force_action: list[float] = dc.field(default_factory=list)
@@ -1190,6 +1200,7 @@ _RULES = {
     "planner.max_pull_distance": ">=0",
     "planner.visibility_voxel": ">0",
     "planner.collision_margin": ">=0",
+    "planner.robot_fruit_margin": ">=0",
     "planner.energy_weight": ">=0",
     "planner.max_energy_per_node": ">=0",
     "planner.speed_scale": "(0,1]",

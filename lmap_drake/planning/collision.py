@@ -51,16 +51,20 @@ class UnionSdf:
         return out
 
 
-def NearBox(points_W, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def NearBox(points_W, lo: np.ndarray, hi: np.ndarray, geometries=None) -> np.ndarray:
     """Points inside the axis-aligned box [lo, hi] (a cheap pre-filter).
     ``points_W``: an (N, 3) array, or the robot's samples per geometry
     (``robot_model.SurfaceSamples``): then only the geometries whose world
     box meets [lo, hi] are transformed and filtered (the same points, the
     others cannot lie inside; a UR5 pose has about 13 000 samples and
-    usually one or two geometries near the plant)."""
+    usually one or two geometries near the plant). ``geometries`` (a bool
+    per geometry, for ``SurfaceSamples`` only): only those are looked at."""
     boxes = getattr(points_W, "boxes", None)
     if boxes is not None:
-        meets = np.flatnonzero(np.all((boxes[:, 0] <= hi) & (boxes[:, 1] >= lo), axis=1))
+        inside = np.all((boxes[:, 0] <= hi) & (boxes[:, 1] >= lo), axis=1)
+        if geometries is not None:
+            inside &= np.asarray(geometries, bool)
+        meets = np.flatnonzero(inside)
         if len(meets) == 0:
             return np.zeros((0, 3))
         points_W = np.vstack([points_W[int(i)] for i in meets])
@@ -73,25 +77,38 @@ def AllPoints(points_W) -> np.ndarray:
 
 
 def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
-                         margin: float, fruit_box=None, branch_box=None) -> str:
+                         margin: float, fruit_box=None, branch_box=None,
+                         body_fruit_margin: float | None = None) -> str:
     """'' if the robot samples keep ``margin`` from the fruit (SDF) and the
     branch mesh, else the reason. ``robot_points_W``: (N, 3) world points or
     a ``SurfaceSamples`` (per geometry, see ``NearBox``). ``*_box`` = (lo,
     hi) bounds of each object; only samples within ``margin`` of those
-    bounds are queried."""
-    for name, distance, box in (("fruit", fruit_sdf, fruit_box),
-                                ("branch", branch_distance, branch_box)):
+    bounds are queried. ``body_fruit_margin`` (m, with ``SurfaceSamples``):
+    the geometries not on the fingers keep this from the fruit instead
+    (when larger than ``margin``; the reason then says 'robot body')."""
+    checks = [("fruit", "fruit", fruit_sdf, fruit_box, margin, None)]
+    fingers = getattr(robot_points_W, "fingers", None)
+    if (body_fruit_margin is not None and fingers is not None and np.isfinite(margin)
+            and body_fruit_margin > margin):
+        checks = [("fruit", "fruit", fruit_sdf, fruit_box, margin, fingers),
+                  ("fruit", "body-fruit", fruit_sdf, fruit_box, body_fruit_margin, ~fingers)]
+    checks.append(("branch", "branch", branch_distance, branch_box, margin, None))
+    for name, what, distance, box, m, geoms in checks:
         if distance is None:
             continue
-        pts = AllPoints(robot_points_W) if box is None else NearBox(
-            robot_points_W, box[0] - margin, box[1] + margin)
+        if box is None:
+            pts = (AllPoints(robot_points_W) if geoms is None else
+                   np.vstack([robot_points_W[int(i)] for i in np.flatnonzero(geoms)]
+                             or [np.zeros((0, 3))]))
+        else:
+            pts = NearBox(robot_points_W, box[0] - m, box[1] + m, geoms)
         if len(pts):
             d = np.asarray(distance(pts), float)
-            if np.isfinite(margin) and not np.all(np.isfinite(d)):
+            if np.isfinite(m) and not np.all(np.isfinite(d)):
                 # NaN passes every comparison: a non-finite distance rejects.
                 return f"robot-{name} (non-finite {name} distance)"
-            if d.min() < margin:
-                return f"robot-{name} ({d.min() * 1000:.1f} mm)"
+            if d.min() < m:
+                return f"robot-{what} ({d.min() * 1000:.1f} mm)"
     return ""
 
 

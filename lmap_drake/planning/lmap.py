@@ -189,7 +189,8 @@ def _RobotPoseReason(robot, q: np.ndarray, half_open: float, points_W: np.ndarra
     if pair:
         return f"robot self-collision ({pair})"
     return RobotCollisionReason(points_W, ctx.fruit_sdf, ctx.branch_distance,
-                                cfg.collision_margin, ctx.fruit_box, ctx.branch_box)
+                                cfg.collision_margin, ctx.fruit_box, ctx.branch_box,
+                                cfg.robot_fruit_margin)
 
 
 def _LeafObstacles(ctx: PlanningContext, held: bool = True) -> tuple:

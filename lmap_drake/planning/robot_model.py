@@ -72,8 +72,11 @@ class SurfaceSamples:
     computed when first read; ``boxes`` (G, 2, 3) at once from 8 corners
     per geometry, ``corners`` (G, 8, 3) those corners in the world."""
 
-    def __init__(self, local: list, corners: list, X: list):
+    def __init__(self, local: list, corners: list, X: list, fingers: np.ndarray | None = None):
         self._local, self._X = local, X
+        # which geometries are on the two fingers (pads and links)
+        self.fingers = (np.zeros(len(local), bool) if fingers is None
+                        else np.asarray(fingers, bool))
         self._world: dict[int, np.ndarray] = {}
         self.boxes = np.empty((len(local), 2, 3))
         self.corners = np.empty((len(local), 8, 3))
@@ -126,6 +129,9 @@ class RobotModel:
             self._bodies.append(body)
             self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
         self.num_points = int(sum(len(p) for p in self._points))
+        # the geometries on the two fingers (pads and finger links)
+        self._fingers = np.array([b.name() in ("left_finger", "right_finger")
+                                  for b in self._bodies], bool)
         # each geometry's sample box in its body frame, as 8 corners
         self._corners = [np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                                    for z in (lo[2], hi[2])])
@@ -171,7 +177,7 @@ class RobotModel:
         self.SetQ(q, half_opening)
         X = [self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
              for body in self._bodies]
-        return SurfaceSamples(self._points, self._corners, X)
+        return SurfaceSamples(self._points, self._corners, X, self._fingers)
 
     def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
                       margin: float = 0.0) -> str:
