@@ -52,3 +52,34 @@ def test_union_sdf_is_exact_near_the_fruits_and_a_lower_bound_far_away():
     # a NaN from a fruit's SDF is not hidden by the other fruit
     nan_union = UnionSdf([lambda q: np.full(len(q), np.nan), sdfs[1]], boxes)
     assert np.isnan(nan_union(centers[:1])).all()
+
+
+def test_the_robot_body_keeps_the_larger_margin_from_a_fruit_the_fingers_the_smaller():
+    robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
+    q = np.array(RobotConfig().initial_q)
+    samples = robot.SurfacePointsByBody(q, 0.02)
+    assert samples.fingers.any() and not samples.fingers.all()
+    body = np.vstack([samples[int(i)] for i in np.flatnonzero(~samples.fingers)])
+    finger = np.vstack([samples[int(i)] for i in np.flatnonzero(samples.fingers)])
+
+    def fruit_near(points, gap):
+        """A 3 cm sphere whose surface lies ``gap`` from the nearest of
+        ``points``, on the side away from the rest of the robot."""
+        every = robot.SurfacePoints(q, 0.02)
+        p = points[np.argmax(np.linalg.norm(points - every.mean(0), axis=1))]
+        out = (p - every.mean(0)) / np.linalg.norm(p - every.mean(0))
+        for _ in range(50):     # push out until the nearest robot sample is ``gap`` away
+            c = p + (0.03 + gap) * out
+            d = np.linalg.norm(every - c, axis=1).min() - 0.03
+            p = p + (gap - d) * out
+        return _Sphere(c, 0.03), (c - 0.03, c + 0.03)
+
+    sdf, box = fruit_near(body, 0.010)         # 1 cm from the gripper body or arm
+    assert RobotCollisionReason(samples, sdf, None, 0.005, box, None) == ""
+    assert RobotCollisionReason(samples, sdf, None, 0.005, box, None, 0.015).startswith(
+        "robot-body-fruit")
+    sdf, box = fruit_near(finger, 0.010)       # 1 cm from a finger only
+    assert np.linalg.norm(body - (box[0] + 0.03), axis=1).min() > 0.03 + 0.015
+    assert RobotCollisionReason(samples, sdf, None, 0.005, box, None, 0.015) == ""
+    assert RobotCollisionReason(samples, sdf, None, 0.012, box, None, 0.015).startswith(
+        "robot-fruit")
