@@ -85,7 +85,7 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
     hi) bounds of each object; only samples within ``margin`` of those
     bounds are queried. ``body_fruit_margin`` (m, with ``SurfaceSamples``):
     the geometries not on the fingers keep this from the fruit instead
-    (when larger than ``margin``; the reason then says 'robot body')."""
+    (when larger than ``margin``; the reason then reads 'robot-body-fruit')."""
     checks = [("fruit", "fruit", fruit_sdf, fruit_box, margin, None)]
     fingers = getattr(robot_points_W, "fingers", None)
     if (body_fruit_margin is not None and fingers is not None and np.isfinite(margin)
