@@ -96,12 +96,11 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
     for name, what, distance, box, m, geoms in checks:
         if distance is None:
             continue
-        if box is None:
-            pts = (AllPoints(robot_points_W) if geoms is None else
-                   np.vstack([robot_points_W[int(i)] for i in np.flatnonzero(geoms)]
-                             or [np.zeros((0, 3))]))
-        else:
-            pts = NearBox(robot_points_W, box[0] - m, box[1] + m, geoms)
+        if box is None and geoms is None:
+            pts = AllPoints(robot_points_W)
+        else:                   # (no box: an unbounded one, to pick the geometries)
+            lo, hi = box if box is not None else (np.full(3, -np.inf), np.full(3, np.inf))
+            pts = NearBox(robot_points_W, lo - m, hi + m, geoms)
         if len(pts):
             d = np.asarray(distance(pts), float)
             if np.isfinite(m) and not np.all(np.isfinite(d)):
