@@ -911,8 +911,44 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         result.message = "no feasible action: " + NoActionReason(cands, cset.dropped_grasps,
                                                                  cfg)
         return result
-    result.chosen = max(feasible, key=lambda c: c.score)
+    # The best action whose executed path (as the controller will run it)
+    # passes; a failing one is rejected and the next best taken.
+    while feasible:
+        best = max(feasible, key=lambda c: c.score)
+        why = _ActionPathReason(ctx, cfg, best)
+        if not why:
+            result.chosen = best
+            return result
+        best.reason = why
+        feasible = [c for c in feasible if c.feasible]
+    result.status = "no_feasible_action"
+    result.message = "no feasible action: " + NoActionReason(cands, cset.dropped_grasps, cfg)
     return result
+
+
+def _ActionPathReason(ctx: PlanningContext, cfg: PlannerConfig, c: Candidate) -> str:
+    """'' or why candidate ``c``'s motion fails along the joint path the
+    controller will execute (``PlanActionPath`` from its grasp joints,
+    straightened near a wrist singularity, so it may differ from the end
+    and midway poses the candidate checks solved on their own): no IK,
+    self-collision, or a waypoint within the margins of a fruit, a branch
+    or a leaf not held."""
+    from lmap_drake.planning.motion import MotionError, PlanActionPath
+    if c.q_grasp is None:
+        return ""
+    try:
+        path = PlanActionPath(ctx.robot, c.action, c.q_grasp)
+    except MotionError as err:
+        return f"executed path: {' '.join(str(err).split())}"
+    for q in path:
+        pts = ctx.robot.SurfacePointsByBody(q, 0.0)
+        why = (RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
+                                    cfg.collision_margin, ctx.fruit_box, ctx.branch_box,
+                                    cfg.robot_fruit_margin)
+               or _OtherLeafReason(ctx, cfg, pts))
+        if why:
+            return f"{why} along the executed {c.action.family}"
+    return ""
 
 
 def NoActionReason(cands: list[Candidate], dropped_grasps: list[dict],

@@ -337,14 +337,16 @@ class ArmController(LeafSystem):
         st.trajectory = self._TimePath(t, q0, waypoints, fraction, duration, min_segment)
         st.q_hold = np.asarray(waypoints[-1], float)
 
-    def _ApproachTiming(self, waypoints: list) -> dict:
+    def _ApproachTiming(self, q0: np.ndarray, waypoints: list) -> dict:
         """``_TimePath`` arguments for the final approach (pre-grasp <->
-        grasp, ``planner.pregrasp_distance`` in len(waypoints) equal
-        Cartesian steps): each step at the TCP speed ``planner.approach_speed``
-        unless a joint would exceed 0.5 of its velocity limit (near a wrist
-        singularity), then as fast as that allows."""
-        step = self._scenario.planner.pregrasp_distance / max(len(waypoints), 1)
-        return dict(fraction=0.5, min_segment=max(0.05, step / self._approach_speed))
+        grasp, from ``q0``): each step at the TCP speed
+        ``planner.approach_speed`` (its length from the TCP poses: the steps
+        ``StraightenStep`` inserted near a wrist singularity are shorter)
+        unless a joint would exceed 0.5 of its velocity limit, then as fast
+        as that allows."""
+        p = [self._robot.TcpPose(q, 0.0).translation() for q in [q0] + list(waypoints)]
+        steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        return dict(fraction=0.5, min_segment=np.maximum(0.05, steps / self._approach_speed))
 
     def _traj_done(self, st: ControllerStatus, t: float) -> bool:
         return st.trajectory is None or t >= st.trajectory.end_time()
@@ -413,7 +415,7 @@ class ArmController(LeafSystem):
         elif mode == "pregrasp":
             if self._traj_done(st, t):
                 path = st.segments.pop(0)
-                self._start_path(st, t, path, **self._ApproachTiming(path))
+                self._start_path(st, t, path, **self._ApproachTiming(st.q_hold, path))
                 self._enter(st, "approach", t)
         elif mode == "approach":
             if self._traj_done(st, t):
@@ -595,7 +597,7 @@ class ArmController(LeafSystem):
         # depend on the start time, so the checks hold at execution).
         pre = self._TimePath(t, st.q_hold, st.pregrasp_path, 0.5)
         app = self._TimePath(pre.end_time(), st.pregrasp_path[-1], approach.to_grasp,
-                             **self._ApproachTiming(approach.to_grasp))
+                             **self._ApproachTiming(st.pregrasp_path[-1], approach.to_grasp))
         self._TimePath(app.end_time(), approach.to_grasp[-1], st.pull_path, 0.3,
                        self._pull_duration(st))
         return approach
@@ -703,5 +705,5 @@ class ArmController(LeafSystem):
         then the joint move to the episode's start pose."""
         out = st.grasp_path[::-1][1:] + [st.pregrasp_path[-1]]
         st.segments = [(st.pregrasp_path[::-1][1:], 0.5), ([self._q_start.copy()], 0.5)]
-        self._start_path(st, t, out, **self._ApproachTiming(out))
+        self._start_path(st, t, out, **self._ApproachTiming(st.q_hold, out))
         self._enter(st, "retreat", t)

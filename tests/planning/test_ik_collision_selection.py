@@ -238,3 +238,40 @@ def test_a_free_joint_move_is_checked_every_centimetre(robot):
     # a short move needs no more than the eight
     near = FreeMoveFractions(robot, q0, q0 + 0.001, 0.0175)
     assert len(near) == 6
+
+
+def test_the_chosen_action_is_checked_along_the_path_the_controller_will_execute(robot):
+    """A candidate's own checks see its end (and an arc's midway) pose; the
+    chosen one is also checked at every waypoint of ``PlanActionPath``, the
+    path the controller runs: a fruit crossed halfway along a straight pull
+    refuses it."""
+    from types import SimpleNamespace
+    from lmap_drake.planning.lmap import _ActionPathReason
+    from lmap_drake.scenario import PlannerConfig
+    R = np.array([[0.0, 0, 1], [0, -1, 0], [1, 0, 0]])
+    p = np.array([0.40, -0.07, 0.31])
+    r0 = robot.Ik(RigidTransform(RotationMatrix(R), p), np.array(RobotConfig().initial_q),
+                  multistart=True)
+    assert r0.success, r0.reason
+    pull = Action(p, R, dp_W=np.array([0.0, 0.0, 0.16]), grasp_id=0, direction_id=0)
+    c = Candidate(pull, 0)
+    c.q_grasp = r0.q
+    none = np.zeros((0, 3))
+
+    def ctx_with(center):
+        sdf = None if center is None else (
+            lambda q: np.linalg.norm(q - center, axis=1) - 0.01)
+        box = None if center is None else (center - 0.01, center + 0.01)
+        return SimpleNamespace(robot=robot, fruit_sdf=sdf, fruit_box=box, branch_distance=None,
+                               branch_box=None, other_leaves_W=none)
+    cfg = PlannerConfig()
+    assert _ActionPathReason(ctx_with(None), cfg, c) == ""
+    # a small fruit 4 cm behind the TCP (in the gripper's body) halfway up a
+    # 16 cm pull
+    center = p + [-0.04, 0.0, 0.08]
+    for q in (r0.q, robot.Ik(RigidTransform(RotationMatrix(R), p + pull.dp_W), r0.q).q):
+        assert RobotCollisionReason(robot.SurfacePointsByBody(q, 0.0),
+                                    ctx_with(center).fruit_sdf, None, cfg.collision_margin,
+                                    body_fruit_margin=cfg.robot_fruit_margin) == ""
+    why = _ActionPathReason(ctx_with(center), cfg, c)
+    assert why.startswith("robot-") and why.endswith("along the executed pull"), why

@@ -65,3 +65,62 @@ def test_an_approach_is_checked_from_the_grasp_outward_and_stops_at_the_first_bl
                           ready_extra=0.02)
     assert len(calls) < 2 * solved                         # the grasp side is shared
     assert all(np.array_equal(p, q) for p, q in zip(closer.to_grasp, a.to_grasp))
+
+
+def test_an_approach_near_a_wrist_singularity_keeps_the_tcp_on_its_line_as_executed():
+    """Wrist 2 near 0 at the grasp: one 12.5 mm step of the final approach
+    swings wrists 1 and 3 by up to 1 rad, and the joint line between two
+    solved poses left the approach line by 3-10 mm (1.9 cm in a multi-fruit
+    scene: the open pads brushed the leaf). Inserted waypoints keep the
+    timed trajectory within the path tolerance."""
+    from lmap_drake.planning.motion import PATH_TOLERANCE, PlanApproach, TimeJointPath
+    from lmap_drake.planning.robot_model import RobotModel
+    from lmap_drake.scenario import RobotConfig
+    robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
+    q0 = np.array(RobotConfig().initial_q)
+    for wrist2 in (0.03, -0.02):
+        q_grasp = q0.copy()
+        q_grasp[4] = wrist2
+        X_grasp = robot.TcpPose(q_grasp)
+        z = X_grasp.rotation().col(2)
+        a = PlanApproach(robot, X_grasp, q0, X_grasp.rotation().col(1), 0.05, 0.035,
+                         ready_extra=0.02)
+        assert len(a.to_grasp) > 4                      # 4 poses 12.5 mm apart, plus inserts
+        traj = TimeJointPath(0.0, a.to_pregrasp[-1], a.to_grasp)
+        off = []
+        for t in np.linspace(traj.start_time(), traj.end_time(), 400):
+            p = robot.TcpPose(traj.value(t).ravel()).translation() - X_grasp.translation()
+            off.append(np.linalg.norm(p - (p @ z) * z))
+        assert max(off) < PATH_TOLERANCE + 0.0005, max(off)
+        assert np.allclose(robot.TcpPose(a.to_grasp[-1]).GetAsMatrix4(),
+                           X_grasp.GetAsMatrix4(), atol=1e-4)
+
+
+def test_a_step_through_a_fast_wrist_turn_is_straightened_by_continuation():
+    """One 12.5 mm step back from a grasp with wrist 2 at 0.02 rad: the IK
+    solved from the grasp's joints lands where the joint line between them
+    leaves the Cartesian line; the continuation's inserted waypoints and end
+    keep it, and the end still solves the step's pose."""
+    from lmap_drake.planning.motion import PATH_TOLERANCE, PathDeviation, StraightenStep
+    from lmap_drake.planning.robot_model import RobotModel
+    from lmap_drake.scenario import RobotConfig
+    robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
+    q_a = np.array(RobotConfig().initial_q)
+    q_a[4] = 0.02
+    X_a = robot.TcpPose(q_a)
+    X_b = RigidTransform(X_a.rotation(), X_a.translation() - 0.0125 * X_a.rotation().col(2))
+    r = robot.Ik(X_b, q_a)
+    assert r.success
+    assert PathDeviation(robot, q_a, r.q, X_a, X_b, 0.0)[0] > PATH_TOLERANCE
+    inserted, q_end = StraightenStep(robot, X_a, X_b, q_a, r.q, 0.0)
+    assert inserted
+    assert np.allclose(robot.TcpPose(q_end).GetAsMatrix4(), X_b.GetAsMatrix4(), atol=1e-4)
+    qs = [q_a] + inserted + [q_end]
+    poses = [robot.TcpPose(q) for q in qs]
+    for u, v, Xu, Xv in zip(qs[:-1], qs[1:], poses[:-1], poses[1:]):
+        dist, _ = PathDeviation(robot, u, v, Xu, Xv, 0.0)
+        assert dist <= PATH_TOLERANCE
+        # every inserted pose lies on the step's line
+        p = Xv.translation() - X_a.translation()
+        z = X_a.rotation().col(2)
+        assert np.linalg.norm(p - (p @ z) * z) < 1e-4
