@@ -708,6 +708,23 @@ def MaxPullDistance(cfg: PlannerConfig, p_WG: np.ndarray,
     return cap
 
 
+def PullDistances(cfg: PlannerConfig, p_WG: np.ndarray, hinge_W: np.ndarray | None
+                  ) -> list[float]:
+    """The straight pulls' distances (m) from grasp ``p_WG``:
+    ``planner.distances`` and, when it falls between two of them and at
+    least 5 mm from each, the longest pull the grasp's lever allows
+    (``MaxPullDistance``, floored to the millimetre). Without it a grasp
+    whose cap is 4.7 cm stopped at the 4 cm pull: in ``four_fruits`` 0.71 of
+    its fruit predicted, 0.91 at the 6 cm the cap refused."""
+    ds = sorted(float(d) for d in cfg.distances)
+    cap = MaxPullDistance(cfg, p_WG, hinge_W)
+    if ds and np.isfinite(cap):
+        cap = float(np.floor(cap * 1000.0)) / 1000.0
+        if ds[0] < cap < ds[-1] and min(abs(cap - d) for d in ds) >= 0.005:
+            ds = sorted(ds + [cap])
+    return ds
+
+
 def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all_dirs
                   ) -> list[Action]:
     """Every configured motion (pulls, arcs, twists) from grasp ``g``."""
@@ -716,7 +733,7 @@ def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, al
         dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
                                            cfg.max_branch_angle_deg, all_dirs)
         actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
-                    for u, j in zip(dirs, dir_ids) for s in cfg.distances]
+                    for u, j in zip(dirs, dir_ids) for s in PullDistances(cfg, g.p_WG, pivot)]
     if pivot is not None and np.linalg.norm(g.p_WG - pivot) > 0.02:
         if "arc" in cfg.action_families:
             actions += MakeArcActions(g.p_WG, g.R_WG, pivot,

@@ -178,13 +178,26 @@ def test_plan_offers_hinge_arcs_with_the_petiole_term():
     assert tight.status != "ok" or tether(tight.chosen) <= 0.01
 
 
-def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment():
+def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment(monkeypatch):
     """No pull longer than max_pull_distance at a 10 cm grasp-attachment
     lever, scaled by (lever / 10 cm)^2, is chosen; the capped pulls still
     count in the score's normalisation (the same choice among the rest as
-    without the cap); turns about the hinge are not capped."""
+    without the cap); turns about the hinge are not capped. Each grasp also
+    gets a pull of its own cap when that falls between two distances."""
+    from lmap_drake.planning import lmap
     from lmap_drake.planning.lmap import PULL_LEVER_REFERENCE
     distances = [0.02, 0.04, 0.08]
+    with_cap = _plan(_scene(), planner={"distances": distances, "max_pull_distance": 0.03})
+    extra = [c for c in with_cap.candidates if c.action.family == "pull"
+             and min(abs(c.action.distance - d) for d in distances) > 1e-6]
+    assert extra
+    for c in extra:
+        lever = np.linalg.norm(c.action.p_WG - with_cap.hinge_W)
+        cap = 0.03 * (lever / PULL_LEVER_REFERENCE) ** 2
+        assert cap - 0.001 <= c.action.distance <= cap       # the cap, floored to the mm
+        assert "max_pull_distance" not in c.reason
+    # The veto alone, on the same candidates as the free planner's:
+    monkeypatch.setattr(lmap, "PullDistances", lambda cfg, p, h: sorted(cfg.distances))
     capped = _plan(_scene(), planner={"distances": distances, "max_pull_distance": 0.03})
     free = _plan(_scene(), planner={"distances": distances})
     n_capped = 0
