@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses as dc
 import json
-import re
 import sys
 from pathlib import Path
 
@@ -73,11 +72,6 @@ def Summarize(plants: dict, dbscan_values: list[int], thresholds: list[int]) -> 
     return rows
 
 
-def _names(path: Path) -> list[str]:
-    return [m for m in re.findall(r"^([A-Za-z0-9_]+):", path.read_text(), re.M)
-            if m != "Defaults"]
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -101,7 +95,8 @@ def main(argv=None) -> int:
         print("eval_fruit_detection: error: --dbscan_min_points and --min_instance_points "
               "must be >= 1, --on_fruit > 0", file=sys.stderr)
         return 2
-    jobs = [(f, n) for f in files for n in _names(f)
+    from lmap_drake.shape.benchmark import SuiteScenarioNames
+    jobs = [(f, n) for f in files for n in SuiteScenarioNames(f)
             if not args.scenario_names or n in args.scenario_names]
     if not jobs:
         print("eval_fruit_detection: error: no scenario selected", file=sys.stderr)

@@ -26,22 +26,23 @@ class MotionError(RuntimeError):
         self.index, self.staging = index, staging
 
 
+def InterpolatePose(X0: RigidTransform, X1: RigidTransform, f: float) -> RigidTransform:
+    """The pose a fraction ``f`` of the way from X0 to X1: the straight line
+    and the geodesic (slerp), X0's rotation turned by f x the angle of R0^T
+    R1 about its axis."""
+    turn = X0.rotation().InvertAndCompose(X1.rotation()).ToAngleAxis()
+    R = X0.rotation().multiply(RotationMatrix(AngleAxis(f * turn.angle(), turn.axis())))
+    return RigidTransform(R, (1 - f) * X0.translation() + f * X1.translation())
+
+
 def CartesianPath(X0: RigidTransform, X1: RigidTransform, step: float = 0.02
                   ) -> list[RigidTransform]:
     """Poses from X0 (excluded) to X1 (included): straight line and slerp,
     spaced about ``step`` (m) or 10 deg apart."""
     d = float(np.linalg.norm(X1.translation() - X0.translation()))
-    R0, R1 = X0.rotation(), X1.rotation()
-    turn = R0.InvertAndCompose(R1).ToAngleAxis()   # R0^T R1, in X0's frame
-    angle = turn.angle()
+    angle = X0.rotation().InvertAndCompose(X1.rotation()).ToAngleAxis().angle()
     n = max(1, int(np.ceil(max(d / step, angle / np.deg2rad(10)))))
-    out = []
-    for k in range(1, n + 1):
-        f = k / n
-        # the geodesic (slerp) from R0 to R1: R0 turned by f * angle about the axis
-        R = R1 if k == n else R0.multiply(RotationMatrix(AngleAxis(f * angle, turn.axis())))
-        out.append(RigidTransform(R, (1 - f) * X0.translation() + f * X1.translation()))
-    return out
+    return [InterpolatePose(X0, X1, k / n) for k in range(1, n)] + [X1]
 
 
 class ApproachBlocked(RuntimeError):
@@ -58,13 +59,6 @@ class ApproachBlocked(RuntimeError):
 PATH_TOLERANCE = 0.002        # m, of the TCP from the line
 PATH_ANGLE_TOLERANCE = 3.0    # deg, of the TCP's orientation from the slerp
 PATH_MAX_BISECTIONS = 6       # halvings: a 12.5 mm step down to 0.2 mm
-
-
-def InterpolatePose(X0: RigidTransform, X1: RigidTransform, f: float) -> RigidTransform:
-    """The pose a fraction ``f`` of the way from X0 to X1 (line and slerp)."""
-    turn = X0.rotation().InvertAndCompose(X1.rotation()).ToAngleAxis()
-    R = X0.rotation().multiply(RotationMatrix(AngleAxis(f * turn.angle(), turn.axis())))
-    return RigidTransform(R, (1 - f) * X0.translation() + f * X1.translation())
 
 
 def PathDeviation(robot, q0: np.ndarray, q1: np.ndarray, X0: RigidTransform,
