@@ -11,10 +11,10 @@ instances kept, the true fruits seen and the phantoms.
     python scripts/eval_fruit_detection.py --scenario_file diagrams/multi_suite.yaml \\
         --out out/fruit_detection.json
 
-The planner takes instances of 30 points or more (``CompletePlant``'s
-``min_fruit_points``) after DBSCAN with ``perception.dbscan_min_points``
-(30): a fruit 5-12 % visible can show as a sliver beside its leaf that
-segnet labels fruit but that keeps fewer points.
+The planner takes instances of ``shape.min_fruit_points`` (20) points or
+more after DBSCAN with ``perception.dbscan_min_points`` (15): a fruit 5-12 %
+visible can show as a sliver beside its leaf that segnet labels fruit but
+that keeps few points (the defaults were 30 and 30 before this study).
 
 Writes JSON: ``{"settings": [{"dbscan_min_points", "min_instance_points",
 "instances", "fruits_seen", "phantoms", "fruits"}], "plants": {name:

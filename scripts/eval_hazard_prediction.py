@@ -224,7 +224,8 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     dec, mean, _ = LoadDecoder(scenario.shape.weights_file)
     plant = CompletePlant(sem, dec, mean, SscParams.FromConfig(scenario.shape), "ssc",
                           scenario.shape.free_space_voxel, BranchParamsFromConfig(scenario.shape),
-                          leaf_split_angle_deg=scenario.shape.leaf_split_angle_deg)
+                          leaf_split_angle_deg=scenario.shape.leaf_split_angle_deg,
+                          min_fruit_points=scenario.shape.min_fruit_points)
     X_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
     tan = _ImageTangents(scenario)
     order, occ = FruitOrder(plant, X_WC, scenario.planner, tan)

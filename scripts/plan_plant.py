@@ -51,7 +51,8 @@ def PlanScene(s, quiet: bool = True) -> dict:
     t0 = time.perf_counter()
     plant = CompletePlant(sem, decoder, mean, SscParams.FromConfig(s.shape), "ssc",
                           s.shape.free_space_voxel, BranchParamsFromConfig(s.shape),
-                          leaf_split_angle_deg=s.shape.leaf_split_angle_deg)
+                          leaf_split_angle_deg=s.shape.leaf_split_angle_deg,
+                          min_fruit_points=s.shape.min_fruit_points)
     t_shape = time.perf_counter() - t0
     X_WC = s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
     tan = _ImageTangents(s)

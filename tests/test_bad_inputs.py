@@ -56,6 +56,7 @@ def _run(capsys, *argv):
     ("{planner: {energy_weight: .nan}}", "planner.energy_weight"),
     ("{planner: {num_grasps: 0}}", "planner.num_grasps"),
     ("{perception: {dbscan_min_points: 0}}", "perception.dbscan_min_points"),
+    ("{shape: {min_fruit_points: 0}}", "shape.min_fruit_points"),
     ("{robot: {X_WB: {translation: [.nan, 0, 0]}}}", "robot.X_WB"),
 ])
 def test_bad_values_refused_at_load_naming_the_key(text, key):

@@ -124,7 +124,8 @@ class ShapeCompletion(LeafSystem):
         timings = {}
         est = CompletePlant(sem, self.decoder, self.mean_latent, self.params(re), self.method,
                             self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg),
-                            timings=timings, leaf_split_angle_deg=self.cfg.leaf_split_angle_deg,
+                            min_fruit_points=self.cfg.min_fruit_points, timings=timings,
+                            leaf_split_angle_deg=self.cfg.leaf_split_angle_deg,
                             focus_W=focus, memo=self.fit_memo)
         self.last_timings = timings
         self._plant_memo = (key, est)

@@ -72,3 +72,21 @@ def test_a_view_segmented_again_is_not_completed_again(monkeypatch):
     assert moved.Fingerprint() != sem.Fingerprint()
     sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(moved))
     assert port.Eval(ctx) is not first and len(calls) == 2
+
+
+def test_the_smallest_fruit_instance_completed_is_the_configured_one():
+    """``shape.min_fruit_points`` reaches ``CompletePlant``: a 25-point fruit
+    instance (a fruit about 6 % in view) is completed at 20, not at 30."""
+    torch.set_num_threads(1)
+    sem = MakeSyntheticCase(2, occluded=True).semantic
+    rng = np.random.default_rng(0)
+    keep = rng.choice(len(sem.fruit_points_W), 25, replace=False)
+    small = dc.replace(sem, fruit_points_W=sem.fruit_points_W[keep],
+                       fruit_instance=np.zeros(25, np.int64))
+    counts = {}
+    for n in (20, 30):
+        sys = ShapeCompletion(dc.replace(ShapeConfig(), iterations=5, min_fruit_points=n))
+        ctx = sys.CreateDefaultContext()
+        sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(small))
+        counts[n] = len(sys.GetOutputPort("plant_estimate").Eval(ctx).fruits)
+    assert counts == {20: 1, 30: 0}
