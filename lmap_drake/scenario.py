@@ -739,12 +739,9 @@ class PlannerConfig:
     prediction and the completed stem are not yet accurate enough for it.
 
     ``max_reveals_per_fruit`` (``targets: all``): how many times one fruit
-    may be revealed, each time by a leaf not moved before (1, the default:
-    one leaf per fruit, as in the paper; 2 is an option, see the README:
-    on the multi-fruit suite it raised the fruits seen >= 0.9 over the
-    fused views from 12 to 15 of 18, at the cost of a grasp cycle per
-    second reveal: a 3-fruit episode then takes more than 90 s). A fruit
-    under two leaves shows at most what
+    may be revealed (1, the default: one leaf per fruit, as in the paper;
+    2 is an option, see the README: it costs a grasp cycle per further
+    reveal). A fruit under two leaves shows at most what
     one leaf alone hides while that leaf is moved; the other leaf's part is
     seen only when it is moved in turn (the views are fused, so the shape
     re-estimate sees both parts). A fruit is revealed again after every
@@ -754,7 +751,14 @@ class PlannerConfig:
     was hidden in every earlier view too, since that leaf never moved. The
     leaf moved before is found in the current view by its points in the
     view its move was planned in (``planning.targets.SeparateMovedLeaves``;
-    where the segmenter joined it to a touching blade, it is split off)."""
+    where the segmenter joined it to a touching blade, it is split off).
+    ``reveal_moved_leaf_again``: when no leaf not moved yet hides that
+    much, a leaf moved before may be moved again if it alone hides at
+    least ``next_leaf_min_gain`` of the fruit's surface that no view has
+    shown (the fused fruit points mark what was shown,
+    ``VisibilityModel.Observed``); its actions then score by that surface
+    (N_vis), and the reveal is made only if its chosen action shows at
+    least ``next_leaf_min_gain`` of it."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14
@@ -797,6 +801,7 @@ class PlannerConfig:
     check_leaf_branch: bool = False
     max_reveals_per_fruit: int = 1
     next_leaf_min_gain: float = 0.05
+    reveal_moved_leaf_again: bool = True
 
 
 @dc.dataclass

@@ -135,6 +135,10 @@ class PlanningContext:
     # camera0's field of view as tangents (x_min, x_max, y_min, y_max) of the
     # optical frame; None = unbounded. Bounds the visibility model's grid.
     image_tan: tuple | None = None
+    # the fruit's points observed in earlier views (W, m; a second reveal of
+    # the same fruit): the surface they show counts as seen before any
+    # action, so an action scores by what no view has shown (N_vis)
+    seen_before_W: np.ndarray | None = None
 
     def __post_init__(self):
         sem = self.scene.semantic
@@ -579,6 +583,8 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     vis = VisibilityModel(ctx.X_WC, FruitSurfaceSamples(ctx.scene.fruit), cfg.visibility_voxel,
                           ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W]))
+    if ctx.seen_before_W is not None:
+        seen_init = seen_init | vis.Observed(ctx.seen_before_W)
     timings["visibility_s"] += time.perf_counter() - t0
     out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
                        timings=timings)

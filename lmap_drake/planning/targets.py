@@ -24,13 +24,18 @@ def _Instances(ids: np.ndarray, min_points: int) -> list[int]:
 
 def OccludingLeaves(fruit: FruitEstimate, plant: PlantEstimate, X_WC: np.ndarray,
                     voxel: float = 0.003, image_tan: tuple | None = None,
-                    min_gain: float = 0.02, min_points: int = 30) -> dict:
+                    min_gain: float = 0.02, min_points: int = 30,
+                    seen_before_W: np.ndarray | None = None) -> dict:
     """How much of ``fruit`` each leaf instance hides: the fruit's visible
     fraction with everything observed in place (``visible``) and, per leaf,
     the fraction gained if that leaf alone were gone (``gain``). Leaves
     gaining at least ``min_gain`` are its occluders, most hiding first.
     Occluders: every leaf, the branches and the plant's other fruits (their
-    estimates)."""
+    estimates). ``seen_before_W`` (W, m): the fruit's points observed in
+    earlier views; then ``visible`` also counts the surface they showed and
+    a leaf's ``gain`` only surface no view has shown
+    (``VisibilityModel.Observed``), and the result carries them as
+    ``seen_before_W`` for ``PlanTarget``."""
     from lmap_drake.planning.lmap import FruitSurfaceSamples
     sem = plant.semantic
     vis = VisibilityModel(X_WC, FruitSurfaceSamples(fruit), voxel, image_tan)
@@ -40,12 +45,19 @@ def OccludingLeaves(fruit: FruitEstimate, plant: PlantEstimate, X_WC: np.ndarray
     rest = [np.asarray(sem.branch_points_W, float).reshape(-1, 3)]
     rest += [f.vertices_W for f in plant.fruits if f is not fruit]
     base = vis.ZBuffer(np.vstack(rest))
-    seen_all = int(vis.Seen(leaf_W, base).sum())
+    known = vis.Seen(leaf_W, base)
+    if seen_before_W is not None:
+        known = known | vis.Observed(seen_before_W)
+    seen_all = int(known.sum())
     out = {"visible": seen_all / n_max if n_max else 0.0, "seen_max": n_max, "leaves": []}
+    if seen_before_W is not None:
+        out["seen_before_W"] = np.asarray(seen_before_W, float).reshape(-1, 3)
     if n_max == 0:
         return out
     for j in _Instances(leaf_id, min_points):
-        gain = (int(vis.Seen(leaf_W[leaf_id != j], base).sum()) - seen_all) / n_max
+        # a leaf's removal only adds seen voxels: the gain is what it hides
+        # and nothing (no view) has shown
+        gain = int(np.count_nonzero(vis.Seen(leaf_W[leaf_id != j], base) & ~known)) / n_max
         if gain >= min_gain:
             out["leaves"].append({"leaf_id": j, "gain": float(gain)})
     out["leaves"].sort(key=lambda d: -d["gain"])
@@ -215,7 +227,8 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
         return out
     for d in occ["leaves"][:max_leaves]:
         ctx = PlanningContext(TargetScene(plant, k, d["leaf_id"]), X_WC, robot,
-                              np.asarray(q_current, float), image_tan)
+                              np.asarray(q_current, float), image_tan,
+                              seen_before_W=occ.get("seen_before_W"))
         out.options.append((d["leaf_id"], PlanLmap(ctx, cfg, dcfg, progress)))
     out.leaf_id, out.plan, out.why = ChooseLeafPlan(out.options)
     return out

@@ -96,6 +96,23 @@ class VisibilityModel:
         _MinInto(self._fruit_zbuf, self._fruit_pix[ok], self._fruit_z[ok])
         self.max_seen = self.Seen(np.zeros((0, 3)))
 
+    def Observed(self, points_W: np.ndarray) -> np.ndarray:
+        """The fruit voxels a view has already shown: those the camera sees
+        of the fruit (``max_seen``) on a pixel that one of ``points_W`` (W,
+        m; the fruit's points observed in earlier views, the camera fixed)
+        covers, splatted as ``ZBuffer`` splats occluders. By pixel, not by
+        distance: the model counts a rim voxel seen wherever the fruit's
+        front at its pixel is, and no observed point lies on it."""
+        P = np.asarray(points_W, float).reshape(-1, 3)
+        P = P[np.isfinite(P).all(axis=1)]
+        out = np.zeros(len(self.fruit_W), bool)
+        if not len(P):
+            return out
+        covered = np.isfinite(self.ZBuffer(P))
+        ok = self._fruit_pix >= 0
+        out[ok] = covered[self._fruit_pix[ok]]
+        return out & self.max_seen
+
     def _to_camera(self, p_W: np.ndarray) -> np.ndarray:
         return p_W @ self.X_CW[:3, :3].T + self.X_CW[:3, 3]
 

@@ -303,16 +303,33 @@ def _PlantAfterMoves(plant, per_fruit: list[list[dict]]):
     return (plant if sem is plant.semantic else dc.replace(plant, semantic=sem)), moved
 
 
+def _ShownFruitPoints(plant, k: int, targets: list[dict]) -> np.ndarray:
+    """Fruit ``k``'s points in this view and in the views its handled
+    ``targets`` were re-estimated in, the leaf held (their
+    ``final_estimate``'s fruit points; W, m, (N, 3))."""
+    sem = plant.semantic
+    pts = np.asarray(sem.fruit_points_W, float).reshape(-1, 3)
+    inst = np.asarray(sem.fruit_instance)
+    out = [pts[inst == plant.fruit_ids[k]] if len(inst) == len(pts) else np.zeros((0, 3))]
+    for t in targets:
+        est = t.get("final_estimate")
+        if est is not None and est is not t.get("initial_estimate"):
+            out.append(np.asarray(est.semantic.fruit_points_W, float).reshape(-1, 3))
+    return np.vstack(out)
+
+
 def _SecondReveals(per_fruit: list[list[dict]], moved: list[list[int]], occ: list[dict],
-                   cfg) -> dict[int, dict]:
-    """The fruits revealed before that may be revealed again by moving
-    another leaf (``planner.max_reveals_per_fruit``): every earlier target
-    on it moved a leaf, fewer than the maximum did, no view with a leaf
-    held showed ``planner.early_stop_fraction`` of it, and a leaf not moved
-    yet hides at least ``planner.next_leaf_min_gain`` of it
-    (``NextLeafOccluders``). ``moved``: per fruit, the instance ids of the
-    leaves its targets moved (``_PlantAfterMoves``). Per such fruit: its
-    occluders without those leaves."""
+                   cfg, never_seen=None) -> dict[int, dict]:
+    """The fruits revealed before that may be revealed again
+    (``planner.max_reveals_per_fruit``): every earlier target on it moved a
+    leaf, fewer than the maximum did, no view with a leaf held showed
+    ``planner.early_stop_fraction`` of it, and a leaf not moved yet hides
+    at least ``planner.next_leaf_min_gain`` of it (``NextLeafOccluders``).
+    ``moved``: per fruit, the instance ids of the leaves its targets moved
+    (``_PlantAfterMoves``). Per such fruit: its occluders without those
+    leaves. Else, with ``planner.reveal_moved_leaf_again``, ``never_seen(k)``
+    (fruit k's ``OccludingLeaves`` counting only surface no view has shown)
+    may name any leaf, a moved one too, that hides at least that much."""
     from lmap_drake.planning.targets import NextLeafOccluders
     out = {}
     for k, ts in enumerate(per_fruit):
@@ -325,6 +342,8 @@ def _SecondReveals(per_fruit: list[list[dict]], moved: list[list[int]], occ: lis
         if not moved[k]:
             continue            # the moved leaf is not found: another could be it
         rest = NextLeafOccluders(occ[k], moved[k], cfg.next_leaf_min_gain)
+        if rest is None and cfg.reveal_moved_leaf_again and never_seen is not None:
+            rest = NextLeafOccluders(never_seen(k), [], cfg.next_leaf_min_gain)
         if rest is not None:
             out[k] = rest
     return out
@@ -370,7 +389,7 @@ class PlantPlanning(LeafSystem):
                                         message=_StageError("plant_planning", err)))
 
     def _Plan(self, context) -> PlanResult:
-        from lmap_drake.planning.targets import FruitOrder, PlanTarget
+        from lmap_drake.planning.targets import FruitOrder, OccludingLeaves, PlanTarget
         cfg, dcfg = self._scenario.planner, self._scenario.deformation
         if not self._plant.Eval(context).fruits:
             return PlanResult("no_fruit", cfg.method, message="no fruit seen")
@@ -380,7 +399,11 @@ class PlantPlanning(LeafSystem):
         visible = [o["visible"] for o in occ]
         # every fruit's first reveal before any second one: a first shows
         # more, and an interrupted episode has spent its motions there
-        again = _SecondReveals(per_fruit, moved, occ, cfg)
+        def never_seen(k):
+            return OccludingLeaves(plant.fruits[k], plant, self._X_WC, cfg.visibility_voxel,
+                                   self._image_tan,
+                                   seen_before_W=_ShownFruitPoints(plant, k, per_fruit[k]))
+        again = _SecondReveals(per_fruit, moved, occ, cfg, never_seen)
         order = [k for k in order if not handled[k]] + [k for k in order if k in again]
         if not order:
             n = sum(handled)
@@ -394,8 +417,9 @@ class PlantPlanning(LeafSystem):
                        self._image_tan, occluders=occ_k)
         why = t.why
         if k in again:
-            why = (f"reveal {len(per_fruit[k]) + 1} of this fruit: leaf "
-                   f"{occ_k['leaves'][0]['leaf_id']} alone hides "
+            j = occ_k['leaves'][0]['leaf_id']
+            why = (f"reveal {len(per_fruit[k]) + 1} of this fruit: leaf {j}"
+                   f"{' again' if j in moved[k] else ''} alone hides "
                    f"{occ_k['leaves'][0]['gain']:.0%} of it that no view has shown "
                    f"(moved before: leaf {', '.join(map(str, moved[k]))}); {why}")
         info = {"fruit_index": k, "fruit_id": t.fruit_id,
@@ -411,7 +435,16 @@ class PlantPlanning(LeafSystem):
                                                  else p.chosen.EnergyPerNode())}
                             for j, p in t.options],
                 "remaining": len(order) - 1, "num_fruits": len(plant.fruits)}
-        if t.plan is not None:
+        c = None if t.plan is None else t.plan.chosen
+        if (k in again and c is not None and t.plan.seen_max
+                and c.n_vis < cfg.next_leaf_min_gain * t.plan.seen_max):
+            # a further grasp cycle only for surface no view has shown
+            plan = dc.replace(t.plan, status="no_feasible_action", chosen=None,
+                              message=f"fruit {t.fruit_id}: reveal {len(per_fruit[k]) + 1} "
+                                      f"would show {c.n_vis / t.plan.seen_max:.0%} of it that "
+                                      f"no view has shown (next_leaf_min_gain "
+                                      f"{cfg.next_leaf_min_gain:g})")
+        elif t.plan is not None:
             plan = t.plan
         elif t.options:            # every leaf's plan failed: the first one says why
             plan = dc.replace(t.options[0][1], status="no_feasible_action",

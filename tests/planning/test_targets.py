@@ -190,3 +190,23 @@ def test_a_moved_leaf_segmented_in_pieces_is_moved_as_a_whole():
     sem = SemanticScene(leaf_points_W=now, leaf_instance=ids, X_WC=X_WC)
     _, moved = SeparateMovedLeaves(sem, [leaves[0]], other_leaf_points_W=[np.vstack(leaves[1:])])
     assert moved == [0, 5]
+
+
+def test_a_leaf_hiding_only_what_a_view_has_shown_gains_nothing():
+    """``seen_before_W``: the fruit's points from earlier views. Fruit A's
+    left half (leaf 0) was shown by an earlier view: leaf 0 then gains
+    almost nothing, leaf 1 what it gained before, and ``visible`` counts the
+    shown half."""
+    plant, _ = _plant()
+    A = plant.fruits[0]
+    plain = OccludingLeaves(A, plant, X_WC)
+    gain = {d["leaf_id"]: d["gain"] for d in plain["leaves"]}
+    left = A.vertices_W[(A.vertices_W[:, 0] < 0.445) & (A.vertices_W[:, 1] < 0)]
+    seen = OccludingLeaves(A, plant, X_WC, seen_before_W=left)
+    after = {d["leaf_id"]: d["gain"] for d in seen["leaves"]}
+    assert after.get(0, 0.0) < 0.1 < gain[0] and abs(after[1] - gain[1]) < 0.05, (gain, after)
+    assert seen["visible"] > plain["visible"] + 0.5 * gain[0]
+    np.testing.assert_allclose(seen["seen_before_W"], left)
+    # nothing shown before: the same as without
+    none = OccludingLeaves(A, plant, X_WC, seen_before_W=np.zeros((0, 3)))
+    assert none["leaves"] == plain["leaves"] and none["visible"] == plain["visible"]

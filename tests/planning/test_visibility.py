@@ -1,4 +1,5 @@
 import numpy as np
+import trimesh
 
 from lmap_drake.planning.visibility import CountNewlySeen, VisibilityModel
 
@@ -72,3 +73,19 @@ def test_zbuffer_matches_explicit_splatting_and_composes():
         # a buffer of part of the occluders, combined with the rest: the same
         base = vis.ZBuffer(occ[:150])
         assert np.array_equal(vis.Seen(occ[150:], base), seen)
+
+
+def test_observed_marks_the_voxels_on_pixels_of_earlier_views():
+    """``Observed``: the fruit voxels the camera sees whose pixel an
+    observed point covers; none for no points; only the left half for
+    points on the left half."""
+    from lmap_drake.planning.visibility import VisibilityModel
+    X_WC = np.array([[1, 0, 0, 0.5], [0, 0, 1, -0.6], [0, -1, 0, 0.3], [0, 0, 0, 1.0]])
+    sphere = trimesh.creation.icosphere(4, 0.035).apply_translation([0.5, 0.0, 0.3])
+    vis = VisibilityModel(X_WC, np.asarray(sphere.vertices), 0.003)
+    assert not vis.Observed(np.zeros((0, 3))).any()
+    front = np.asarray(sphere.vertices)[np.asarray(sphere.vertices)[:, 1] < 0]
+    np.testing.assert_array_equal(vis.Observed(front), vis.max_seen)
+    left = vis.Observed(front[front[:, 0] < 0.49])
+    assert 0.3 * vis.max_seen.sum() < left.sum() < 0.6 * vis.max_seen.sum()
+    assert not left[vis.fruit_W[:, 0] > 0.5].any()

@@ -308,3 +308,55 @@ def test_a_second_reveal_needs_a_leaf_not_moved_and_a_fruit_not_yet_shown():
     assert again(97)[0] == {}
     cfg.max_reveals_per_fruit = 1
     assert again(50)[0] == {}
+
+
+def test_a_moved_leaf_is_moved_again_only_for_surface_no_view_has_shown():
+    """Fruit B hides behind leaf 2 alone, and leaf 2 was moved (no other
+    leaf to try): with ``planner.reveal_moved_leaf_again`` leaf 2 is named
+    again while it hides surface no view has shown, never when the views so
+    far showed it, nor with the option off."""
+    from lmap_drake.planning.targets import FruitOrder, OccludingLeaves
+    from lmap_drake.scenario import Scenario
+    from lmap_drake.systems.planning import _PlantAfterMoves, _SecondReveals
+    from tests.planning.test_targets import X_WC, _plant
+    plant, leaves = _plant()
+    cfg = Scenario().planner
+    cfg.max_reveals_per_fruit = 2
+    _, occ = FruitOrder(plant, X_WC, cfg)
+    B = plant.fruits[1]
+    moved_sem = SemanticScene(leaf_points_W=leaves[2], leaf_instance=np.zeros(len(leaves[2]), int))
+    t = {"motions": 1, "target": {"center_W": [0.6, 0.0, 0.3]},
+         "initial_estimate": SceneEstimate(moved_sem, other_leaves_W=np.vstack(leaves[:2])),
+         "replan_results": []}
+    per_fruit = [[], [t]]
+    _, moved = _PlantAfterMoves(plant, per_fruit)
+    assert moved[1] == [2]
+
+    def never_seen(shown):
+        return lambda k: OccludingLeaves(plant.fruits[k], plant, X_WC, seen_before_W=shown)
+    import trimesh
+    dense = np.asarray(trimesh.creation.icosphere(5, 0.035).vertices) + B.center_W
+    front = dense[dense[:, 1] < 0]           # the whole face toward the camera
+    out = _SecondReveals(per_fruit, moved, occ, cfg, never_seen(front[front[:, 2] > 0.33]))
+    assert [d["leaf_id"] for d in out[1]["leaves"]] == [2]
+    assert len(out[1]["seen_before_W"])
+    assert _SecondReveals(per_fruit, moved, occ, cfg, never_seen(front)) == {}
+    cfg.reveal_moved_leaf_again = False
+    assert _SecondReveals(per_fruit, moved, occ, cfg,
+                          never_seen(front[front[:, 2] > 0.33])) == {}
+
+
+def test_the_surface_shown_includes_the_views_with_the_leaf_held():
+    """``_ShownFruitPoints``: fruit k's points in this view and in each
+    handled target's re-estimate (the leaf held), not its first estimate's
+    again."""
+    from lmap_drake.systems.planning import _ShownFruitPoints
+    from tests.planning.test_targets import _plant
+    plant, _ = _plant()
+    here = plant.semantic.fruit_points_W[plant.semantic.fruit_instance == 7]
+    held = SceneEstimate(SemanticScene(fruit_points_W=np.array([[0.6, 0.03, 0.3]])))
+    first = SceneEstimate(SemanticScene(fruit_points_W=np.array([[9.0, 9.0, 9.0]])))
+    pts = _ShownFruitPoints(plant, 1, [{"initial_estimate": first, "final_estimate": held},
+                                       {"initial_estimate": first, "final_estimate": first}])
+    assert len(pts) == len(here) + 1 and [0.6, 0.03, 0.3] in pts.tolist()
+    assert [9.0, 9.0, 9.0] not in pts.tolist()
