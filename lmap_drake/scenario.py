@@ -755,8 +755,10 @@ class PlannerConfig:
     ``reveal_moved_leaf_again``: when no leaf not moved yet hides that
     much, a leaf moved before may be moved again if it alone hides at
     least ``next_leaf_min_gain`` of the fruit's surface that no view has
-    shown (the fused fruit points mark what was shown,
-    ``VisibilityModel.Observed``); its actions then score by that surface
+    shown (marked by pixel, ``VisibilityModel.Observed``, from the fruit's
+    points in the current view and in its re-estimates made while a leaf
+    was held, ``systems.planning._ShownFruitPoints``); its actions then
+    score by that surface
     (N_vis), and the reveal is made only if its chosen action shows at
     least ``next_leaf_min_gain`` of it."""
     num_grasps: int = 15
