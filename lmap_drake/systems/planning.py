@@ -245,12 +245,9 @@ def _FruitTargets(plant, status) -> list[list[dict]]:
         est = next((e.fruit for e in (t.get("final_estimate"), t.get("initial_estimate"))
                     if getattr(e, "fruit", None) is not None), None)
         done.append((np.asarray(t["target"]["center_W"], float), est, t))
-    sem = plant.semantic
-    pts, inst = np.asarray(sem.fruit_points_W, float), np.asarray(sem.fruit_instance)
     out = []
     for k, f in enumerate(plant.fruits):
-        mine = pts[inst == plant.fruit_ids[k]] if k < len(plant.fruit_ids) and \
-            len(inst) == len(pts) else np.zeros((0, 3))
+        mine = _FruitPoints(plant, k)
         out.append([t for c, est, t in done
                     if np.linalg.norm(f.center_W - c) < SAME_FRUIT_DISTANCE or
                     FruitsOverlap(f, est) or PointsOnFruit(est, mine, MERGE_DISTANCE)])
@@ -303,14 +300,22 @@ def _PlantAfterMoves(plant, per_fruit: list[list[dict]]):
     return (plant if sem is plant.semantic else dc.replace(plant, semantic=sem)), moved
 
 
+def _FruitPoints(plant, k: int) -> np.ndarray:
+    """Fruit ``k``'s points in ``plant``'s view (W, m, (N, 3)); none when
+    the instances are not known."""
+    sem = plant.semantic
+    pts = np.asarray(sem.fruit_points_W, float).reshape(-1, 3)
+    inst = np.asarray(sem.fruit_instance)
+    if k >= len(plant.fruit_ids) or len(inst) != len(pts):
+        return np.zeros((0, 3))
+    return pts[inst == plant.fruit_ids[k]]
+
+
 def _ShownFruitPoints(plant, k: int, targets: list[dict]) -> np.ndarray:
     """Fruit ``k``'s points in this view and in the views its handled
     ``targets`` were re-estimated in, the leaf held (their
     ``final_estimate``'s fruit points; W, m, (N, 3))."""
-    sem = plant.semantic
-    pts = np.asarray(sem.fruit_points_W, float).reshape(-1, 3)
-    inst = np.asarray(sem.fruit_instance)
-    out = [pts[inst == plant.fruit_ids[k]] if len(inst) == len(pts) else np.zeros((0, 3))]
+    out = [_FruitPoints(plant, k)]
     for t in targets:
         est = t.get("final_estimate")
         if est is not None and est is not t.get("initial_estimate"):
