@@ -675,7 +675,22 @@ class PlannerConfig:
     grasp more than this about the attachment. In the FEM world 45-degree
     arcs loaded the petiole up to 11 N on four suite scenes, while on random
     scenes 60-degree turns reached 15.1-15.3 N (the plant-hazard limit is
-    15 N), so the arcs stop at 45 degrees and re-planning may add a little.
+    15 N), so the arcs stop at 45 degrees and re-planning may add a little
+    (see ``max_replan_turn_deg``).
+
+    ``max_replan_turn_deg``: a re-plan from the held leaf may not bring the
+    equivalent turn (from the first grasp) past this: 45, the largest arc.
+    At ``max_hinge_deg`` (50) a re-plan could add a 30-degree twist to a
+    45-degree arc (equivalent turn 47.4); on a random multi-fruit plant
+    that loaded the petiole 16.2 N. Executed from the planner's own grasps
+    on three such plants (``scripts/eval_hazard_prediction.py --then_twist
+    30 --then_arc 15 30 --then_turn_band 45 50``), of the continuations
+    into 45-50 degrees after 45-degree arcs that passed the leaf checks and
+    stayed under 15 N, twists took the load past 15 N 12 times in 58 and
+    arcs 4 times in 40 (the hinge estimate is 0.6-2 cm off there; the
+    petiole's true turn after the arc was 36-80 degrees). On the
+    single-fruit suite four such 15-degree arcs had stayed at 7.6-9.2 N and
+    added 0.04-0.09 visibility.
 
     ``petiole_torsion_ratio``: a twist loads the petiole in torsion; the
     turn that the bending term and ``max_hinge_deg`` see is the equivalent
@@ -797,6 +812,7 @@ class PlannerConfig:
     min_replan_gain: float = 0.05
     hinge_bending_weight: float = 3.0e-7
     max_hinge_deg: float = 50.0
+    max_replan_turn_deg: float = 45.0
     petiole_torsion_ratio: float = 0.25
     max_tether_elongation: float = 0.015
     max_pull_distance: float = 0.03
@@ -1228,6 +1244,7 @@ _RULES = {
     "planner.min_replan_gain": "[0,1]",
     "planner.hinge_bending_weight": ">=0",
     "planner.max_hinge_deg": "(0,180]",
+    "planner.max_replan_turn_deg": "(0,180]",
 }
 _ENUMS = {
     "plant_scene.kind": ("placeholder", "procedural", "multi"),

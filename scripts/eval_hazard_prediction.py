@@ -85,12 +85,13 @@ def PlannerEnergy(a, p, hinge, weight: float, torsion_ratio: float | None = None
             "planner_energy_per_node": e + PetioleBendingEnergy(deg, weight)}
 
 
-def _Execute(grasped, action, speed: float, hold: float) -> dict:
+def _Advance(world, action, speed: float, hold: float) -> list:
+    """Run ``action`` on ``world`` (in place) at the controller's timing,
+    then hold; the outcome samples taken meanwhile."""
     from lmap_drake.planning.motion import PlanActionPath, TimeJointPath
-    world = grasped.Fork()
+    from lmap_drake.systems.arm_controller import ROTATION_SPEED
     n0 = len(world.samples)
     q_path = PlanActionPath(world.robot, action, world.q_cmd)
-    from lmap_drake.systems.arm_controller import ROTATION_SPEED
     # the controller's timing: the pull speed along the path, turns at most
     # ROTATION_SPEED (a twist turns in place)
     traj = TimeJointPath(world.time, world.q_cmd, q_path, 0.3, 0.01,
@@ -98,11 +99,70 @@ def _Execute(grasped, action, speed: float, hold: float) -> dict:
                              abs(action.angle) / ROTATION_SPEED))
     world.AdvanceTo(traj.end_time(), traj)
     world.Hold(hold)
-    s = world.samples[n0:] + [world.Sample()]
+    return world.samples[n0:] + [world.Sample()]
+
+
+def _Measures(world, s: list) -> dict:
     return {"petiole_force_max_N": max(x.petiole_force for x in s),
             "strain_percentile_max": max(x.strain_percentile for x in s),
             "fruit_penetration_max_m": max(x.fruit_penetration for x in s),
             "visibility_final": world.Visibility()}
+
+
+def _Execute(grasped, action, speed: float, hold: float) -> dict:
+    world = grasped.Fork()
+    return _Measures(world, _Advance(world, action, speed, hold))
+
+
+def _ExecuteThen(grasped, action, hinge, attach, twist_deg: list[float], arc_deg: list[float],
+                num_axes: int, speed: float, hold: float, torsion_ratio: float,
+                turn_band: tuple = ()) -> tuple[dict, list[dict]]:
+    """``action`` (an arc) on a fork of ``grasped``, then from where it ends
+    each continuation as the planner's re-planning would make it: twists
+    (both senses of every angle in ``twist_deg``) about the line from
+    ``hinge`` through the grasp, and arcs about ``hinge`` (``num_axes``
+    axes, every angle in ``arc_deg``). The arc's own measures, and one row
+    per continuation: the planner's equivalent turn from the first grasp
+    (estimated hinge, ``hinge_reference_W``), the true bend (about
+    ``attach``) and the FEM measures over both motions together. With
+    ``turn_band`` (lo, hi), only continuations whose equivalent turn lies in
+    (lo, hi] are executed."""
+    from lmap_drake.deformation.action import HingeAxes, MakeArcActions, MakeTwistActions
+    from lmap_drake.planning.lmap import EquivalentTurnDeg, HingeRotationDeg
+    world = grasped.Fork()
+    s_arc = _Advance(world, action, speed, hold)
+    first = _Measures(world, s_arc)
+    X = world.X_WT()
+    p1, R1 = X.translation(), X.rotation().matrix()
+    bend = HingeRotationDeg(hinge, action.p_WG, p1)
+    true_bend = HingeRotationDeg(attach, action.p_WG, p1)
+    rows = []
+    more = list(MakeTwistActions(p1, R1, hinge, np.deg2rad(twist_deg)))
+    if arc_deg:
+        more += MakeArcActions(p1, R1, hinge, HingeAxes(p1, hinge, num_axes), np.deg2rad(arc_deg))
+    for t in more:
+        end = t.p_WG + t.dp_W
+        bend_t = HingeRotationDeg(hinge, action.p_WG, end)
+        turn = EquivalentTurnDeg(bend_t, abs(t.angle) if t.family == "twist" else 0.0,
+                                 torsion_ratio)
+        if turn_band and not turn_band[0] < turn <= turn_band[1]:
+            continue
+        w = world.Fork()
+        r = {"family": f"arc+{t.family}", "direction_id": action.direction_id,
+             "twist_direction_id": t.direction_id, "distance_m": round(action.distance, 4),
+             "angle_deg": round(np.rad2deg(action.angle), 1),
+             "twist_deg": round(np.rad2deg(t.angle), 1),
+             "bend_deg_executed": round(bend, 1), "true_bend_deg": round(true_bend, 1),
+             "bend_deg_after": round(bend_t, 1),
+             "true_bend_deg_after": round(HingeRotationDeg(attach, action.p_WG, end), 1),
+             "equivalent_turn_deg": round(turn, 1),
+             "arc_petiole_force_max_N": first["petiole_force_max_N"]}
+        try:
+            r.update(_Measures(w, s_arc + _Advance(w, t, speed, hold)))
+        except Exception as err:   # MotionError, or the FEM giving up
+            r["error"] = str(err)
+        rows.append(r)
+    return first, rows
 
 
 def EvaluateScenario(scenario, args, log) -> dict:
@@ -318,11 +378,24 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
                           "hinge_deg": float("nan"), "petiole_stretch": float("nan"),
                           "tether_elongation_m": TetherElongation(a.p_WG, a.p_WG + a.dp_W,
                                                                   hinge)})
+            more = []
             try:
-                r.update(_Execute(g, a, args.speed, args.hold))
+                if a.family == "arc" and (args.then_twist or args.then_arc):
+                    first, more = _ExecuteThen(
+                        g, a, hinge, attach, args.then_twist, args.then_arc, args.num_axes,
+                        args.speed, args.hold, scenario.planner.petiole_torsion_ratio,
+                        tuple(args.then_turn_band))
+                    r.update(first)
+                else:
+                    r.update(_Execute(g, a, args.speed, args.hold))
             except MotionError as err:
                 r["error"] = str(err)
             rows.append(r)
+            for m in more:
+                m["grasp"] = r["grasp"]
+                m["lever_m"] = info["lever_m"]
+                m["hinge_error_m"] = info["hinge_error_m"]
+            rows += more
     return {"rows": rows, "grasps": out_grasps, "notes": notes}
 
 
@@ -333,7 +406,9 @@ def scenario_name_of(s) -> str:
 def Correlations(rows: list[dict]) -> dict:
     out = {}
     for fam in ("all", "pull", "arc", "twist"):
-        sel = [r for r in rows if "error" not in r and (fam == "all" or r["family"] == fam)]
+        # (continuation rows, family 'arc+twist', carry their own measures)
+        sel = [r for r in rows if "error" not in r and "energy_per_node" in r
+               and (fam == "all" or r["family"] == fam)]
         out[fam] = {"n": len(sel)}
         for pk in PREDICTED:
             for mk in MEASURED:
@@ -403,6 +478,16 @@ def main(argv=None) -> int:
     p.add_argument("--pool", nargs="*", default=[],
                    help="earlier runs' JSON whose rows join the pooled correlations")
     p.add_argument("--num_axes", type=int, default=8)
+    p.add_argument("--then_twist", nargs="*", type=float, default=[],
+                   help="multi-fruit plants: after each arc, also continuation twists by "
+                        "these angles (deg, both senses) from where the arc ends, as "
+                        "re-planning makes them (rows of family 'arc+twist')")
+    p.add_argument("--then_arc", nargs="*", type=float, default=[],
+                   help="likewise continuation arcs by these angles (deg) about --num_axes "
+                        "axes (rows of family 'arc+arc')")
+    p.add_argument("--then_turn_band", nargs=2, type=float, default=[],
+                   help="execute only the continuations whose equivalent turn from the "
+                        "first grasp lies in (LO, HI] degrees")
     p.add_argument("--speed", type=float, default=0.03, help="TCP speed (m/s)")
     p.add_argument("--hold", type=float, default=0.3)
     p.add_argument("--segmenter", default="", help="default: the scenario's")

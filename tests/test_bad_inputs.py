@@ -57,6 +57,7 @@ def _run(capsys, *argv):
     ("{planner: {num_grasps: 0}}", "planner.num_grasps"),
     ("{perception: {dbscan_min_points: 0}}", "perception.dbscan_min_points"),
     ("{shape: {min_fruit_points: 0}}", "shape.min_fruit_points"),
+    ("{planner: {max_replan_turn_deg: 0}}", "planner.max_replan_turn_deg"),
     ("{robot: {X_WB: {translation: [.nan, 0, 0]}}}", "robot.X_WB"),
 ])
 def test_bad_values_refused_at_load_naming_the_key(text, key):

@@ -823,6 +823,11 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     if len(predictions) != len(live):
         raise PlanningError(f"{len(predictions)} predictions for {len(live)} live actions")
     n_leaf = len(ctx.leaf_W)
+    # a re-plan from the held leaf (``hinge_reference_W``, the first grasp)
+    # has its own, lower limit on the turn
+    max_turn_key = "max_hinge_deg" if hinge_reference_W is None else "max_replan_turn_deg"
+    max_turn = (cfg.max_hinge_deg if hinge_reference_W is None
+                else min(cfg.max_hinge_deg, cfg.max_replan_turn_deg))
     for c, p in zip(live, predictions):
         if isinstance(p, UnmodelledGrasp):
             c.reason = f"deformation model: {p.message}"
@@ -836,9 +841,9 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
             cfg.petiole_torsion_ratio)
         c.energy = c.arap_energy + c.num_leaf_nodes * PetioleBendingEnergy(
             c.hinge_deg, cfg.hinge_bending_weight)
-        if np.isfinite(c.hinge_deg) and c.hinge_deg > cfg.max_hinge_deg:
+        if np.isfinite(c.hinge_deg) and c.hinge_deg > max_turn:
             c.reason = (f"turns the leaf {c.hinge_deg:.0f} deg about its petiole attachment "
-                        f"(max_hinge_deg {cfg.max_hinge_deg:g})")
+                        f"({max_turn_key} {max_turn:g})")
         elif cset.hinge_W is not None and cfg.max_tether_elongation > 0:
             # the petiole is stiff along its axis: pulling the grasp away
             # from the attachment loads it, whatever the blade does

@@ -337,6 +337,48 @@ def HeldAfterShortPull():
     return first, ctx, s, HeldGrasp.After([first])
 
 
+def test_no_continuation_turns_the_leaf_past_the_largest_arc():
+    """After a 45-degree arc (the largest arc), a re-plan may turn the held
+    leaf back or sideways but not farther: every twist on top of it (an
+    equivalent turn above 45) is refused by max_replan_turn_deg, while a
+    first motion keeps max_hinge_deg; a re-plan limit of 50 lets them
+    through."""
+    import dataclasses as dc
+
+    from lmap_drake.planning.lmap import HeldGrasp, PlanContinuation, PlanningContext
+    from lmap_drake.planning.robot_model import RobotModel
+    s = Scenario()
+    assert max(s.planner.arc_angles_deg) == s.planner.max_replan_turn_deg == 45.0
+    assert s.planner.max_hinge_deg == 50.0
+    first = _plan(_scene(), max_energy=0.0)
+    # the least revealing 45-degree arc (after it, more is worth showing)
+    arc = min((c for c in first.candidates if c.feasible and c.action.family == "arc"
+               and np.isclose(np.rad2deg(c.action.angle), 45.0)), key=lambda c: c.seen)
+    first = _plan(_scene(), max_energy=0.0, force_action=[
+        arc.action.grasp_id, arc.action.direction_id, arc.action.distance])
+    assert first.chosen.action.family == "arc"
+    # first motions: the limit is max_hinge_deg
+    assert all("max_replan_turn_deg" not in c.reason for c in first.candidates)
+    s.planner.max_energy_per_node = 0.0
+    s.planner.min_replan_gain = 0.0
+    scene = _scene()
+    moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
+    ctx = PlanningContext(dc.replace(scene, semantic=moved), _X_WC(),
+                          RobotModel(s.robot.X_WB.GetDeterministicValue()),
+                          first.chosen.q_pulled)
+    held = HeldGrasp.After([first])
+
+    def twists(planner):
+        cont = PlanContinuation(ctx, planner, s.deformation, held)
+        return cont, [c for c in cont.candidates if c.action.family == "twist"
+                      and np.isfinite(c.hinge_deg)]
+    cont, tw = twists(s.planner)
+    assert tw and all(c.hinge_deg > 45.0 and "max_replan_turn_deg 45" in c.reason for c in tw)
+    assert cont.chosen is None or cont.chosen.hinge_deg <= 45.0
+    _, old = twists(dc.replace(s.planner, max_replan_turn_deg=50.0))
+    assert any(c.hinge_deg < 50.0 and "turns the leaf" not in c.reason for c in old)
+
+
 def test_continuation_from_the_held_leaf():
     """After a short pull the planner continues from where the gripper
     holds the leaf: every candidate starts at the held pose, the IK starts
