@@ -314,10 +314,6 @@ def HeldAfterShortPull():
     """(first plan: the least revealing 4 cm pull, forced; a PlanningContext
     whose leaf is that pull's predicted leaf, at its joints; the scenario;
     the HeldGrasp) for continuation tests."""
-    import dataclasses as dc
-
-    from lmap_drake.planning.lmap import HeldGrasp, PlanningContext
-    from lmap_drake.planning.robot_model import RobotModel
     first = _plan(_scene(), max_energy=0.0)
     short = min((c for c in first.candidates if c.feasible and c.action.family == "pull"
                  and np.isclose(c.action.distance, 0.04)), key=lambda c: c.seen)
@@ -329,12 +325,22 @@ def HeldAfterShortPull():
     s.planner.distances = [0.04, 0.08]
     s.planner.max_pull_distance = 0.0
     s.planner.max_energy_per_node = 0.0
+    return (first, *_HeldContext(first, s))
+
+
+def _HeldContext(first, s):
+    """(a PlanningContext whose leaf is ``first``'s chosen prediction, at
+    its joints; the scenario ``s``; the HeldGrasp after it)."""
+    import dataclasses as dc
+
+    from lmap_drake.planning.lmap import HeldGrasp, PlanningContext
+    from lmap_drake.planning.robot_model import RobotModel
     scene = _scene()
     moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
     ctx = PlanningContext(dc.replace(scene, semantic=moved), _X_WC(),
                           RobotModel(s.robot.X_WB.GetDeterministicValue()),
                           first.chosen.q_pulled)
-    return first, ctx, s, HeldGrasp.After([first])
+    return ctx, s, HeldGrasp.After([first])
 
 
 def test_no_continuation_turns_the_leaf_past_the_largest_arc():
@@ -345,8 +351,7 @@ def test_no_continuation_turns_the_leaf_past_the_largest_arc():
     through."""
     import dataclasses as dc
 
-    from lmap_drake.planning.lmap import HeldGrasp, PlanContinuation, PlanningContext
-    from lmap_drake.planning.robot_model import RobotModel
+    from lmap_drake.planning.lmap import PlanContinuation
     s = Scenario()
     assert max(s.planner.arc_angles_deg) == s.planner.max_replan_turn_deg == 45.0
     assert s.planner.max_hinge_deg == 50.0
@@ -361,12 +366,7 @@ def test_no_continuation_turns_the_leaf_past_the_largest_arc():
     assert all("max_replan_turn_deg" not in c.reason for c in first.candidates)
     s.planner.max_energy_per_node = 0.0
     s.planner.min_replan_gain = 0.0
-    scene = _scene()
-    moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
-    ctx = PlanningContext(dc.replace(scene, semantic=moved), _X_WC(),
-                          RobotModel(s.robot.X_WB.GetDeterministicValue()),
-                          first.chosen.q_pulled)
-    held = HeldGrasp.After([first])
+    ctx, _, held = _HeldContext(first, s)
 
     def twists(planner):
         cont = PlanContinuation(ctx, planner, s.deformation, held)
