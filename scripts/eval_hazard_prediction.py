@@ -159,7 +159,7 @@ def _ExecuteThen(grasped, action, hinge, attach, twist_deg: list[float], arc_deg
              "arc_petiole_force_max_N": first["petiole_force_max_N"]}
         try:
             r.update(_Measures(w, s_arc + _Advance(w, t, speed, hold)))
-        except Exception as err:   # MotionError, or the FEM giving up
+        except RuntimeError as err:   # a MotionError, or the simulation giving up
             r["error"] = str(err)
         rows.append(r)
     return first, rows
@@ -406,7 +406,7 @@ def scenario_name_of(s) -> str:
 def Correlations(rows: list[dict]) -> dict:
     out = {}
     for fam in ("all", "pull", "arc", "twist"):
-        # (continuation rows, family 'arc+twist', carry their own measures)
+        # (continuation rows, families 'arc+twist' and 'arc+arc', carry no predictions)
         sel = [r for r in rows if "error" not in r and "energy_per_node" in r
                and (fam == "all" or r["family"] == fam)]
         out[fam] = {"n": len(sel)}
