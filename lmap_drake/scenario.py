@@ -773,9 +773,8 @@ class PlannerConfig:
     shown (marked by pixel, ``VisibilityModel.Observed``, from the fruit's
     points in the current view and in its re-estimates made while a leaf
     was held, ``systems.planning._ShownFruitPoints``); its actions then
-    score by that surface
-    (N_vis), and the reveal is made only if its chosen action shows at
-    least ``next_leaf_min_gain`` of it."""
+    score by that surface (N_vis), and the reveal is made only if its
+    chosen action shows at least ``next_leaf_min_gain`` of it."""
     num_grasps: int = 15
     grasp_inset: float = 0.01
     num_directions: int = 14

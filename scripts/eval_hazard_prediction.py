@@ -391,11 +391,7 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
             except MotionError as err:
                 r["error"] = str(err)
             rows.append(r)
-            for m in more:
-                m["grasp"] = r["grasp"]
-                m["lever_m"] = info["lever_m"]
-                m["hinge_error_m"] = info["hinge_error_m"]
-            rows += more
+            rows += [dict(m, grasp=r["grasp"]) for m in more]
     return {"rows": rows, "grasps": out_grasps, "notes": notes}
 
 

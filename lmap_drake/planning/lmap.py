@@ -824,10 +824,11 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         raise PlanningError(f"{len(predictions)} predictions for {len(live)} live actions")
     n_leaf = len(ctx.leaf_W)
     # a re-plan from the held leaf (``hinge_reference_W``, the first grasp)
-    # has its own, lower limit on the turn
-    max_turn_key = "max_hinge_deg" if hinge_reference_W is None else "max_replan_turn_deg"
-    max_turn = (cfg.max_hinge_deg if hinge_reference_W is None
-                else min(cfg.max_hinge_deg, cfg.max_replan_turn_deg))
+    # also keeps its own limit on the turn; the reason names the binding one
+    limits = [("max_hinge_deg", cfg.max_hinge_deg)]
+    if hinge_reference_W is not None:
+        limits.append(("max_replan_turn_deg", cfg.max_replan_turn_deg))
+    max_turn_key, max_turn = min(limits, key=lambda kv: kv[1])
     for c, p in zip(live, predictions):
         if isinstance(p, UnmodelledGrasp):
             c.reason = f"deformation model: {p.message}"
