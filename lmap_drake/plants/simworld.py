@@ -212,17 +212,29 @@ class PlantWorldSim:
 
     # --- building and state carry-over ----------------------------------
     def _build(self, grasp: LeafGrasp | None, old_context) -> None:
+        """Makes the station with ``grasp`` (None: no leaf held) current and
+        carries ``old_context``'s state over. The station without a grasp is
+        built once and kept: a release goes back to it (its leaves all
+        enabled, as in a new Context) instead of building it again (1-1.5 s
+        a release with four FEM leaves)."""
         self._frozen = {}
         self._fruit_id_set = None
-        if self._make_diagram is None:
-            self.station = MakePlantStation(self.scenario, self.meshcat, leaf_grasp=grasp)
-            self.diagram = self.station
+        free = getattr(self, "_free", None)
+        if grasp is None and free is not None:
+            self.diagram, self.station, self.simulator = free
         else:
-            self.diagram, self.station = self._make_diagram(self.scenario, self.meshcat, grasp)
-        self.simulator = Simulator(self.diagram)
-        self.simulator.set_target_realtime_rate(0.0)
+            if self._make_diagram is None:
+                self.station = MakePlantStation(self.scenario, self.meshcat, leaf_grasp=grasp)
+                self.diagram = self.station
+            else:
+                self.diagram, self.station = self._make_diagram(self.scenario, self.meshcat,
+                                                                grasp)
+            self.simulator = Simulator(self.diagram)
+            self.simulator.set_target_realtime_rate(0.0)
+            if grasp is None:
+                self._free = (self.diagram, self.station, self.simulator)
         self.context = self.simulator.get_mutable_context()
-        if old_context is not None:
+        if old_context is not None and old_context is not self.context:
             self._CopyState(old_context, self.context)
         self.plant = self.station.GetSubsystemByName("plant")
         self.scene_graph = self.station.GetSubsystemByName("scene_graph")
@@ -231,6 +243,10 @@ class PlantWorldSim:
         names = [f"leaf_{j}" for j in range(len(self.leaf_refs))] if self.multi else ["leaf"]
         self.leaf_ids = [self.deformable.GetBodyByName(n).body_id() for n in names]
         self.leaf_id = self.leaf_ids[0]
+        plant_context = self.plant.GetMyMutableContextFromRoot(self.context)
+        for lid in self.leaf_ids:        # a kept station's leaves may have been asleep
+            if not self.deformable.is_enabled(lid, plant_context):
+                self.deformable.Enable(lid, plant_context)
         self.ApplyCommands()
         self.simulator.Initialize()
 
@@ -584,6 +600,7 @@ class PlantWorldSim:
         """An independent copy that continues from the current state (same
         Diagram, cloned Context), e.g. to try several pulls from one grasp."""
         other = copy.copy(self)
+        other._free = None          # its own station without a grasp, when it releases
         other.context = self.context.Clone()
         other.simulator = Simulator(self.diagram, other.context)
         other.simulator.set_target_realtime_rate(0.0)

@@ -169,3 +169,31 @@ def test_robot_contact_is_reported_with_the_pair():
     assert world.worst_robot_contact["pair"].count("ur5::") + \
         world.worst_robot_contact["pair"].count("robotiq_2f85::") == 2
     assert world.worst_robot_contact["force_N"] == pytest.approx(out.max_robot_contact_force)
+
+
+def test_release_goes_back_to_the_kept_station_as_a_new_one_would():
+    """The station without a grasp is built once: a release switches back
+    to it with the state carried over and every leaf awake (the leaf had
+    been put to sleep there before the grasp), and the world then moves
+    exactly as in a station built anew (a fork, which builds its own)."""
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    world = PlantWorldSim(scenario)
+    free = world.station
+    world.Hold(1.0)
+    assert not world.deformable.is_enabled(world.leaf_id,
+                                           world.plant.GetMyContextFromRoot(world.context))
+    ApproachAndGrasp(world, scenario.plant_scene.pull)
+    assert world.station is not free
+    Pull(world, scenario.plant_scene.pull.direction_W, 0.02, 0.5)
+    rebuilt = world.Fork()
+    t, V = world.time, world.LeafVertices()
+    world.Release()
+    rebuilt.Release()
+    assert world.station is free and rebuilt.station is not free
+    assert world.time == t and np.array_equal(world.LeafVertices(), V)
+    assert world.deformable.is_enabled(world.leaf_id,
+                                       world.plant.GetMyContextFromRoot(world.context))
+    world.Hold(0.3)
+    rebuilt.Hold(0.3)
+    assert np.linalg.norm(world.LeafVertices() - V, axis=1).max() > 1e-4   # released, it moves
+    assert np.array_equal(world.LeafVertices(), rebuilt.LeafVertices())
