@@ -925,20 +925,18 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
 
 def SavePlanFigures(scenario: Scenario, view, plan, estimate, out: Path) -> list[str]:
     """``rgb_before_segmented.png`` and ``plan_on_image.png`` for one view."""
-    from PIL import Image
-
     from lmap_drake.evaluation.figures import Overlay, PlanOnImage
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import MakeSegmenter
+    from lmap_drake.viz import SavePng
     cam = scenario.cameras["camera0"]
     K = Intrinsics.FromCameraConfig(cam)
     segmenter = MakeSegmenter(scenario.perception, K)
     seg = segmenter.Segment(view.rgb, view.depth[..., None], None if view.label is None
                             else view.label[..., None])
-    Image.fromarray(Overlay(view.rgb, seg.class_map,
-                            title=f"segmenter: {segmenter.name} (before)")).save(
-        out / "rgb_before_segmented.png")
-    Image.fromarray(PlanOnImage(view.rgb, plan, estimate, K,
-                                cam.X_PB.GetDeterministicValue().GetAsMatrix4())).save(
-        out / "plan_on_image.png")
+    SavePng(Overlay(view.rgb, seg.class_map, title=f"segmenter: {segmenter.name} (before)"),
+            out / "rgb_before_segmented.png")
+    SavePng(PlanOnImage(view.rgb, plan, estimate, K,
+                        cam.X_PB.GetDeterministicValue().GetAsMatrix4()),
+            out / "plan_on_image.png")
     return ["rgb_before_segmented.png", "plan_on_image.png"]

@@ -9,8 +9,20 @@ from PIL import Image
 
 from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
 
+# zlib level of every PNG written: 1 encodes a noisy 640 x 480 camera frame
+# in 34 ms against 233 ms at PIL's default (6), for 17 % more bytes (a
+# three-fruit episode writes about 20 of them).
+PNG_COMPRESS_LEVEL = 1
+
 CLASS_COLORS = {BACKGROUND: (0, 0, 0), BRANCH: (139, 90, 43), LEAF: (40, 180, 40),
                 FRUIT: (230, 30, 30), ROBOT: (90, 120, 220)}
+
+
+def SavePng(image, path: str | Path) -> None:
+    """Writes ``image`` (a PIL image or an HxWx3/4 uint8 array) as PNG."""
+    if not isinstance(image, Image.Image):
+        image = Image.fromarray(np.ascontiguousarray(image))
+    image.save(path, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
 
 
 def RgbArray(image) -> np.ndarray:
@@ -26,7 +38,7 @@ def DepthArray(image) -> np.ndarray:
 
 
 def SaveRgb(image, path: str | Path) -> None:
-    Image.fromarray(RgbArray(image)).save(path)
+    SavePng(RgbArray(image), path)
 
 
 def ColorizeDepth(depth: np.ndarray, near: float | None = None,
@@ -48,7 +60,7 @@ def ColorizeDepth(depth: np.ndarray, near: float | None = None,
 
 
 def SaveDepth(image, path: str | Path) -> None:
-    Image.fromarray(ColorizeDepth(image)).save(path)
+    SavePng(ColorizeDepth(image), path)
 
 
 def ColorizeLabels(label_image) -> np.ndarray:
@@ -60,4 +72,4 @@ def ColorizeLabels(label_image) -> np.ndarray:
 
 
 def SaveLabel(image, path: str | Path) -> None:
-    Image.fromarray(ColorizeLabels(image)).save(path)
+    SavePng(ColorizeLabels(image), path)

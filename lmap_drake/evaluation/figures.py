@@ -10,7 +10,7 @@ from PIL import Image
 
 from lmap_drake.labels import BRANCH, CLASS_NAMES, FRUIT, LEAF
 from lmap_drake.perception.points import ProjectPoints
-from lmap_drake.viz import RgbArray
+from lmap_drake.viz import RgbArray, SavePng
 
 
 # Colours that stand out from green leaves and red / yellow / green fruit.
@@ -80,9 +80,9 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
             continue
         seg = segmenter.Segment(images["rgb_image"].data, images["depth_image"].data,
                                 images["label_image"].data)
-        Image.fromarray(Overlay(images["rgb_image"], seg.class_map,
-                                title=f"segmenter: {segmenter.name} ({tag})")).save(
-            out / f"rgb_{tag}_segmented.png")
+        SavePng(Overlay(images["rgb_image"], seg.class_map,
+                        title=f"segmenter: {segmenter.name} ({tag})"),
+                out / f"rgb_{tag}_segmented.png")
         files.append(f"rgb_{tag}_segmented.png")
     st = result.status
     model = getattr(result.world, "model", None)     # ground truth: simulation only
@@ -90,10 +90,10 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     if getattr(result, "views", ()) and plan is not None:
         from lmap_drake.perception.points import Intrinsics
         cam = result.world.scenario.cameras["camera0"]
-        Image.fromarray(PlanOnImage(result.views[0].rgb, plan, st.initial_estimate,
-                                    Intrinsics.FromCameraConfig(cam),
-                                    cam.X_PB.GetDeterministicValue().GetAsMatrix4())).save(
-            out / "plan_on_image.png")
+        SavePng(PlanOnImage(result.views[0].rgb, plan, st.initial_estimate,
+                            Intrinsics.FromCameraConfig(cam),
+                            cam.X_PB.GetDeterministicValue().GetAsMatrix4()),
+                out / "plan_on_image.png")
         files.append("plan_on_image.png")
     if getattr(st, "targets", None) or hasattr(model, "leaves"):
         files += SavePlantFigure(result, out)
@@ -244,7 +244,7 @@ def SaveTargetPlanFigures(result, out: Path) -> list[str]:
                       fill=(255, 255, 255))
             panels.append(np.asarray(held))
         name = f"plan_target{n}.png"
-        Image.fromarray(np.hstack(panels)).save(out / name)
+        SavePng(np.hstack(panels), out / name)
         files.append(name)
     return files
 

@@ -77,6 +77,8 @@ def SaveRecording(folder: Path, views, camera: dict, X_WC: np.ndarray,
     """Writes ``views`` to ``folder/recording/`` (see the module docstring);
     returns the written paths relative to ``folder``."""
     from PIL import Image
+
+    from lmap_drake.viz import SavePng
     out = Path(folder) / RECORDING_DIR
     out.mkdir(parents=True, exist_ok=True)
     entries, files = [], []
@@ -85,7 +87,7 @@ def SaveRecording(folder: Path, views, camera: dict, X_WC: np.ndarray,
                  "ur5_q": [float(x) for x in v.q], "ur5_v": [float(x) for x in v.v],
                  "gripper": [float(x) if np.isfinite(x) else None for x in v.gripper],
                  "rgb": f"view{k}_rgb.png", "depth": f"view{k}_depth.npy"}
-        Image.fromarray(np.ascontiguousarray(v.rgb, np.uint8), "RGBA").save(out / entry["rgb"])
+        SavePng(Image.fromarray(np.ascontiguousarray(v.rgb, np.uint8), "RGBA"), out / entry["rgb"])
         np.save(out / entry["depth"], np.ascontiguousarray(v.depth, np.float32))
         if v.label is not None:
             entry["label"] = f"view{k}_label.npy"

@@ -21,6 +21,18 @@ def test_obj_text_has_normals():
     assert "vn " in text and "//" in text
 
 
+def test_obj_text_of_a_mesh_written_before_is_its_own():
+    """The kept texts are found by the mesh's content: the same mesh gives
+    the same text, a moved copy its own."""
+    mesh = MakePepperMesh(subdivisions=1)
+    first = MeshToObjText(mesh)
+    assert MeshToObjText(mesh.copy()) is first
+    moved = mesh.copy().apply_translation([0.01, 0.0, 0.0])
+    text = MeshToObjText(moved)
+    assert text != first
+    assert text.splitlines()[0] == "v " + " ".join(f"{x:.7f}" for x in moved.vertices[0])
+
+
 def test_bad_parameters():
     with pytest.raises(ValueError):
         MakePepperMesh(lobe_depth=0.7)
