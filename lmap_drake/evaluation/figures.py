@@ -10,7 +10,7 @@ from PIL import Image
 
 from lmap_drake.labels import BRANCH, CLASS_NAMES, FRUIT, LEAF
 from lmap_drake.perception.points import ProjectPoints
-from lmap_drake.viz import RgbArray, SavePng
+from lmap_drake.viz import PNG_COMPRESS_LEVEL, RgbArray, SavePng
 
 
 # Colours that stand out from green leaves and red / yellow / green fruit.
@@ -140,7 +140,8 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
     ax2.legend(loc="upper left", fontsize=7)
     _EqualAxes(ax2)
     fig.tight_layout()
-    fig.savefig(out / "action_and_shapes.png", dpi=110)
+    fig.savefig(out / "action_and_shapes.png", dpi=110,
+                pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)
     files.append("action_and_shapes.png")
     return files
@@ -287,6 +288,7 @@ def SavePlantFigure(result, out: Path) -> list[str]:
     ax.set_title("plant: ground truth (grey), estimates before (orange) / after (blue)")
     _EqualAxes(ax)
     fig.tight_layout()
-    fig.savefig(out / "plant_estimates.png", dpi=110)
+    fig.savefig(out / "plant_estimates.png", dpi=110,
+                pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)
     return ["plant_estimates.png"]

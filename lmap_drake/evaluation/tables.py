@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lmap_drake.viz import PNG_COMPRESS_LEVEL
+
 BASELINES = ("random", "upward", "min_overlap")
 LMAP_METHODS = {"lmap": 1.0, "lmap_lambda0": 0.0}
 METHODS = BASELINES + tuple(LMAP_METHODS)
@@ -494,7 +496,7 @@ def _SaveFigure(fig, path: Path) -> str:
     """Writes and closes a matplotlib figure; returns the file name."""
     import matplotlib.pyplot as plt
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)
     return path.name
 

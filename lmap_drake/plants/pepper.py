@@ -384,8 +384,10 @@ def MeshToObjText(mesh: trimesh.Trimesh) -> str:
     text of a mesh already written is kept (by its vertices and faces): a
     multi-fruit episode builds its plant again at every grasp, with the
     same meshes, and writing them took 0.3 s a build."""
-    key = hashlib.sha1(np.ascontiguousarray(mesh.vertices, float).tobytes()
-                       + np.ascontiguousarray(mesh.faces, np.int64).tobytes()).digest()
+    V = np.ascontiguousarray(mesh.vertices, float)
+    F = np.ascontiguousarray(mesh.faces, np.int64)
+    key = hashlib.sha1(np.asarray(V.shape + F.shape, np.int64).tobytes()
+                       + V.tobytes() + F.tobytes()).digest()
     text = _OBJ_TEXTS.get(key)
     if text is None:
         if len(_OBJ_TEXTS) >= 64:

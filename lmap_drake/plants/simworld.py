@@ -9,7 +9,8 @@ vertices lying between the pads, and carries the whole state (time, rigid and
 deformable positions and velocities, servo states) over to the new Diagram.
 The constraint's reference placement is the rigid fit of those vertices'
 reference positions to their current ones, so the grasp does not jolt the
-leaf. ``Release()`` rebuilds without it.
+leaf. ``Release()`` goes back to the station without it (built once and
+kept), carrying the state over the same way.
 """
 from __future__ import annotations
 
@@ -254,7 +255,11 @@ class PlantWorldSim:
     def _CopyState(src, dst) -> None:
         """Copies time and every discrete/abstract state group (the two
         stations differ only by a constraint, so their layouts match)."""
-        if src.num_discrete_state_groups() != dst.num_discrete_state_groups():
+        if (src.num_discrete_state_groups() != dst.num_discrete_state_groups()
+                or src.num_abstract_states() != dst.num_abstract_states()
+                or src.num_continuous_states() or dst.num_continuous_states()):
+            # (continuous state would not be carried over: none today, the
+            # plant and the command interpolator are discrete)
             raise RuntimeError("station state layouts differ; cannot carry the state over")
         dst.SetTime(src.get_time())
         for i in range(src.num_discrete_state_groups()):
