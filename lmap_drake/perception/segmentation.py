@@ -26,8 +26,8 @@ optical axis (NaN/inf/0 = no return), ``label`` HxW render labels.
 from __future__ import annotations
 
 import abc
-import hashlib
 import dataclasses as dc
+import hashlib
 from pathlib import Path
 
 import numpy as np

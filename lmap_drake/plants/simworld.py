@@ -205,6 +205,7 @@ class PlantWorldSim:
                 ConstrainedTetMask(ref.tets, np.unique(ref.tets[ring1])) & ~ring1)
         self._petiole_tets = self._petiole_tets_of[0]
         self._Dm_inv_of: list = [None] * len(self.leaf_refs)   # per leaf, when first measured
+        self._free = None        # (diagram, station, simulator) without a grasp, kept
         self._build(None, None)
 
     @property
@@ -220,9 +221,8 @@ class PlantWorldSim:
         a release with four FEM leaves)."""
         self._frozen = {}
         self._fruit_id_set = None
-        free = getattr(self, "_free", None)
-        if grasp is None and free is not None:
-            self.diagram, self.station, self.simulator = free
+        if grasp is None and self._free is not None:
+            self.diagram, self.station, self.simulator = self._free
         else:
             if self._make_diagram is None:
                 self.station = MakePlantStation(self.scenario, self.meshcat, leaf_grasp=grasp)
