@@ -76,8 +76,6 @@ def SaveRecording(folder: Path, views, camera: dict, X_WC: np.ndarray,
                   station: str) -> list[str]:
     """Writes ``views`` to ``folder/recording/`` (see the module docstring);
     returns the written paths relative to ``folder``."""
-    from PIL import Image
-
     from lmap_drake.viz import SavePng
     out = Path(folder) / RECORDING_DIR
     out.mkdir(parents=True, exist_ok=True)
@@ -87,7 +85,7 @@ def SaveRecording(folder: Path, views, camera: dict, X_WC: np.ndarray,
                  "ur5_q": [float(x) for x in v.q], "ur5_v": [float(x) for x in v.v],
                  "gripper": [float(x) if np.isfinite(x) else None for x in v.gripper],
                  "rgb": f"view{k}_rgb.png", "depth": f"view{k}_depth.npy"}
-        SavePng(Image.fromarray(np.ascontiguousarray(v.rgb, np.uint8), "RGBA"), out / entry["rgb"])
+        SavePng(np.ascontiguousarray(v.rgb, np.uint8), out / entry["rgb"])     # H x W x 4: RGBA
         np.save(out / entry["depth"], np.ascontiguousarray(v.depth, np.float32))
         if v.label is not None:
             entry["label"] = f"view{k}_label.npy"
