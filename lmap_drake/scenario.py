@@ -476,7 +476,12 @@ class ShapeConfig:
     earlier fit's within this distance (95 % of the points both ways, the
     sensor's noise between two captures) keeps that fit instead of a new
     one (``shape.completion.FitMemo``; 0 = always fit again).
-    ``min_fruit_points`` (plants with several fruits): the smallest fruit
+    ``fruit_volume_cm3``: the typical volume of the variety (cm^3; 0 = the
+    template's own mean shape, about 170 cm^3): every SSC and HoMa-style fit
+    starts at the template scaled to it (``shape.ssc.PriorScale``). With a
+    tenth of a fruit in view the fitted size stays near the start, so a lab
+    that knows its variety should set it (see the README's *Your own pepper
+    mesh*). ``min_fruit_points`` (plants with several fruits): the smallest fruit
     instance completed, in voxels of ``perception.voxel_size`` (20 at 3 mm:
     1.8 cm², about 5 % of a 7 cm pepper's outline; measured with
     ``scripts/eval_fruit_detection.py``)."""
@@ -514,6 +519,7 @@ class ShapeConfig:
     peduncle_slide: bool = True
     peduncle_base_distance: float = 0.01
     init_from_observation: bool = False
+    fruit_volume_cm3: float = 0.0
     w_rot: float = 0.0
     init_scale_bounds: list[float] = dc.field(default_factory=lambda: [0.5, 2.0])
     refresh_every: int = 25
@@ -1165,6 +1171,7 @@ _RULES = {
     "shape.peduncle_huber": ">=0",
     "shape.peduncle_base_distance": ">=0",
     "shape.w_rot": ">=0",
+    "shape.fruit_volume_cm3": ">=0",
     "shape.rotation_lr_scale": ">0",
     "shape.reestimate_rotation_lr_scale": ">0",
     "shape.init_scale_bounds": "2x>0",
@@ -1452,6 +1459,10 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
     isb = s.shape.init_scale_bounds
     need(len(isb) != 2 or isb[0] <= isb[1], "shape.init_scale_bounds",
          f"must be [lower, upper] with lower <= upper, got {list(isb)}")
+    fv = s.shape.fruit_volume_cm3
+    need(fv == 0 or 5 <= fv <= 3000, "shape.fruit_volume_cm3",
+         f"must be 0 (the template's own size) or a pepper's volume in cm^3 (5-3000), "
+         f"got {fv} (a value in m^3 or mm^3?)")
     fa = s.planner.force_action
     need(len(fa) in (0, 3) and (not fa or (float(fa[0]).is_integer() and
                                            float(fa[1]).is_integer() and fa[2] > 0)),

@@ -207,6 +207,32 @@ def test_initial_pose_from_observation(template):
                                np.linalg.norm(small.mean(0) - CAM))
 
 
+def test_the_variety_volume_sets_the_start_and_the_fitted_size(template):
+    """shape.fruit_volume_cm3: the start scale gives the template that
+    volume (0 keeps scale 1); with a quarter of a small fruit in view the
+    fitted size follows the start, so a small variety's prior ends nearer
+    the truth than the template's own size."""
+    from lmap_drake.shape.metrics import MeshVolume
+    from lmap_drake.shape.ssc import InitialPose, PriorScale, TemplateStats
+    dec, mean, lat = template
+    r = TemplateStats(dec, mean)["radius"]
+    v_template = 4.0 / 3.0 * np.pi * r ** 3 * 1e6
+    assert PriorScale(dec, mean, 0.0) == 1.0
+    assert PriorScale(dec, mean, v_template / 8) == pytest.approx(0.5)
+    pts = np.array([0.5, -0.03, 0.33]) + np.random.default_rng(0).normal(scale=0.004, size=(50, 3))
+    s0, _ = InitialPose(dec, mean, pts, CAM, SscParams(fruit_volume_cm3=60.0))
+    assert s0 ** 3 * v_template == pytest.approx(60.0, rel=1e-6)
+    gt, _ = _gt(dec, lat[3], s=0.7)                 # a small pepper
+    v_true = abs(MeshVolume(gt.vertices_W, gt.faces)) * 1e6
+    obs = _visible_points(gt, n=400)
+    obs = obs[obs[:, 2] < np.quantile(obs[:, 2], 0.3)]     # its lower part only
+    P = SscParams(iterations=150)
+    fits = {v: OptimizeShape(dec, mean, obs, CAM, [], None,
+                             dc.replace(P, fruit_volume_cm3=v)) for v in (0.0, v_true)}
+    err = {v: abs(abs(MeshVolume(f.vertices_W, f.faces)) * 1e6 - v_true) for v, f in fits.items()}
+    assert err[v_true] < 0.5 * err[0.0], (err, v_true)
+
+
 def _stalk_case(dec, lat, hide_base: bool):
     """A fruit (12 deg tilt) with its right half in view and a curved stalk
     (50 deg bend over 6 cm) leaving its top; ``hide_base``: the stalk's
