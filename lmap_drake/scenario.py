@@ -719,8 +719,8 @@ class PlannerConfig:
 
     ``max_pull_distance`` (m): the longest straight pull from a grasp 10 cm
     from the estimated attachment, scaled by (L / 10 cm)^2 for a grasp L
-    from it (``planning.lmap.MaxPullDistance``; 0 = no cap; arcs and twists
-    turn about the attachment and are not capped). Like
+    from it (``planning.lmap.MaxPullDistance``; 0 = no cap; arcs are capped
+    by ``arc_lever_reference``, twists are not). Like
     ``max_energy_per_node`` it vetoes after the scores are normalised over
     every action that passed the checks, so it does not re-rank the rest
     (removing the longer pulls first turned the single-fruit suite's 45°
@@ -736,6 +736,18 @@ class PlannerConfig:
     the attachment estimate was 3 cm off). On the single-fruit suite's four
     hazard scenes the same cap keeps 97 of 144 such pulls, the largest
     9.6 N.
+
+    ``arc_lever_reference`` (m): an arc about the estimated attachment may
+    turn at most 45 deg x L / this, L the grasp's distance to the
+    attachment (``planning.lmap.MaxArcAngle``; 0 = no cap): turning the
+    blade takes a moment at the petiole, and the grasp supplies it with a
+    force that grows as the lever shortens. A veto after scoring, like the
+    pull cap. Over 155 arcs that evaluations chose first (suites, random
+    plants, pepper meshes not of the family), the 45 deg arcs from grasps
+    under 7 cm from the attachment loaded the petiole past 15 N in 2 of 18
+    (16.4 and 15.8 N), none of the 8 such 30 deg arcs did (at most 12.1 N),
+    and 45 deg arcs from 9 cm or more stayed under 12.2 N. At 7.5 cm a 45
+    deg arc needs L >= 7.5 cm, a 30 deg one 5 cm.
 
     ``robot_fruit_margin`` (m): every part of the robot but the two fingers
     (arm, wrist, the gripper's body and coupling) keeps this far from every
@@ -821,6 +833,7 @@ class PlannerConfig:
     petiole_torsion_ratio: float = 0.25
     max_tether_elongation: float = 0.015
     max_pull_distance: float = 0.03
+    arc_lever_reference: float = 0.075
     check_leaf_branch: bool = False
     max_reveals_per_fruit: int = 1
     next_leaf_min_gain: float = 0.05
@@ -1233,6 +1246,7 @@ _RULES = {
     "planner.petiole_torsion_ratio": ">=0",
     "planner.max_tether_elongation": ">=0",
     "planner.max_pull_distance": ">=0",
+    "planner.arc_lever_reference": ">=0",
     "planner.visibility_voxel": ">0",
     "planner.collision_margin": ">=0",
     "planner.robot_fruit_margin": ">=0",

@@ -714,6 +714,25 @@ def MaxPullDistance(cfg: PlannerConfig, p_WG: np.ndarray,
     return cap
 
 
+# The widest arc (deg) allowed at ``planner.arc_lever_reference``.
+ARC_REFERENCE_DEG = 45.0
+
+
+def MaxArcAngle(cfg: PlannerConfig, p_WG: np.ndarray, hinge_W: np.ndarray | None) -> float:
+    """The widest arc (deg) about the estimated attachment ``hinge_W``
+    allowed from grasp ``p_WG``: ``ARC_REFERENCE_DEG`` times L /
+    ``planner.arc_lever_reference``, L the grasp's distance to it, at most
+    ``ARC_REFERENCE_DEG``. Turning the blade by a given angle takes a
+    moment at the petiole, and the grasp supplies it with a force that grows
+    as the lever shortens. inf when ``arc_lever_reference`` is 0 or there
+    is no hinge (no cap)."""
+    ref = cfg.arc_lever_reference
+    if ref <= 0 or hinge_W is None:
+        return float("inf")
+    lever = float(np.linalg.norm(np.asarray(p_WG, float) - np.asarray(hinge_W, float)))
+    return ARC_REFERENCE_DEG * min(1.0, lever / ref)
+
+
 def PullDistances(cfg: PlannerConfig, p_WG: np.ndarray, hinge_W: np.ndarray | None
                   ) -> list[float]:
     """The straight pulls' distances (m) from grasp ``p_WG``:
@@ -921,6 +940,14 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
                                 f"this near the attachment (at most {longest * 100:.1f} cm: "
                                 f"max_pull_distance {cfg.max_pull_distance:g} m at a "
                                 f"{PULL_LEVER_REFERENCE * 100:.0f} cm lever)")
+            elif c.action.family == "arc":
+                widest = MaxArcAngle(cfg, c.action.p_WG, cset.hinge_W)
+                deg = float(np.degrees(abs(c.action.angle)))
+                if deg > widest + 1e-6:
+                    c.reason = (f"a {deg:.0f} deg arc from a grasp this near "
+                                f"the attachment (at most {widest:.0f} deg: "
+                                f"{ARC_REFERENCE_DEG:.0f} deg at arc_lever_reference "
+                                f"{cfg.arc_lever_reference * 100:g} cm)")
         feasible = [c for c in feasible if c.feasible]
         cap = cfg.max_energy_per_node
         if cap > 0:

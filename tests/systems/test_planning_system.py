@@ -46,6 +46,7 @@ def _plan(scene, energy_weight=1.0, max_energy=None, force_action=None, planner=
     s.planner.num_grasps = 6
     s.planner.distances = [0.04, 0.08]
     s.planner.max_pull_distance = 0.0     # the pull cap has its own test
+    s.planner.arc_lever_reference = 0.0   # so has the arc cap
     for k, v in (planner or {}).items():
         setattr(s.planner, k, v)
     if force_action is not None:
@@ -222,6 +223,42 @@ def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment(monkeypatch):
         assert capped.chosen.action.Describe() == free.chosen.action.Describe()
     assert any(c.action.family == "arc" and c.action.distance > 0.04 and c.feasible
                for c in capped.candidates)
+
+
+def test_an_arc_is_capped_by_its_lever_to_the_attachment():
+    """No arc wider than 45 deg x lever / arc_lever_reference turns the leaf
+    (a short lever needs a larger force for the same turn of the petiole);
+    the capped arcs carry the reason and keep their scores (a veto, as for
+    pulls); pulls and twists are not capped by it."""
+    from lmap_drake.planning.lmap import ARC_REFERENCE_DEG
+    free = _plan(_scene())
+    arcs = [c for c in free.candidates if c.action.family == "arc" and c.score == c.score]
+    levers = [np.linalg.norm(c.action.p_WG - free.hinge_W) for c in arcs]
+    ref = 1.05 * max(levers)       # every 45 deg arc over the cap, the 15 deg ones not
+    capped = _plan(_scene(), planner={"arc_lever_reference": float(ref)})
+    def key(c):
+        return (c.action.grasp_id, c.action.direction_id, round(c.action.distance, 4),
+                round(c.action.angle, 4))
+    s_free = {key(c): c for c in free.candidates}
+    assert len(s_free) == len(free.candidates) == len(capped.candidates)
+    n_capped = 0
+    for c in capped.candidates:
+        f = s_free[key(c)]
+        assert np.isclose(c.score, f.score, equal_nan=True)
+        if c.score != c.score:       # unscored: failed before the veto
+            continue
+        over = False
+        if c.action.family == "arc":
+            lever = np.linalg.norm(c.action.p_WG - capped.hinge_W)
+            widest = ARC_REFERENCE_DEG * min(1.0, lever / ref)
+            over = np.degrees(abs(c.action.angle)) > widest + 1e-6
+        assert over == ("arc_lever_reference" in c.reason), c.reason
+        assert not over or not c.feasible
+        n_capped += over
+    assert n_capped > 0
+    assert capped.status == "ok" and "arc_lever_reference" not in capped.chosen.reason
+    if capped.chosen.action.family == "arc":
+        assert np.degrees(abs(capped.chosen.action.angle)) < ARC_REFERENCE_DEG
 
 
 def test_the_arm_may_not_push_another_leaf_at_a_moved_pose():
