@@ -309,9 +309,10 @@ def InitialPose(decoder, z0: np.ndarray, fruit_points_W: np.ndarray, camera_W: n
                 P: "SscParams") -> tuple[float, np.ndarray]:
     """The starting scale s0 and centre t0 (W, m).
 
-    ``init_from_observation`` False: s0 = 1, t0 = the fruit points'
+    ``init_from_observation`` False: s0 = the prior scale (``PriorScale``
+    of ``fruit_volume_cm3``; 1 by default), t0 = the fruit points'
     centroid pushed ``push_from_camera`` away from the camera.
-    True: s0 = 1 clamped to ``init_scale_bounds`` and from below by the
+    True: s0 = the prior scale clamped to ``init_scale_bounds`` and from below by the
     observed extent (the largest spread of the fruit points along their
     principal axes cannot exceed the fruit's largest extent: s0 >= spread /
     template extent); t0 = the centroid pushed away from the camera by 0.8
