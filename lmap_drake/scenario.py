@@ -1184,7 +1184,6 @@ _RULES = {
     "shape.peduncle_huber": ">=0",
     "shape.peduncle_base_distance": ">=0",
     "shape.w_rot": ">=0",
-    "shape.fruit_volume_cm3": ">=0",
     "shape.rotation_lr_scale": ">0",
     "shape.reestimate_rotation_lr_scale": ">0",
     "shape.init_scale_bounds": "2x>0",

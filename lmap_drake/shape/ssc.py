@@ -287,18 +287,19 @@ _TEMPLATE_CACHE: dict = {}
 
 def TemplateStats(decoder, z: np.ndarray) -> dict:
     """Size of the template surface of latent ``z`` in O (m): ``extent``
-    (largest axis-aligned extent), ``radius`` (radius of the sphere of equal
-    volume). Cached per decoder and latent."""
+    (largest axis-aligned extent), ``volume`` (m^3), ``radius`` (radius of
+    the sphere of equal volume). Cached per decoder and latent."""
     key = (id(decoder), np.asarray(z, np.float32).tobytes())
     if key not in _TEMPLATE_CACHE:
         zt = torch.as_tensor(np.asarray(z, np.float32))
         v, f = TemplateMesh(decoder, zt, 24)
         if len(f) == 0:
-            st = dict(extent=2 * CUBE_RADIUS, radius=CUBE_RADIUS / 2)
+            st = dict(extent=2 * CUBE_RADIUS, radius=CUBE_RADIUS / 2,
+                      volume=4.0 / 3.0 * np.pi * (CUBE_RADIUS / 2) ** 3)
         else:
             from lmap_drake.shape.metrics import MeshVolume
             vol = abs(MeshVolume(v, f))
-            st = dict(extent=float(np.ptp(v, axis=0).max()),
+            st = dict(extent=float(np.ptp(v, axis=0).max()), volume=float(vol),
                       radius=float((3 * vol / (4 * np.pi)) ** (1 / 3)))
         _TEMPLATE_CACHE.clear() if len(_TEMPLATE_CACHE) > 16 else None
         _TEMPLATE_CACHE[key] = st
@@ -341,8 +342,7 @@ def PriorScale(decoder, z0: np.ndarray, fruit_volume_cm3: float) -> float:
     mean shape as trained, about 170 cm^3 for the shipped weights)."""
     if fruit_volume_cm3 <= 0:
         return 1.0
-    r = TemplateStats(decoder, z0)["radius"]
-    return float((fruit_volume_cm3 * 1e-6 / (4.0 / 3.0 * np.pi * r ** 3)) ** (1.0 / 3.0))
+    return float((fruit_volume_cm3 * 1e-6 / TemplateStats(decoder, z0)["volume"]) ** (1.0 / 3.0))
 
 
 def _subsample(p: np.ndarray, n: int, rng) -> np.ndarray:

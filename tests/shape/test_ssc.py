@@ -215,8 +215,7 @@ def test_the_variety_volume_sets_the_start_and_the_fitted_size(template):
     from lmap_drake.shape.metrics import MeshVolume
     from lmap_drake.shape.ssc import InitialPose, PriorScale, TemplateStats
     dec, mean, lat = template
-    r = TemplateStats(dec, mean)["radius"]
-    v_template = 4.0 / 3.0 * np.pi * r ** 3 * 1e6
+    v_template = TemplateStats(dec, mean)["volume"] * 1e6
     assert PriorScale(dec, mean, 0.0) == 1.0
     assert PriorScale(dec, mean, v_template / 8) == pytest.approx(0.5)
     pts = np.array([0.5, -0.03, 0.33]) + np.random.default_rng(0).normal(scale=0.004, size=(50, 3))
