@@ -221,3 +221,33 @@ def test_fragments_merge_only_if_one_fit_holds_them_all(monkeypatch):
                                      leaf_split_angle_deg=0, merge_tolerance=np.inf)
     assert len(loose.fruits) == 1 and loose.fruits[0].center_W[2] > c0[2] + 0.002
     assert (loose.semantic.fruit_instance >= 0).all()
+
+
+def test_a_small_fit_inside_another_fruit_is_not_a_second_fruit(monkeypatch):
+    """Two real fruits cannot interpenetrate: a small patch whose fit lies
+    0.8 of the radii's sum from a fruit's centre, off that fruit's surface
+    (a calyx cut off from its fruit by a leaf), is dropped, never merged; a real
+    neighbour 1.1 of the sum away stays a fruit of its own."""
+    from lmap_drake.shape import completion
+    from lmap_drake.types import SemanticScene
+    monkeypatch.setattr(completion, "_CompleteFruit", _SphereFit)
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    cap = d[d[:, 1] < -0.3]                                   # the side facing the camera
+    c0, r0, r1 = np.array([0.5, 0.0, 0.3]), 0.03, 0.02
+    fruit = c0 + r0 * cap
+    for gap, kept in ((0.8, 1), (1.1, 2)):
+        c1 = c0 + [0.0, 0.0, gap * (r0 + r1)]
+        other = c1 + r1 * cap[:: 4 if kept == 1 else 1]
+        assert np.median(np.abs(np.linalg.norm(other - c0, axis=1) - r0)) \
+            > completion.MERGE_DISTANCE                        # not on the fruit's surface
+        sem = SemanticScene(X_WC=np.eye(4), fruit_points_W=np.vstack([fruit, other]),
+                            fruit_instance=np.r_[np.zeros(len(fruit), int),
+                                                 np.ones(len(other), int)])
+        plant = completion.CompletePlant(sem, method="homa", branch_params=None,
+                                         leaf_split_angle_deg=0)
+        assert len(plant.fruits) == kept, gap
+        assert np.allclose(plant.fruits[0].center_W, c0, atol=1e-6)
+        dropped = any(f.startswith("fruit_fragment_dropped") for f in plant.semantic.flags)
+        assert dropped == (kept == 1)
