@@ -69,6 +69,8 @@ class DeepSDFDecoder(nn.Module):
                     output_scale=self.output_scale)
 
     def forward(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        if z.dim() == 1 and 0 not in self.latent_in:
+            return self._ForwardOneLatent(z, x)
         if z.dim() == 1:
             z = z.unsqueeze(0).expand(x.shape[0], -1)
         inp = torch.cat([z, x * self.input_scale], 1)
@@ -77,6 +79,29 @@ class DeepSDFDecoder(nn.Module):
             if l in self.latent_in:
                 h = torch.cat([h, inp], 1)
             h = lin(h)
+            if l < self.depth:
+                h = torch.relu(h)
+        return torch.tanh(h[:, 0]) * self.output_scale
+
+    def _ForwardOneLatent(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """``forward`` for one latent z (C,) shared by every point: the
+        latent's share of the layers that take it (the first and
+        ``latent_in``) is one matrix-vector product instead of one per point
+        (the same sums; at 8 x 128 about 7 % fewer flops, and no (N, C)
+        copy of z)."""
+        C = self.latent_size
+        xs = x * self.input_scale
+        h = xs
+        for l, lin in enumerate(self.layers):
+            W, b = lin.weight, lin.bias
+            if l == 0:                       # input [z, xs]
+                h = torch.addmm(b + W[:, :C] @ z, xs, W[:, C:].t())
+            elif l in self.latent_in:        # input [h, z, xs]
+                n = h.shape[1]
+                h = torch.addmm(b + W[:, n:n + C] @ z, torch.cat([h, xs], 1),
+                                torch.cat([W[:, :n], W[:, n + C:]], 1).t())
+            else:
+                h = lin(h)
             if l < self.depth:
                 h = torch.relu(h)
         return torch.tanh(h[:, 0]) * self.output_scale

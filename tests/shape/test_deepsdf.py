@@ -86,3 +86,25 @@ def test_save_load_roundtrip(tmp_path):
     x = torch.rand(10, 3)
     torch.testing.assert_close(dec2(torch.zeros(32), x), dec(torch.zeros(32), x))
     assert mean[5] == 5
+
+
+def test_one_latent_for_all_points_gives_the_per_point_result():
+    """A latent (C,) shared by every point (SSC's fits) is computed once per
+    layer that takes it: values and gradients (points, latent, weights) are
+    those of the same latent repeated per point."""
+    torch.manual_seed(0)
+    dec = DeepSDFDecoder(latent_size=8, width=16, depth=4, latent_in=(2,))
+    x = (torch.rand(50, 3) - 0.5) * 0.1
+    grads = []
+    for shared in (True, False):
+        z = torch.randn(8, requires_grad=True) if not grads else grads[0][0].detach().clone()
+        z.requires_grad_(True)
+        xi = x.clone().requires_grad_(True)
+        dec.zero_grad()
+        y = dec(z, xi) if shared else dec(z.unsqueeze(0).expand(len(x), -1), xi)
+        (y ** 2).sum().backward()
+        grads.append((z, y.detach(), xi.grad, z.grad, dec.layers[2].weight.grad.clone()))
+    (z1, y1, gx1, gz1, gw1), (_, y2, gx2, gz2, gw2) = grads
+    assert torch.allclose(y1, y2, atol=1e-7) and not torch.allclose(y1, torch.zeros_like(y1))
+    for a, b in ((gx1, gx2), (gz1, gz2), (gw1, gw2)):
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-8)
