@@ -91,7 +91,6 @@ class DeepSDFDecoder(nn.Module):
         copy of z)."""
         C = self.latent_size
         xs = x * self.input_scale
-        h = xs
         for l, lin in enumerate(self.layers):
             W, b = lin.weight, lin.bias
             if l == 0:                       # input [z, xs]
