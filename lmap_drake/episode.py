@@ -297,6 +297,11 @@ class SimWorld:
             c = np.asarray(t["target"]["center_W"], float)
             return int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits])), None
 
+        def dropped(est):
+            from lmap_drake.shape.completion import DroppedFragments
+            sem = getattr(est, "semantic", None)
+            return None if sem is None else DroppedFragments(sem.flags)
+
         def executed(u):
             """The candidates target ``u`` executed (its plan, then its
             continuations), in order."""
@@ -319,7 +324,11 @@ class SimWorld:
                              "t_start": t["t_start"], "t_end": t["t_end"],
                              "max_petiole_force": (None if worst is None
                                                    else float(worst.petiole_force)),
-                             "max_strain_percentile": worst_strain(t)})
+                             "max_strain_percentile": worst_strain(t),
+                             # fruit fragments dropped as no fruit (CompletePlant)
+                             # in the view it was planned in and in its re-estimate
+                             "fragments_dropped": [dropped(t.get(k)) for k in
+                                                   ("initial_estimate", "final_estimate")]})
         record["targets"] = rows
         record["phantom_targets"] = sum(r["phantom"] for r in rows)
         fruits = []

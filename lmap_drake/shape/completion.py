@@ -335,6 +335,13 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     return out
 
 
+def DroppedFragments(flags) -> int:
+    """How many fruit fragments ``CompletePlant`` dropped in a view, from
+    its scene's ``flags`` (``fruit_fragment_dropped:N``); 0 when none."""
+    return sum(int(f.split(":", 1)[1]) for f in flags or ()
+               if f.startswith("fruit_fragment_dropped:"))
+
+
 def UnionExplains(union, parts, tolerance: float = MERGE_RESIDUAL_TOLERANCE) -> bool:
     """The union's fit puts every part's points (``parts``: (points, the
     median |SDF| the part's own fit gave them, NaN = unknown)) within
