@@ -48,6 +48,8 @@ MERGE_OVERLAP_FRACTION = 0.6
 # of two partial caps can "hold" both, stretched: 123 cm^3 too large in
 # one re-estimate).
 OVERLAP_FRACTION = 1.0
+# The scene flag of the fragments dropped (``DROPPED_FLAG:N``).
+DROPPED_FLAG = "fruit_fragment_dropped"
 
 
 def LargestInstance(points: np.ndarray, instance: np.ndarray) -> np.ndarray:
@@ -298,9 +300,10 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                 pa, pb = pts[np.isin(inst, groups[a])], pts[np.isin(inst, groups[b])]
                 small = b if len(pb) <= len(pa) else a
                 lopsided = min(len(pa), len(pb)) <= DROP_FRACTION * max(len(pa), len(pb))
-                if FruitsOverlap(ests[a], ests[b], MERGE_OVERLAP_FRACTION) \
-                        or PointsOnFruit(ests[a], pb, merge_distance) \
-                        or PointsOnFruit(ests[b], pa, merge_distance):
+                near = (FruitsOverlap(ests[a], ests[b], MERGE_OVERLAP_FRACTION)
+                        or PointsOnFruit(ests[a], pb, merge_distance)
+                        or PointsOnFruit(ests[b], pa, merge_distance))
+                if near:
                     parts = [(p, MedianAbsSdf(e, p)) for p, e in ((pa, ests[a]), (pb, ests[b]))]
                     holds = lambda u: UnionExplains(u, parts, merge_tolerance)  # noqa: E731
                     union = complete(groups[a] + groups[b], timings, keep=holds)
@@ -308,12 +311,9 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
                         groups[a] = groups[a] + groups.pop(b)
                         ests.pop(b)
                         ests[a] = union
-                    else:
-                        dropped += groups.pop(small)
-                        ests.pop(small)
-                    merged = True
-                    break
-                if lopsided and FruitsOverlap(ests[a], ests[b], OVERLAP_FRACTION):
+                        merged = True
+                        break
+                if lopsided and (near or FruitsOverlap(ests[a], ests[b], OVERLAP_FRACTION)):
                     dropped += groups.pop(small)
                     ests.pop(small)
                     merged = True
@@ -329,7 +329,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
         for g in groups:
             inst[np.isin(inst, g)] = g[0]
         inst[np.isin(inst, dropped)] = -1
-        flags = list(semantic.flags) + ([f"fruit_fragment_dropped:{len(dropped)}"]
+        flags = list(semantic.flags) + ([f"{DROPPED_FLAG}:{len(dropped)}"]
                                         if dropped else [])
         out.semantic = dc.replace(semantic, fruit_instance=inst, flags=flags)
     return out
@@ -339,7 +339,7 @@ def DroppedFragments(flags) -> int:
     """How many fruit fragments ``CompletePlant`` dropped in a view, from
     its scene's ``flags`` (``fruit_fragment_dropped:N``); 0 when none."""
     return sum(int(f.split(":", 1)[1]) for f in flags or ()
-               if f.startswith("fruit_fragment_dropped:"))
+               if f.startswith(DROPPED_FLAG + ":"))
 
 
 def UnionExplains(union, parts, tolerance: float = MERGE_RESIDUAL_TOLERANCE) -> bool:
