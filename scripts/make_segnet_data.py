@@ -6,6 +6,14 @@ branch sizes), of every colour (leaf, branch, fruit with half of the fruits
 green, stripes, background), of the lights (1-3 directional lights, tinted),
 of the camera pose (+-8 cm, +-8 deg around the default) and arm pose, and of
 the camera model (depth noise 0.5-2x, dropout and flying-pixel rates).
+With ``--held_leaf F``, a fraction F of the scenes shows a leaf held by the
+gripper the way the planner's actions leave it (``HeldLeaf``): grasped at
+one of the planner's own grasp points, turned about its petiole attachment
+by a twist (20-70 deg about the attachment-grasp line), an arc (10-50 deg
+about an axis across it) or both, and pulled up to 4 cm, the arm at the
+turned grasp (``plants.leaf.TurnHeldLeaf``: the blade turns as one piece
+beyond the petiole). Without such views the network took most of a held,
+turned leaf for background.
 
     python scripts/make_segnet_data.py --out out/segnet_data --count 400 --seed 10000
 
@@ -64,6 +72,63 @@ def _ArmNearLeaf(s, rng) -> list[float]:
     return [float(v) for v in r.q] if r.success else list(s.robot.initial_q)
 
 
+def HeldLeaf(s, rng, kind: str | None = None, twist_deg: float | None = None,
+             arc_deg: float | None = None, pull_m: float | None = None) -> dict:
+    """Turns one leaf of ``s``'s plant as a held one (see the module
+    docstring) and puts the closed gripper at its turned grasp point: sets
+    ``s.robot.initial_q`` and ``initial_gripper_width``; returns
+    ``RenderStill``'s ``leaf_positions``. ``kind`` (twist / arc / both) and
+    the angles and pull length are drawn from ``rng`` unless given. Raises
+    ValueError when the leaf has no grasp or the arm cannot reach the
+    turned grasp."""
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    from lmap_drake.planning.candidates import GraspCandidates
+    from lmap_drake.planning.robot_model import RobotModel
+    from lmap_drake.plants.leaf import TurnHeldLeaf
+    from lmap_drake.plants.world import GetPlantModel
+    model = GetPlantModel(s)
+    if hasattr(model, "leaves"):
+        j = int(rng.integers(len(model.leaves)))
+        rest, attach = model.leaves[j].rest_W, model.leaves[j].attach_W
+        branch = np.vstack([b.points_W for b in model.branches])
+    else:
+        j, rest, attach, branch = 0, model.leaf_rest_W, model.leaf_attach_W, model.branch_points_W
+    p_WC = s.cameras["camera0"].X_PB.GetDeterministicValue().translation()
+    grasps, _ = GraspCandidates(rest, branch, p_WC, 15, 0.01, 0.03)
+    grasps = [g for g in grasps if np.linalg.norm(g.p_WG - attach) > 0.04]
+    if not grasps:
+        raise ValueError("no grasp on the held leaf")
+    g = grasps[int(rng.integers(len(grasps)))]
+    line = (g.p_WG - attach) / np.linalg.norm(g.p_WG - attach)
+    across = np.cross(line, rng.normal(size=3))
+    across /= np.linalg.norm(across)
+    kind = kind or str(rng.choice(["twist", "arc", "both"]))
+    arc = np.radians(arc_deg if arc_deg is not None else rng.uniform(10, 50))
+    twist = np.radians(twist_deg if twist_deg is not None
+                       else rng.uniform(20, 70) * rng.choice([-1.0, 1.0]))
+    pull = rng.normal(size=3)
+    pull *= (pull_m if pull_m is not None
+             else min(0.04, 0.02 * float(np.linalg.norm(pull)))) / float(np.linalg.norm(pull))
+    pts, R = rest, np.eye(3)
+    if kind in ("arc", "both"):
+        pts, R1 = TurnHeldLeaf(pts, attach, g.p_WG, across, arc)
+        R = R1 @ R
+    p_grasp = attach + R @ (g.p_WG - attach)
+    if kind in ("twist", "both"):
+        pts, R2 = TurnHeldLeaf(pts, attach, p_grasp, p_grasp - attach, twist)
+        R = R2 @ R
+    pts, _ = TurnHeldLeaf(pts, attach, p_grasp, line, 0.0, pull_W=pull)
+    robot = RobotModel(s.robot.X_WB.GetDeterministicValue())
+    X = RigidTransform(RotationMatrix(R @ g.R_WG), p_grasp + pull)
+    r = robot.Ik(X, np.asarray(s.robot.initial_q), 0.01, multistart=True)
+    if not r.success:
+        raise ValueError("the arm cannot reach the held leaf's grasp")
+    s.robot.initial_q = [float(v) for v in r.q]
+    s.robot.initial_gripper_width = float(rng.uniform(0.0, 0.006))
+    return {j: pts}
+
+
 def _RandomFruitColor(rng, fruit) -> str:
     """A random fruit kind (half green) and colour on ``fruit`` (a
     ``FruitConfig``); returns the kind."""
@@ -78,13 +143,17 @@ def _RandomFruitColor(rng, fruit) -> str:
     return kind
 
 
-def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0.0):
+def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0.0,
+                         held_leaf: float = 0.0):
     """(Scenario, fruit_kind) for sample ``seed``: a random procedural plant
     with randomised colours, lights, camera pose, arm pose and camera model;
     with probability ``arm_near_leaf`` the gripper is at the leaf. With
     probability ``multi`` the plant has 2-4 fruits on side shoots, each with
     its stalk, and 2-6 leaves (``RandomMultiSuite``), each fruit its own
-    colour; its kind is then ``green`` if every fruit is, else ``mixed``."""
+    colour; its kind is then ``green`` if every fruit is, else ``mixed``.
+    Returns (Scenario, fruit_kind, leaf_positions): with probability
+    ``held_leaf`` (its own coin) a leaf is held and turned (``HeldLeaf``;
+    its vertices for ``RenderStill``), else leaf_positions is empty."""
     from pydrake.common.schema import Rotation
     from pydrake.geometry import LightParameter, Rgba
     from pydrake.math import RollPitchYaw
@@ -137,6 +206,9 @@ def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0
         # wrist and forearm in front of the plant (the "after" view)
         s.robot.initial_q = _ArmNearLeaf(s, rng)
         s.robot.initial_gripper_width = float(rng.uniform(0.0, 0.04))
+    held = {}
+    if np.random.default_rng([seed, 2]).random() < held_leaf:
+        held = HeldLeaf(s, np.random.default_rng([seed, 3]))
 
     n = s.camera_noise
     scale = rng.uniform(0.5, 2.0)
@@ -146,19 +218,19 @@ def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0
     n.thin_dropout = float(rng.uniform(0.2, 0.8))
     n.grazing_start_deg = float(rng.uniform(65, 78))
     n.speckle_dropout = float(rng.uniform(0.0, 0.01))
-    return s, kind
+    return s, kind, held
 
 
 def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
-                 multi: float = 0.0) -> dict:
+                 multi: float = 0.0, held_leaf: float = 0.0) -> dict:
     """Renders sample ``seed``; returns the arrays stored in its ``.npz``."""
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import TruthClassMap
     from lmap_drake.perception.segnet import CropBox, SegNetInputs
     from lmap_drake.plants.world import RenderStill
 
-    s, kind = RandomRenderScenario(seed, arm_near_leaf, multi)
-    rgb, depth, label = RenderStill(s)
+    s, kind, held = RandomRenderScenario(seed, arm_near_leaf, multi, held_leaf)
+    rgb, depth, label = RenderStill(s, leaf_positions=held)
     truth = TruthClassMap(label).astype(np.uint8)
     K = Intrinsics.FromCameraConfig(s.cameras["camera0"])
     x = SegNetInputs(rgb, depth, K, s.perception.depth_cut)
@@ -166,16 +238,17 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
     if box is None or not (truth == 3).any():
         raise ValueError("no fruit in view")
     return {"inputs": x[:, box[0], box[1]].astype(np.float16), "truth": truth[box],
-            "fruit_kind": kind, "multi": s.plant_scene.kind == "multi"}
+            "fruit_kind": kind, "multi": s.plant_scene.kind == "multi", "held": bool(held)}
 
 
 def _work(args) -> str:
-    seed, out, arm_near_leaf, multi = args
+    seed, out, arm_near_leaf, multi, held_leaf = args
     path = Path(out) / f"{seed:06d}.npz"
     if path.exists():
         return "kept"
     try:
-        sample = RenderSample(seed, arm_near_leaf=arm_near_leaf, multi=multi)
+        sample = RenderSample(seed, arm_near_leaf=arm_near_leaf, multi=multi,
+                              held_leaf=held_leaf)
     except Exception as err:  # a generator refusal or an empty view: skip the seed
         return f"skipped {seed}: {type(err).__name__}: {err}"
     tmp = path.with_suffix(".tmp.npz")
@@ -196,9 +269,13 @@ def main(argv=None) -> int:
     ap.add_argument("--multi", type=float, default=0.0,
                     help="fraction of scenes with a multi-fruit plant (2-4 fruits on side "
                          "shoots with their stalks, 2-6 leaves)")
+    ap.add_argument("--held_leaf", type=float, default=0.0,
+                    help="fraction of scenes with a leaf held by the gripper, turned about its "
+                         "attachment as the planner's twists, arcs and pulls leave it")
     args = ap.parse_args(argv)
-    if not 0.0 <= args.multi <= 1.0 or not 0.0 <= args.arm_near_leaf <= 1.0:
-        print("error: --multi and --arm_near_leaf must lie in [0, 1]", file=sys.stderr)
+    if not all(0.0 <= v <= 1.0 for v in (args.multi, args.arm_near_leaf, args.held_leaf)):
+        print("error: --multi, --arm_near_leaf and --held_leaf must lie in [0, 1]",
+              file=sys.stderr)
         return 2
     if args.count < 1 or args.workers < 1:
         print("error: --count and --workers must be >= 1", file=sys.stderr)
@@ -206,7 +283,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from tqdm import tqdm
-    jobs = [(args.seed + i, str(out), args.arm_near_leaf, args.multi)
+    jobs = [(args.seed + i, str(out), args.arm_near_leaf, args.multi, args.held_leaf)
             for i in range(args.count)]
     t0 = time.time()
     counts: dict[str, int] = {}

@@ -36,7 +36,8 @@ def LoadSamples(folder: Path) -> list[dict]:
         d = np.load(f)
         out.append({"seed": int(f.stem), "x": d["inputs"], "y": d["truth"].astype(np.int64),
                     "kind": str(d["fruit_kind"]),
-                    "multi": bool(d["multi"]) if "multi" in d.files else False})
+                    "multi": bool(d["multi"]) if "multi" in d.files else False,
+                    "held": bool(d["held"]) if "held" in d.files else False})
     return out
 
 
@@ -79,7 +80,8 @@ def Validate(net, samples: list[dict]) -> dict:
     rows = []
     for s in samples:
         pred = PredictLogits(net, s["x"].astype(np.float32)).argmax(0)
-        rows.append({"kind": s["kind"], "multi": s["multi"], **{k: Iou(pred, s["y"], c)
+        rows.append({"kind": s["kind"], "multi": s["multi"], "held": s["held"],
+                     **{k: Iou(pred, s["y"], c)
                                          for k, c in (("branch", 1), ("leaf", 2), ("fruit", 3))}})
     net.train()
 
@@ -94,6 +96,10 @@ def Validate(net, samples: list[dict]) -> dict:
     if multi:       # the multi-fruit plants among them (side shoots and stalks)
         out.update(n_multi=len(multi), fruit_iou_multi=mean(multi, "fruit"),
                    branch_iou_multi=mean(multi, "branch"))
+    held = [r for r in rows if r["held"]]
+    if held:        # a leaf held by the gripper, turned (make_segnet_data.py --held_leaf)
+        out.update(n_held=len(held), leaf_iou_held=mean(held, "leaf"),
+                   fruit_iou_held=mean(held, "fruit"))
     return out
 
 
@@ -144,7 +150,8 @@ def main(argv=None) -> int:
     metrics = Validate(net, val)
     meta = {"init": args.init, "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
             "batch": args.batch, "lr": args.lr, "crop": CROP,
-            "multi_samples": sum(s["multi"] for s in samples), "seconds": round(time.time() - t0, 1),
+            "multi_samples": sum(s["multi"] for s in samples),
+            "held_samples": sum(s["held"] for s in samples), "seconds": round(time.time() - t0, 1),
             "data": str(args.data), "seed_range": [min(s["seed"] for s in samples),
                                                    max(s["seed"] for s in samples)],
             "validation": metrics}

@@ -183,3 +183,35 @@ def MaxPrincipalStretch(rest: np.ndarray, current: np.ndarray, tets: np.ndarray,
         Dm_inv = RestShapeInverse(rest, tets)
     F = _TetEdges(current, tets) @ Dm_inv
     return np.sqrt(np.linalg.eigvalsh(np.swapaxes(F, 1, 2) @ F)[:, -1])
+
+
+def TurnHeldLeaf(points_W: np.ndarray, attach_W: np.ndarray, p_WG: np.ndarray,
+                 axis_W: np.ndarray, angle: float, pull_W: np.ndarray | None = None,
+                 bend_fraction: float = 0.35) -> tuple[np.ndarray, np.ndarray]:
+    """A leaf as a gripper at ``p_WG`` holds it after turning it by ``angle``
+    (rad) about the line through its petiole attachment ``attach_W`` along
+    ``axis_W`` and moving it by ``pull_W`` (m, W): each point (N, 3, W, m)
+    turns by ``angle`` x w and moves by ``pull_W`` x w, where w rises
+    smoothly from 0 at the attachment to 1 at ``bend_fraction`` of the
+    attachment-grasp distance along that line (the petiole and the blade's
+    base bend, the rest of the blade turns as one piece). A twist is the
+    attachment-grasp line as the axis, an arc an axis across it. For
+    rendered training views of a held leaf (``scripts/make_segnet_data.py``),
+    not a mechanical model. Returns (points (N, 3), R_W (3, 3): the turn at
+    the grasp)."""
+    from scipy.spatial.transform import Rotation
+    p = np.asarray(points_W, float).reshape(-1, 3)
+    a = np.asarray(attach_W, float).reshape(3)
+    line = np.asarray(p_WG, float).reshape(3) - a
+    length = float(np.linalg.norm(line))
+    axis = np.asarray(axis_W, float).reshape(3)
+    if length <= 1e-6 or np.linalg.norm(axis) <= 1e-9 or not 0 < bend_fraction <= 1:
+        raise ValueError("TurnHeldLeaf needs a grasp away from the attachment, a nonzero "
+                         "axis and bend_fraction in (0, 1]")
+    axis = axis / np.linalg.norm(axis)
+    s = np.clip(((p - a) @ (line / length)) / (bend_fraction * length), 0.0, 1.0)
+    w = s * s * (3.0 - 2.0 * s)                      # smoothstep
+    turned = Rotation.from_rotvec(np.outer(w * angle, axis)).apply(p - a) + a
+    if pull_W is not None:
+        turned = turned + np.outer(w, np.asarray(pull_W, float).reshape(3))
+    return turned, Rotation.from_rotvec(angle * axis).as_matrix()

@@ -101,12 +101,15 @@ def MakePlantStation(scenario: Scenario, meshcat=None,
     return MakeStation(scenario, meshcat, add_world=PlantWorldAdder(scenario, leaf_grasp))
 
 
-def RenderStill(scenario: Scenario, settle: float = 0.0) -> tuple[np.ndarray, np.ndarray,
-                                                                   np.ndarray]:
+def RenderStill(scenario: Scenario, settle: float = 0.0,
+                leaf_positions: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """camera0's (rgb HxWx4 uint8, depth HxW float32 m, label HxW int16)
     from the simulated plant station with the arm held at ``robot.initial_q``
     and the gripper at ``robot.initial_gripper_width``, after ``settle``
-    simulated seconds (0: the default context, no simulation)."""
+    simulated seconds (0: the default context, no simulation).
+    ``leaf_positions`` {leaf index: (N, 3) vertex positions, W, m, in the
+    order of the FEM body's reference positions} poses those leaves (e.g. a
+    held leaf, ``leaf.TurnHeldLeaf``); only with ``settle`` 0."""
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
@@ -123,6 +126,17 @@ def RenderStill(scenario: Scenario, settle: float = 0.0) -> tuple[np.ndarray, np
         root = sim.get_context()
     else:
         root = diagram.CreateDefaultContext()
+    if leaf_positions:
+        if settle > 0:
+            raise ValueError("RenderStill: leaf_positions only without settle")
+        plant = station.GetSubsystemByName("plant")
+        dm = plant.deformable_model()
+        multi = scenario.plant_scene.kind == "multi"
+        plant_context = plant.GetMyMutableContextFromRoot(root)
+        for j, q in leaf_positions.items():
+            body = dm.GetBodyByName(f"leaf_{j}" if multi else "leaf")
+            dm.SetPositions(plant_context, body.body_id(),
+                            np.asfortranarray(np.asarray(q, float).reshape(-1, 3).T))
     ctx = station.GetMyContextFromRoot(root)
 
     def image(name):

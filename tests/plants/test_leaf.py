@@ -3,7 +3,7 @@ import pytest
 
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape,
                                     MaxPrincipalStretch, OrientTets, RestShapeInverse,
-                                    TetMeshToVtk, TetVolumes, TriangulateLeaf)
+                                    TetMeshToVtk, TetVolumes, TriangulateLeaf, TurnHeldLeaf)
 
 
 def _area(uv, faces):
@@ -72,3 +72,34 @@ def test_petiole_base_has_both_corners():
     uv, _ = TriangulateLeaf(LeafShape(element_size=0.01))
     base = uv[np.isclose(uv[:, 0], -LeafShape().petiole_length)]
     assert len(base) == 2 and np.ptp(base[:, 1]) == pytest.approx(LeafShape().petiole_width)
+
+
+def test_a_held_leaf_turns_beyond_its_petiole_and_stays_at_its_attachment():
+    """A blade along +x from the attachment at the origin, grasped at 10 cm:
+    a 60 deg twist about the attachment-grasp line keeps the attachment and
+    the line where they are, turns the far blade rigidly (distances kept,
+    its normal turned by 60 deg), and bends only near the attachment."""
+    x, y = np.meshgrid(np.linspace(0.0, 0.12, 25), np.linspace(-0.03, 0.03, 7))
+    blade = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    grasp = np.array([0.10, 0.0, 0.0])
+    out, R = TurnHeldLeaf(blade, np.zeros(3), grasp, [1.0, 0.0, 0.0], np.radians(60))
+    at_attach = blade[:, 0] == 0.0
+    assert np.allclose(out[at_attach], blade[at_attach])
+    on_line = np.abs(blade[:, 1]) < 1e-12
+    assert np.allclose(out[on_line], blade[on_line])
+    far = blade[:, 0] >= 0.035 + 1e-9          # beyond 0.35 of the grasp distance
+    assert np.allclose(out[far], blade[far] @ R.T)
+    d0 = np.linalg.norm(blade[far][:, None] - blade[far][None], axis=-1)
+    d1 = np.linalg.norm(out[far][:, None] - out[far][None], axis=-1)
+    assert np.allclose(d0, d1)
+    assert np.degrees(np.arccos((R @ [0, 0, 1.0])[2])) == pytest.approx(60.0)
+    near = (blade[:, 0] > 0) & (blade[:, 0] < 0.035) & ~on_line
+    turned = np.abs(out[near][:, 2]) / np.abs(blade[near][:, 1])     # sin of the local turn
+    assert np.all(turned < np.sin(np.radians(60)) - 1e-6) and np.all(turned > 0)
+    # an arc about an axis across the line moves the grasp point; a pull moves it too
+    out2, R2 = TurnHeldLeaf(blade, np.zeros(3), grasp, [0, 0, 1.0], np.radians(30),
+                            pull_W=[0, 0, 0.02])
+    g2 = out2[np.argmin(np.linalg.norm(blade - grasp, axis=1))]
+    assert np.allclose(g2, R2 @ grasp + [0, 0, 0.02])
+    with pytest.raises(ValueError, match="grasp away from the attachment"):
+        TurnHeldLeaf(blade, np.zeros(3), np.zeros(3), [1.0, 0, 0], 1.0)
