@@ -685,7 +685,11 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
     orientations (``GraspAlternatives``), and grasps dropped for lying
     within ``min_branch_distance`` of the branch, but at least half of it
     away, are tried too (the robot-branch checks still apply). A grasp's
-    first orientation whose approach passes replaces its candidates."""
+    first orientation whose approach passes replaces its candidates.
+    Still short, the grasp set is made again deeper inside the blade (each
+    of ``planner.deeper_grasp_insets`` in turn, ids ``DEEPER_GRASP_IDS`` x
+    (k + 1) + i), each grasp in its first orientation whose approach passes
+    (``_DeeperGrasps``)."""
     from lmap_drake.planning.candidates import Grasp
     tried = {g.grasp_id for g in grasps}
     near, _ = GraspCandidates(ctx.leaf_W, ctx.branch_all_W, ctx.p_WC, cfg.num_grasps,
@@ -710,6 +714,50 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
                 out.candidates = [c for c in out.candidates
                                   if c.action.grasp_id != g.grasp_id] + cands
                 break
+    _DeeperGrasps(ctx, cfg, out, pivot, angles, all_dirs)
+
+
+# Grasp ids of the deeper grasp sets: DEEPER_GRASP_IDS x (k + 1) + i for the
+# i-th grasp of the k-th of ``planner.deeper_grasp_insets``.
+DEEPER_GRASP_IDS = 100
+
+
+def _DeeperGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: CandidateSet,
+                  pivot, angles, all_dirs) -> None:
+    """While fewer than ``planner.min_usable_grasps`` grasps give a feasible
+    action, the grasp set again at each of ``planner.deeper_grasp_insets``
+    (m inside the leaf's outline instead of ``grasp_inset``): on a crowded
+    plant every grasp 1 cm inside the rim can fail a robot check by a few
+    millimetres (``four_fruits``: 15 grasps 2-3 mm from a run where 2 had
+    passed, none passing), and one a centimetre deeper comes in past what
+    the fingers met. Each grasp keeps its first orientation
+    (``GraspAlternatives``, the given one first) whose approach passes;
+    grasps whose every orientation fails are not added (the rejection
+    counts stay those of the rim's grasps)."""
+    from lmap_drake.planning.candidates import Grasp
+    for k, inset in enumerate(cfg.deeper_grasp_insets):
+        if len({c.action.grasp_id for c in out.candidates if c.feasible}) >= cfg.min_usable_grasps:
+            return
+        try:
+            deep, _ = GraspCandidates(ctx.leaf_W, ctx.branch_all_W, ctx.p_WC, cfg.num_grasps,
+                                      float(inset), cfg.min_branch_distance)
+        except (PlanningError, ValueError):
+            continue
+        for g in deep:
+            gid = DEEPER_GRASP_IDS * (k + 1) + g.grasp_id
+            actions = None
+            for R, label in zip([g.R_WG] + GraspAlternatives(g.R_WG),
+                                [None] + _AlternativeLabels()):
+                g2 = Grasp(g.p_WG, R, gid)
+                if actions is None:
+                    actions = _GraspActions(ctx, cfg, g2, pivot, angles, all_dirs)
+                cands = _IkAndRobotChecks(ctx, g2, cfg, [dc.replace(a, R_WG=R, grasp_id=gid)
+                                                          for a in actions])
+                if any(c.approach is not None for c in cands):
+                    for c in cands:
+                        c.orientation = label
+                    out.candidates += cands
+                    break
 
 
 # The grasp-attachment lever (m) at which ``planner.max_pull_distance`` holds.

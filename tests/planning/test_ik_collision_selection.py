@@ -275,3 +275,52 @@ def test_the_chosen_action_is_checked_along_the_path_the_controller_will_execute
                                     body_fruit_margin=cfg.robot_fruit_margin) == ""
     why = _ActionPathReason(ctx_with(center), cfg, c)
     assert why.startswith("robot-") and why.endswith("along the executed pull"), why
+
+
+def test_deeper_grasps_are_tried_only_while_too_few_grasps_pass(robot):
+    """When fewer than ``min_usable_grasps`` grasps pass, the grasp set is
+    made again at each of ``deeper_grasp_insets`` in turn: the added grasps
+    (ids 100 + i) lie that far inside the leaf's outline and pass their
+    approach; once enough pass, no further set is made; with enough passing
+    already, nothing is added."""
+    from types import SimpleNamespace
+    from scipy.spatial import ConvexHull
+    from lmap_drake.deformation.synthetic import OvateLeaf
+    from lmap_drake.planning.candidates import GraspCandidates, LeafPca
+    from lmap_drake.planning.lmap import (DEEPER_GRASP_IDS, CandidateSet, EstimateHinge,
+                                          _DeeperGrasps)
+    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.candidates import PullDirections
+    leaf, branch = OvateLeaf()
+    # the blade hanging in front of the robot, the camera 60 cm in front of it
+    base = RobotConfig().X_WB.GetDeterministicValue().translation()
+    R = np.array([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]])         # leaf x -> world z (hangs)
+    offset = base + [0.5, -0.05, 0.30]
+    leaf_W, branch_W = leaf @ R.T + offset, branch @ R.T + offset
+    none = np.zeros((0, 3))
+    ctx = SimpleNamespace(robot=robot, q_current=np.array(RobotConfig().initial_q),
+                          leaf_W=leaf_W, branch_all_W=branch_W, p_WC=offset + [0, -0.6, 0.1],
+                          other_leaves_W=none, fruit_sdf=None, branch_distance=None,
+                          fruit_box=None, branch_box=None)
+    cfg = PlannerConfig(action_families=["twist"], deeper_grasp_insets=[0.02, 0.03])
+    pivot = EstimateHinge(leaf_W, branch_W)
+    out = CandidateSet("ok", None)
+    _DeeperGrasps(ctx, cfg, out, pivot, np.zeros(0), PullDirections())
+    ids = {c.action.grasp_id for c in out.candidates}
+    assert ids and all(DEEPER_GRASP_IDS <= i < 2 * DEEPER_GRASP_IDS for i in ids)
+    assert len({c.action.grasp_id for c in out.candidates if c.feasible}) >= 3
+    assert all(c.approach is not None for c in out.candidates)
+    frame = LeafPca(leaf_W, ctx.p_WC)
+    hull = ConvexHull(frame.To2d(leaf_W))
+
+    def inside(p_W):             # distance inside the outline (the hull's edges)
+        q = frame.To2d(np.reshape(p_W, (1, 3)))[0]
+        return -np.max(hull.equations[:, :2] @ q + hull.equations[:, 2])
+    rim, _ = GraspCandidates(leaf_W, branch_W, ctx.p_WC, cfg.num_grasps, cfg.grasp_inset,
+                             cfg.min_branch_distance)
+    deep = {c.action.grasp_id: inside(c.action.p_WG) for c in out.candidates}
+    assert (np.median(list(deep.values()))
+            > np.median([inside(g.p_WG) for g in rim]) + 0.007)      # ~1 cm deeper
+    enough = CandidateSet("ok", None, candidates=list(out.candidates))
+    _DeeperGrasps(ctx, cfg, enough, pivot, np.zeros(0), PullDirections())
+    assert len(enough.candidates) == len(out.candidates)
