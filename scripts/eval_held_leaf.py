@@ -9,8 +9,8 @@ them to ``OUT/recording/``, with the renderer's labels).
 
 A view is *held* when the gripper reads under 2 cm open; its held leaf is
 the labelled leaf with the most points within 4 cm of the TCP (the
-episode's scenario gives the robot's base, the view's joints the TCP), as
-``systems.planning.HeldLeaf`` picks it from the segmented points. Per
+episode's scenario gives the robot's base, the view's joints the TCP):
+``systems.planning.HeldLeaf`` on the labelled leaves' points. Per
 weights file: the held leaf's recall (the fraction of its pixels the
 network calls leaf), the recall of every other leaf in held views and of
 every leaf in views without a held leaf, and the fruit IoU per view.
@@ -32,7 +32,6 @@ from pathlib import Path
 import numpy as np
 
 HELD_OPENING = 0.02   # m: the gripper reads less than this while it holds a leaf
-HELD_RADIUS = 0.04    # m: as systems.planning.HeldLeaf
 
 
 def _summary(x: list[float]) -> dict:
@@ -73,21 +72,21 @@ def _LeafLabels(label: np.ndarray) -> list[int]:
 
 
 def HeldLeafLabel(view: dict) -> int | None:
-    """The label of the held leaf in ``view`` (None when nothing is held)."""
+    """The label of the held leaf in ``view`` (None when nothing is held):
+    ``systems.planning.HeldLeaf`` on the labelled leaves' points."""
     from lmap_drake.perception.points import DeprojectPixels
-    grip = float(np.ravel(view["gripper"])[0])
-    if grip >= HELD_OPENING:
+    from lmap_drake.systems.planning import HeldLeaf
+    from lmap_drake.types import SemanticScene
+    if float(np.ravel(view["gripper"])[0]) >= HELD_OPENING:
         return None
     tcp = view["robot"].TcpPose(np.asarray(view["q"], float)).translation()
-    label = view["label"]
-    best, count = None, 0
-    for lab in _LeafLabels(label):
-        mask = label == lab
-        p = DeprojectPixels(view["depth"], mask, view["K"], view["X_WC"])
-        n = int((np.linalg.norm(p - tcp, axis=1) < HELD_RADIUS).sum()) if len(p) else 0
-        if n > count:
-            best, count = int(lab), n
-    return best
+    labels = _LeafLabels(view["label"])
+    pts = [DeprojectPixels(view["depth"], view["label"] == lab, view["K"], view["X_WC"])
+           for lab in labels]
+    held = HeldLeaf(SemanticScene(leaf_points_W=np.vstack(pts + [np.zeros((0, 3))]),
+                                  leaf_instance=np.repeat(labels, [len(x) for x in pts])),
+                    tcp)
+    return None if held < 0 else held
 
 
 def Evaluate(views: list[dict], weights: list[str]) -> dict:
@@ -110,7 +109,7 @@ def Evaluate(views: list[dict], weights: list[str]) -> dict:
                 row["leaves"][int(lab)] = round(r, 4)
                 (hl if h == int(lab) else ol if h is not None else rl).append(r)
             iou = ClassIou(cls, truth, FRUIT)
-            if iou is not None and np.isfinite(iou):
+            if np.isfinite(iou):
                 row["fruit_iou"] = round(float(iou), 4)
                 fi.append(float(iou))
             rows.append(row)

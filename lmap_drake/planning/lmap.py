@@ -690,7 +690,6 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
     of ``planner.deeper_grasp_insets`` in turn, ids ``DEEPER_GRASP_IDS`` x
     (k + 1) + i), each grasp in its first orientation whose approach passes
     (``_DeeperGrasps``)."""
-    from lmap_drake.planning.candidates import Grasp
     tried = {g.grasp_id for g in grasps}
     near, _ = GraspCandidates(ctx.leaf_W, ctx.branch_all_W, ctx.p_WC, cfg.num_grasps,
                               cfg.grasp_inset, 0.5 * cfg.min_branch_distance)
@@ -705,16 +704,28 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
         if all(c.approach is None for c in cands):
             extra.append((g, actions))
     for g, actions in failed + extra:
-        for R, label in zip(GraspAlternatives(g.R_WG), _AlternativeLabels()):
-            g2 = Grasp(g.p_WG, R, g.grasp_id)
-            cands = _IkAndRobotChecks(ctx, g2, cfg, [dc.replace(a, R_WG=R) for a in actions])
+        cands = _FirstApproach(ctx, cfg, g, actions, GraspAlternatives(g.R_WG),
+                               _AlternativeLabels())
+        if cands:
+            out.candidates = [c for c in out.candidates
+                              if c.action.grasp_id != g.grasp_id] + cands
+    _DeeperGrasps(ctx, cfg, out, pivot, angles, all_dirs)
+
+
+def _FirstApproach(ctx: PlanningContext, cfg: PlannerConfig, g, actions: list[Action],
+                   rotations: list[np.ndarray], labels: list) -> list[Candidate] | None:
+    """The candidates of grasp ``g``'s ``actions`` turned to the first of
+    ``rotations`` (R_WG; ``labels``: their record orientations) whose
+    approach passes, or None when none does."""
+    from lmap_drake.planning.candidates import Grasp
+    for R, label in zip(rotations, labels):
+        cands = _IkAndRobotChecks(ctx, Grasp(g.p_WG, R, g.grasp_id), cfg,
+                                  [dc.replace(a, R_WG=R) for a in actions])
+        if any(c.approach is not None for c in cands):
             for c in cands:
                 c.orientation = label
-            if any(c.approach is not None for c in cands):
-                out.candidates = [c for c in out.candidates
-                                  if c.action.grasp_id != g.grasp_id] + cands
-                break
-    _DeeperGrasps(ctx, cfg, out, pivot, angles, all_dirs)
+            return cands
+    return None
 
 
 # Grasp ids of the deeper grasp sets: DEEPER_GRASP_IDS x (k + 1) + i for the
@@ -744,20 +755,11 @@ def _DeeperGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: CandidateSet,
         except (PlanningError, ValueError):
             continue
         for g in deep:
-            gid = DEEPER_GRASP_IDS * (k + 1) + g.grasp_id
-            actions = None
-            for R, label in zip([g.R_WG] + GraspAlternatives(g.R_WG),
-                                [None] + _AlternativeLabels()):
-                g2 = Grasp(g.p_WG, R, gid)
-                if actions is None:
-                    actions = _GraspActions(ctx, cfg, g2, pivot, angles, all_dirs)
-                cands = _IkAndRobotChecks(ctx, g2, cfg, [dc.replace(a, R_WG=R, grasp_id=gid)
-                                                          for a in actions])
-                if any(c.approach is not None for c in cands):
-                    for c in cands:
-                        c.orientation = label
-                    out.candidates += cands
-                    break
+            g = Grasp(g.p_WG, g.R_WG, DEEPER_GRASP_IDS * (k + 1) + g.grasp_id)
+            actions = _GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
+            cands = _FirstApproach(ctx, cfg, g, actions, [g.R_WG] + GraspAlternatives(g.R_WG),
+                                   [None] + _AlternativeLabels())
+            out.candidates += cands or []
 
 
 # The grasp-attachment lever (m) at which ``planner.max_pull_distance`` holds.

@@ -130,8 +130,9 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
                 "fruit_geometry_ids": fruit_ids}
     # (the branch is welded to the world, so the petiole is fixed to the world
     # body: Drake rejects constraints to a welded body's zero-dof clique)
-    leaf_id, leaf_gid = AddFemLeaf(plant, "leaf", model.leaf_rest_W, model.leaf_tets,
-                                   model.leaf_fixed, cfg.leaf, EncodeLabel(LEAF, 0))
+    leaf_id, leaf_gid = AddFemLeaf(plant, LeafBodyName(False, 0), model.leaf_rest_W,
+                                   model.leaf_tets, model.leaf_fixed, cfg.leaf,
+                                   EncodeLabel(LEAF, 0))
     branch_gids = plant.GetCollisionGeometriesForBody(branch_body)
     scene_graph.collision_filter_manager().Apply(
         CollisionFilterDeclaration().ExcludeBetween(GeometrySet(leaf_gid),
@@ -141,6 +142,12 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
 
 
 # --- multi-fruit plant (kind: multi) ----------------------------------------
+
+def LeafBodyName(multi: bool, j: int) -> str:
+    """The FEM body name of leaf ``j``: ``leaf_<j>`` on a multi-fruit plant,
+    ``leaf`` on a single one."""
+    return f"leaf_{j}" if multi else "leaf"
+
 
 def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
     """Registers one FEM leaf (rest mesh ``rest_W`` (N, 3) world, m) fixed to
@@ -243,8 +250,8 @@ def AddMultiPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConf
         return handles
     cfm = scene_graph.collision_filter_manager()
     for j, leaf in enumerate(model.leaves):
-        bid, gid = AddFemLeaf(plant, f"leaf_{j}", leaf.rest_W, leaf.tets, leaf.fixed, cfg.leaf,
-                               EncodeLabel(LEAF, j))
+        bid, gid = AddFemLeaf(plant, LeafBodyName(True, j), leaf.rest_W, leaf.tets, leaf.fixed,
+                              cfg.leaf, EncodeLabel(LEAF, j))
         handles["leaf_body_ids"].append(bid)
         handles["leaf_geometry_ids"].append(gid)
         # The petiole base lies inside its own shoot (or the stem).

@@ -241,8 +241,10 @@ class PlantWorldSim:
         self.scene_graph = self.station.GetSubsystemByName("scene_graph")
         SetFemThreads(self.plant, self.scenario.plant_scene.fem_threads)
         self.deformable = self.plant.deformable_model()
-        names = [f"leaf_{j}" for j in range(len(self.leaf_refs))] if self.multi else ["leaf"]
-        self.leaf_ids = [self.deformable.GetBodyByName(n).body_id() for n in names]
+        from lmap_drake.plants.scene import LeafBodyName
+        n_leaves = len(self.leaf_refs) if self.multi else 1
+        self.leaf_ids = [self.deformable.GetBodyByName(LeafBodyName(self.multi, j)).body_id()
+                         for j in range(n_leaves)]
         self.leaf_id = self.leaf_ids[0]
         plant_context = self.plant.GetMyMutableContextFromRoot(self.context)
         for lid in self.leaf_ids:        # a kept station's leaves may have been asleep

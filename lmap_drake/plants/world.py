@@ -129,12 +129,13 @@ def RenderStill(scenario: Scenario, settle: float = 0.0,
     if leaf_positions:
         if settle > 0:
             raise ValueError("RenderStill: leaf_positions only without settle")
+        from lmap_drake.plants.scene import LeafBodyName
         plant = station.GetSubsystemByName("plant")
         dm = plant.deformable_model()
         multi = scenario.plant_scene.kind == "multi"
         plant_context = plant.GetMyMutableContextFromRoot(root)
         for j, q in leaf_positions.items():
-            body = dm.GetBodyByName(f"leaf_{j}" if multi else "leaf")
+            body = dm.GetBodyByName(LeafBodyName(multi, j))
             dm.SetPositions(plant_context, body.body_id(),
                             np.asfortranarray(np.asarray(q, float).reshape(-1, 3).T))
     ctx = station.GetMyContextFromRoot(root)
