@@ -440,9 +440,11 @@ def test_empty_candidate_set_has_a_reason():
     assert r.message.endswith("all 1 grasps were dropped (within 6 cm of the branch)")
 
 
-def test_deformation_error_in_the_diagram_becomes_stage_error(scenario):
+def test_a_leaf_the_deformation_model_cannot_hang_gives_no_feasible_action(scenario):
     """A scene with no branch points: DeformationPrediction raises
-    DeformationError; ActionSelection returns status stage_error."""
+    DeformationError; ActionSelection returns no_feasible_action naming the
+    deformation model (a planning outcome, as in the multi-fruit path, not a
+    software failure)."""
     from pydrake.systems.framework import DiagramBuilder
 
     from lmap_drake.deformation.action import Action
@@ -471,8 +473,9 @@ def test_deformation_error_in_the_diagram_becomes_stage_error(scenario):
         cands.GetInputPort(port).FixValue(cands.GetMyContextFromRoot(ctx), scene)
     cands.GetInputPort("ur5.position").FixValue(cands.GetMyContextFromRoot(ctx), np.zeros(6))
     plan = sel.GetOutputPort("plan").Eval(sctx)
-    assert plan.status == "stage_error"
-    assert plan.message.startswith("deformation_prediction: DeformationError")
+    assert plan.status == "no_feasible_action"
+    assert plan.message.startswith("deformation model: no branch points")
+    assert not plan.chosen
 
 
 def test_perception_failure_aborts_the_controller_with_stage_error(scenario):

@@ -63,6 +63,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
+from lmap_drake.deformation.action import DeformationError
 from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, HeldGrasp,
                                       PlanBaseline, PlanContinuation, PlanningContext,
                                       PlanResult, SelectFromPredictions)
@@ -152,9 +153,11 @@ class ActionSelection(LeafSystem):
             "plan", lambda: AbstractValue.Make(PlanResult("no_fruit", "lmap")), self._calc)
 
     def _calc(self, context, output) -> None:
-        """The plan; a failure of this stage or of the deformation
-        prediction becomes a PlanResult with status 'stage_error' and a
-        message naming the stage (never an exception out of the Diagram)."""
+        """The plan; a leaf the deformation model cannot hang from the branch
+        (``DeformationError``) gives 'no_feasible_action'; any other failure
+        of this stage or of the deformation prediction becomes a PlanResult
+        with status 'stage_error' and a message naming the stage (never an
+        exception out of the Diagram)."""
         import time
         cset = self.get_input_port(0).Eval(context)
         cfg = self._scenario.planner
@@ -172,7 +175,14 @@ class ActionSelection(LeafSystem):
         t0 = time.perf_counter()
         try:
             predictions = self.get_input_port(1).Eval(context) if cset.status == "ok" else []
-        except Exception as err:  # noqa: BLE001 - e.g. DeformationError
+        except DeformationError as err:
+            # The leaf as seen cannot be modelled (no grasp hangs from a
+            # branch node, ...): no action can be judged safe, as in the
+            # multi-fruit path (planning.lmap._PredictLive).
+            output.set_value(PlanResult("no_feasible_action", cfg.method, candidates=list(
+                cset.candidates), message=f"deformation model: {err}"))
+            return
+        except Exception as err:  # noqa: BLE001 - a stage failure becomes a status
             output.set_value(PlanResult("stage_error", cfg.method, candidates=list(
                 cset.candidates), message=_StageError("deformation_prediction", err)))
             return
