@@ -667,15 +667,38 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
     return EpisodeResult(record, world, before, after, st, views)
 
 
+# Station seconds an episode may take per fruit of the plant (an episode
+# with one reveal takes 15-30 s; a fruit under two leaves revealed by each
+# about twice that).
+SECONDS_PER_FRUIT = 60.0
+# Fruits assumed on hardware with ``planner.targets: all``, where the plant's
+# fruit count is not known before the first view.
+HARDWARE_MAX_FRUITS = 4
+
+
+def EpisodeTimeLimit(scenario: Scenario, per_fruit: float = SECONDS_PER_FRUIT) -> float:
+    """Station seconds after which ``RunEpisode`` stops waiting for the
+    controller: ``per_fruit`` times the simulated plant's fruit count
+    (``plant_scene.multi.fruits``; 1 for a one-fruit plant), or times
+    ``HARDWARE_MAX_FRUITS`` on a plant of unknown fruit count handled
+    fruit by fruit (``planner.targets: all`` and no simulated multi-fruit
+    plant)."""
+    if scenario.plant_scene.kind == "multi":
+        return per_fruit * max(1, len(scenario.plant_scene.multi.fruits))
+    if scenario.planner.targets == "all":
+        return per_fruit * HARDWARE_MAX_FRUITS
+    return per_fruit
+
+
 def RunSimEpisode(scenario: Scenario, meshcat=None,
-                  progress: Callable[[str], None] | None = None, max_time: float = 60.0,
+                  progress: Callable[[str], None] | None = None,
+                  max_time: float = SECONDS_PER_FRUIT,
                   resources: EpisodeResources | None = None, plan_only: bool = False
                   ) -> EpisodeResult:
-    """One full episode on the simulated plant world (no confirmation). A
-    plant with several fruits gets ``max_time`` per fruit."""
+    """One full episode on the simulated plant world (no confirmation),
+    given ``max_time`` station seconds per fruit (``EpisodeTimeLimit``)."""
     progress = progress or (lambda m: None)
-    if scenario.plant_scene.kind == "multi":
-        max_time = max_time * max(1, len(scenario.plant_scene.multi.fruits))
+    max_time = EpisodeTimeLimit(scenario, max_time)
     resources = resources or EpisodeResources.Make(scenario, progress)
     resources.progress = progress
     world = SimWorld(scenario, resources, ControllerOptionsFor(scenario, False, plan_only),
@@ -827,7 +850,11 @@ def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None
                          f"{m.occlusion_requested:.2f} (clamped; recorded in episode.json)")
             FrameMeshcat(meshcat, scenario)
             meshcat.StartRecording()
-        result = RunEpisode(scenario, world, progress, confirm=confirm_fn)
+        # A plant with several fruits gets its time per fruit, as in `eval`
+        # (a fixed 60 s cut a two-fruit `run` short while it was releasing
+        # a leaf).
+        result = RunEpisode(scenario, world, progress, EpisodeTimeLimit(scenario),
+                            confirm=confirm_fn)
     finally:
         if world is not None:
             world.Close()

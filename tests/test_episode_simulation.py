@@ -111,3 +111,19 @@ def test_recorded_episode_replays_to_the_identical_action(episode, tmp_path):
     _, replay = ReplayRun(run, tmp_path / "replay", progress=print)
     assert replay["same_action_as_run"] is True
     assert replay["chosen_action"] == episode.record["chosen_action"]
+
+
+def test_a_plant_with_several_fruits_gets_its_time_per_fruit_in_run_and_eval():
+    """`run` and `eval` stop an episode after the same station time: 60 s per
+    fruit of a simulated plant (one fruit: 60 s), and four fruits' worth on a
+    plant of unknown fruit count handled fruit by fruit (hardware)."""
+    from lmap_drake.episode import HARDWARE_MAX_FRUITS, SECONDS_PER_FRUIT, EpisodeTimeLimit
+    from lmap_drake.paths import DIAGRAMS_DIR
+    one = LoadScenario(filename=DEFAULT_SCENARIO_FILE)
+    assert EpisodeTimeLimit(one) == SECONDS_PER_FRUIT
+    three = LoadScenario(filename=DIAGRAMS_DIR / "multi_suite.yaml",
+                         scenario_name="three_fruits_default")
+    assert len(three.plant_scene.multi.fruits) == 3
+    assert EpisodeTimeLimit(three) == 3 * SECONDS_PER_FRUIT
+    one.planner.targets = "all"
+    assert EpisodeTimeLimit(one) == HARDWARE_MAX_FRUITS * SECONDS_PER_FRUIT

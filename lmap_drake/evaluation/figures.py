@@ -250,11 +250,49 @@ def SaveTargetPlanFigures(result, out: Path) -> list[str]:
     return files
 
 
+def PlantFigureLabels(targets: list[dict], same_fruit_m: float = 0.03,
+                      min_gap_m: float = 0.045) -> list[dict]:
+    """One label per fruit for the plant figure. ``targets``: one dict per
+    handled target in episode order, ``center_W`` (3,) its fruit estimate's
+    centre (W, m), ``leaf_id``, ``what`` (the action, or why there was none).
+    Targets whose centres lie within ``same_fruit_m`` are one fruit (a fruit
+    under two leaves is revealed twice; instance ids change between views).
+    Returns per fruit, in order of first handling: ``center_W``, ``text``
+    (every reveal: 'leaf 2: twist 60 deg; then leaf 0: arc 30 deg') and
+    ``anchor_W`` (W, m), where the label goes: 5 cm above the fruit, lifted
+    further until it is ``min_gap_m`` above or below every earlier label
+    within 10 cm sideways, so labels of neighbouring fruits do not overlap."""
+    fruits: list[dict] = []
+    for t in targets:
+        c = np.asarray(t["center_W"], float).reshape(3)
+        f = next((f for f in fruits if np.linalg.norm(f["center_W"] - c) < same_fruit_m), None)
+        if f is None:
+            f = {"center_W": c, "reveals": []}
+            fruits.append(f)
+        f["reveals"].append(f"leaf {t.get('leaf_id')}: {t['what']}")
+    placed: list[np.ndarray] = []
+    for k, f in enumerate(fruits):
+        f["text"] = f"fruit {k}: " + "; then ".join(f["reveals"])
+        a = f["center_W"] + [0.0, 0.0, 0.05]
+        for _ in range(50):
+            clash = [p for p in placed if np.linalg.norm((p - a)[:2]) < 0.10
+                     and abs(p[2] - a[2]) < min_gap_m]
+            if not clash:
+                break
+            a = a + [0.0, 0.0, min_gap_m / 2]
+        placed.append(a)
+        f["anchor_W"] = a
+        del f["reveals"]
+    return fruits
+
+
 def SavePlantFigure(result, out: Path) -> list[str]:
     """Several fruits: the whole plant (observed leaves and branches of the
-    first view) with every fruit's ground truth (grey, simulation only) and
-    each handled fruit's estimate before (orange) and after its reveal
-    (blue), labelled with its fruit id, the leaf moved and the action."""
+    first view) with every fruit's ground truth (grey, simulation only),
+    each handled fruit's first estimate (orange) and its last re-estimate
+    (blue), the fruits not planned for as first estimated (light blue), and
+    one label per handled fruit naming each leaf moved and the action
+    (``PlantFigureLabels``)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -273,19 +311,35 @@ def SavePlantFigure(result, out: Path) -> list[str]:
     for f in getattr(model, "fruits", []):
         ax.plot_trisurf(*np.asarray(f.mesh_W.vertices).T, triangles=np.asarray(f.mesh_W.faces),
                         color="gray", alpha=0.2)
+    rows, first_of, last_of = [], [], []
     for t in st.targets:
-        for key, color in (("initial_estimate", "orange"), ("final_estimate", "blue")):
-            e = t.get(key)
-            if e is not None and e.fruit is not None:
-                ax.scatter(*e.fruit.vertices_W[::4].T, s=1, c=color)
         tg = t.get("target") or {}
+        if tg.get("center_W") is None:
+            continue
         plan = t.get("plan")
         what = (plan.chosen.action.Describe() if plan is not None and plan.chosen is not None
                 else t["outcome"].split(":")[0])
-        if tg.get("center_W") is not None:
-            ax.text(*np.asarray(tg["center_W"]) + [0, 0, 0.05],
-                    f"fruit {tg.get('fruit_id')}: leaf {tg.get('leaf_id')}, {what}", fontsize=7)
-    ax.set_title("plant: ground truth (grey), estimates before (orange) / after (blue)")
+        rows.append({"center_W": tg["center_W"], "leaf_id": tg.get("leaf_id"), "what": what})
+        first_of.append(t.get("initial_estimate"))
+        last_of.append(t.get("final_estimate") or t.get("initial_estimate"))
+    labels = PlantFigureLabels(rows)
+    handled = []
+    for lab in labels:
+        idx = [i for i, r in enumerate(rows)
+               if np.linalg.norm(np.asarray(r["center_W"], float) - lab["center_W"]) < 0.03]
+        for e, color in ((first_of[idx[0]], "orange"), (last_of[idx[-1]], "blue")):
+            if e is not None and e.fruit is not None:
+                ax.scatter(*e.fruit.vertices_W[::4].T, s=1, c=color)
+        handled.append(lab["center_W"])
+        ax.plot(*np.c_[lab["center_W"], lab["anchor_W"]], c="black", lw=0.5)
+        ax.text(*lab["anchor_W"], lab["text"], fontsize=7)
+    for e in getattr(first, "other_fruits", []) if first is not None else []:
+        c = getattr(e, "center_W", None)
+        if c is None or any(np.linalg.norm(np.asarray(c) - h) < 0.03 for h in handled):
+            continue
+        ax.scatter(*e.vertices_W[::4].T, s=1, c="lightskyblue")
+    ax.set_title("plant: ground truth (grey), estimates first (orange) / last (blue),\n"
+                 "fruits not planned for (light blue)", fontsize=10)
     _EqualAxes(ax)
     fig.tight_layout()
     fig.savefig(out / "plant_estimates.png", dpi=110,

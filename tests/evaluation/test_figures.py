@@ -67,3 +67,24 @@ def test_each_target_gets_its_prediction_beside_the_view_taken_while_held(tmp_pa
     assert any(green(px) for px in near(0))              # on the planning view
     assert any(green(px) for px in near(cam.width))      # and on the held view
     assert tuple(img[cam.height - 10, cam.width + 600]) == (255, 255, 255)   # untouched elsewhere
+
+
+def test_plant_figure_labels_each_fruit_once_with_every_reveal_and_apart():
+    """A fruit revealed twice (its estimate's centre moved 1 cm between
+    views) gets one label naming both leaves in order; two fruits at the
+    same height 4 cm apart get labels at least the minimum gap apart; a
+    fruit far to the side keeps its label 5 cm above it."""
+    from lmap_drake.evaluation.figures import PlantFigureLabels
+    targets = [{"center_W": [0.5, 0.0, 0.30], "leaf_id": 2, "what": "twist 60 deg"},
+               {"center_W": [0.5, 0.04, 0.30], "leaf_id": 1, "what": "no_feasible_action"},
+               {"center_W": [0.51, 0.0, 0.30], "leaf_id": 0, "what": "arc 30 deg (4.0 cm)"},
+               {"center_W": [0.5, 0.4, 0.30], "leaf_id": 3, "what": "pull 4 cm"}]
+    labels = PlantFigureLabels(targets, min_gap_m=0.045)
+    assert [lab["text"] for lab in labels] == [
+        "fruit 0: leaf 2: twist 60 deg; then leaf 0: arc 30 deg (4.0 cm)",
+        "fruit 1: leaf 1: no_feasible_action",
+        "fruit 2: leaf 3: pull 4 cm"]
+    a = [lab["anchor_W"] for lab in labels]
+    assert abs(a[1][2] - a[0][2]) >= 0.045 - 1e-9
+    np.testing.assert_allclose(a[0], [0.5, 0.0, 0.35])
+    np.testing.assert_allclose(a[2], [0.5, 0.4, 0.35])
