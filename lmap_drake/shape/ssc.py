@@ -63,7 +63,14 @@ error 12.6 -> 7.1 deg but cost 0.1 cm Chamfer, 16 cm^3 and 0.2 cm there and
 31 external cases above: w_rot 0.3 gave 0.473 / 44.7 / 0.831 / 9.4 (angle
 14.1 -> 9.4: the fits then stay near upright, i.e. near the scenes' 10 deg
 tilt) but the family's angle went 6.8 -> 8.7 deg (there the visible patch
-does tell the tilt), so it stays off.
+does tell the tilt), so it stays off. Two more tries at SSC's axis, which
+is about 1 deg worse than HoMa-style's on meshes not of the family (10
+development meshes of ``make_test_peppers.py`` seeds 11 and 12, 21 cases in
+the two heavy suite scenes; HoMa-style 0.47 / 55.6 / 0.69 / 7.0, SSC 0.35 /
+34.6 / 0.53 / 8.0): the negatives acting on t, s and z but not on R (R
+detached in their term) gave 0.36 / 35.6 / 0.54 / 8.2, no change; without
+the peduncle term (w_ped 0) 0.38 / 40.3 / 0.55 / 7.6, the angle bought
+with size. Neither is kept.
 
 Losses (lengths measured in ``loss_length_unit`` m, default 0.01 = cm, so
 the paper's weights 1 / 2 / 0.1 / 1 balance):
