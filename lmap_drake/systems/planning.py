@@ -436,7 +436,8 @@ class PlantPlanning(LeafSystem):
             why = (f"reveal {len(per_fruit[k]) + 1} of this fruit: leaf {j}"
                    f"{' again' if j in moved[k] else ''} alone hides "
                    f"{occ_k['leaves'][0]['gain']:.0%} of it that no view has shown "
-                   f"(moved before: leaf {', '.join(map(str, moved[k]))}); {why}")
+                   f"(moved before: leaf {', '.join(map(str, moved[k]))}; leaf ids of this "
+                   f"view, they change between views); {why}")
         info = {"fruit_index": k, "fruit_id": t.fruit_id,
                 "center_W": np.round(plant.fruits[k].center_W, 4).tolist(),
                 "visible_predicted": round(t.visible, 3), "leaf_id": t.leaf_id,
