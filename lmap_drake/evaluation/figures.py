@@ -255,24 +255,27 @@ def PlantFigureLabels(targets: list[dict], same_fruit_m: float = 0.03,
     """One label per fruit for the plant figure. ``targets``: one dict per
     handled target in episode order, ``center_W`` (3,) its fruit estimate's
     centre (W, m), ``leaf_id``, ``what`` (the action, or why there was none).
-    Targets whose centres lie within ``same_fruit_m`` are one fruit (a fruit
-    under two leaves is revealed twice; instance ids change between views).
-    Returns per fruit, in order of first handling: ``center_W``, ``text``
-    (every reveal: 'leaf 2: twist 60 deg; then leaf 0: arc 30 deg') and
-    ``anchor_W`` (W, m), where the label goes: 5 cm above the fruit, lifted
-    further until it is ``min_gap_m`` above or below every earlier label
-    within 10 cm sideways, so labels of neighbouring fruits do not overlap."""
+    Targets whose centres lie within ``same_fruit_m`` (the figure passes
+    ``systems.planning.SAME_FRUIT_DISTANCE``) are one fruit (a fruit under
+    two leaves is revealed twice; instance ids change between views).
+    Returns per fruit, in order of first handling: ``center_W``, ``targets``
+    (indices into ``targets``), ``text`` (every reveal: 'leaf 2: twist 60
+    deg; then leaf 0: arc 30 deg') and ``anchor_W`` (W, m), where the label
+    goes: 5 cm above the fruit, lifted further until it is ``min_gap_m``
+    above or below every earlier label within 10 cm sideways, so labels of
+    neighbouring fruits do not overlap."""
     fruits: list[dict] = []
-    for t in targets:
+    for i, t in enumerate(targets):
         c = np.asarray(t["center_W"], float).reshape(3)
         f = next((f for f in fruits if np.linalg.norm(f["center_W"] - c) < same_fruit_m), None)
         if f is None:
-            f = {"center_W": c, "reveals": []}
+            f = {"center_W": c, "targets": []}
             fruits.append(f)
-        f["reveals"].append(f"leaf {t.get('leaf_id')}: {t['what']}")
+        f["targets"].append(i)
     placed: list[np.ndarray] = []
     for k, f in enumerate(fruits):
-        f["text"] = f"fruit {k}: " + "; then ".join(f["reveals"])
+        f["text"] = f"fruit {k}: " + "; then ".join(
+            f"leaf {targets[i].get('leaf_id')}: {targets[i]['what']}" for i in f["targets"])
         a = f["center_W"] + [0.0, 0.0, 0.05]
         for _ in range(50):
             clash = [p for p in placed if np.linalg.norm((p - a)[:2]) < 0.10
@@ -282,7 +285,6 @@ def PlantFigureLabels(targets: list[dict], same_fruit_m: float = 0.03,
             a = a + [0.0, 0.0, min_gap_m / 2]
         placed.append(a)
         f["anchor_W"] = a
-        del f["reveals"]
     return fruits
 
 
@@ -322,20 +324,19 @@ def SavePlantFigure(result, out: Path) -> list[str]:
         rows.append({"center_W": tg["center_W"], "leaf_id": tg.get("leaf_id"), "what": what})
         first_of.append(t.get("initial_estimate"))
         last_of.append(t.get("final_estimate") or t.get("initial_estimate"))
-    labels = PlantFigureLabels(rows)
-    handled = []
+    from lmap_drake.systems.planning import SAME_FRUIT_DISTANCE
+    labels = PlantFigureLabels(rows, SAME_FRUIT_DISTANCE)
     for lab in labels:
-        idx = [i for i, r in enumerate(rows)
-               if np.linalg.norm(np.asarray(r["center_W"], float) - lab["center_W"]) < 0.03]
+        idx = lab["targets"]
         for e, color in ((first_of[idx[0]], "orange"), (last_of[idx[-1]], "blue")):
             if e is not None and e.fruit is not None:
                 ax.scatter(*e.fruit.vertices_W[::4].T, s=1, c=color)
-        handled.append(lab["center_W"])
         ax.plot(*np.c_[lab["center_W"], lab["anchor_W"]], c="black", lw=0.5)
         ax.text(*lab["anchor_W"], lab["text"], fontsize=7)
     for e in getattr(first, "other_fruits", []) if first is not None else []:
         c = getattr(e, "center_W", None)
-        if c is None or any(np.linalg.norm(np.asarray(c) - h) < 0.03 for h in handled):
+        if c is None or any(np.linalg.norm(np.asarray(c) - lab["center_W"]) < SAME_FRUIT_DISTANCE
+                            for lab in labels):
             continue
         ax.scatter(*e.vertices_W[::4].T, s=1, c="lightskyblue")
     ax.set_title("plant: ground truth (grey), estimates first (orange) / last (blue),\n"
