@@ -4,9 +4,9 @@ peppers and, optionally, on a folder of scanned pepper meshes.
 
 Canonical frame of every training shape: metres, origin at the volume
 centroid, +z = the peduncle axis (the peduncle leaves at the top). The
-procedural shapes come from ``lmap_drake.plants.pepper`` (``--family wide``,
-the default: ``SampleWidePepperShape``; ``--family v1``: the original
-``SamplePepperShape``).
+procedural shapes come from ``lmap_drake.plants.pepper`` (``--family v1``,
+the default: the original ``SamplePepperShape``; ``--family wide``:
+``SampleWidePepperShape``; ``--family mixed``: both).
 
 Scans (``--meshes DIR``): every ``DIR/NAME.{obj,ply,stl}`` (``NAME.peduncle.*``
 files are skipped: the template is of the fruit body) is read and checked by

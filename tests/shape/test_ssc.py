@@ -118,6 +118,27 @@ def test_params_from_config_reestimate():
     # the first estimate slows the rotation; the re-estimate after the
     # action keeps plain Adam
     assert (p.rotation_lr_scale, q.rotation_lr_scale) == (0.3, 1.0)
+    # only the first estimate holds the rotation still at first
+    assert (p.rotation_hold_steps, q.rotation_hold_steps) == (50, 0)
+
+
+def test_the_rotation_is_held_still_for_the_first_steps_then_turns(template):
+    """``rotation_hold_steps``: R stays exactly the start for those steps
+    while z, s and t move, then turns toward the tilted truth; HoMa-style
+    has no hold (its fruit turns from the first step)."""
+    dec, mean, lat = template
+    gt, R = _gt(dec, lat[2], angle_deg=15.0)
+    obs = _visible_points(gt, n=800)
+    est = OptimizeShape(dec, mean, obs, CAM, [], None,
+                        SscParams(iterations=60, rotation_hold_steps=20, w_ped=0.0))
+    tr = [r for r in est.loss_trace if r["it"] >= 0]
+    axes = np.array([r["axis"] for r in tr])
+    assert np.allclose(axes[:21], [0, 0, 1], atol=1e-6)      # pose of steps 0-20 (R before each step)
+    assert abs(tr[20]["s"] - tr[0]["s"]) > 1e-4              # ... while the scale moved
+    tilt = lambda a: np.degrees(np.arccos(np.clip(a @ R[:, 2], -1, 1)))   # noqa: E731
+    assert tilt(axes[-1]) < tilt(axes[0]) - 0.5                # then it turned toward the truth
+    homa = FitHoma(dec, mean, obs, CAM, SscParams(iterations=5, rotation_hold_steps=20))
+    assert not np.allclose(homa.loss_trace[4]["axis"], [0, 0, 1], atol=1e-6)
 
 
 def test_adam_moves_a_weakly_observed_parameter_at_full_speed_unless_scaled():
