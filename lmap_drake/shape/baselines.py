@@ -86,7 +86,7 @@ def FitSuperellipsoid(fruit_points_W: np.ndarray, camera_W: np.ndarray,
 def HomaParams(params: SscParams) -> SscParams:
     """SSC parameters with the scene-consistency terms switched off, and no
     rotation hold (the hold is for SSC's start inside the leaf and free
-    space; without scene terms it cost HoMa-style 0.8 deg of axis)."""
+    space; without scene terms it cost HoMa-style 0.2-0.6 deg of axis)."""
     return dc.replace(params, w_neg=0.0, w_ped=0.0, rotation_hold_steps=0)
 
 

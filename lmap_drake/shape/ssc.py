@@ -93,7 +93,8 @@ centre within 1 cm^3 and 0.01-0.02 cm (optimiser seeds 1 and 2 on the first
 set: 7.9 -> 7.5 deg, 34.3 -> 33.2 cm^3; the seed moves these means by 0.1-0.2
 deg). 100 and 150 steps were alike (7.3 / 8.0 / 5.7, 7.4 / 7.9 / 6.0), 50 is
 the shortest that gained. HoMa-style keeps no hold: with it its angle went
-6.9 -> 7.7 deg (no scene terms, no start-up push). The re-estimate keeps
+6.9 -> 7.5 / 5.3 -> 5.5 deg (first set / family; no scene terms, no
+start-up push). The re-estimate keeps
 none either. Tried and not kept, none better on all three: the rotation's
 moments restarted when it is released (25 steps, at 0.1x or 0.05x: 7.8 /
 7.9 / 5.7 and 8.3 / 8.2 / 7.0), beta2 0.99 for the rotation (8.2 / 8.3 /
