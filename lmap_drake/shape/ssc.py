@@ -423,9 +423,9 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
     axis0 = R0.numpy()[:, 2].astype(float)
     w = torch.zeros(3, requires_grad=True)
     t = torch.tensor(t0.astype(np.float32), requires_grad=True)
-    hold = max(int(P.rotation_hold_steps), 0)
+    hold = P.rotation_hold_steps      # R still for these steps (its moments still run)
     opt = Adam([z, log_s, w, t], lr=P.learning_rate,
-               scales=[1, 1, 0.0 if hold else P.rotation_lr_scale, 1])
+               scales=[1, 1, 0.0 if hold > 0 else P.rotation_lr_scale, 1])
 
     sur = torch.as_tensor(_subsample(fruit, P.max_surface_points, rng), dtype=torch.float32)
     # Negative candidates near the fruit (the cube bound makes far ones moot).
@@ -461,7 +461,7 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
     act_x = act_w = None
     ped_O = None
     for it in range(P.iterations):
-        if hold and it == hold:      # the rotation starts turning (its moments ran all along)
+        if it == hold:
             opt.scales[2] = P.rotation_lr_scale
         if it % P.refresh_every == 0:
             with torch.no_grad():
