@@ -8,4 +8,18 @@ import os as _os
 # inverse 4 s instead of 0.04 s). Users can override it in the environment.
 _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+
+def _DropShortSampleNotes(record) -> bool:
+    """trimesh's ``sample_surface_even`` logs "only got N/M samples!" when
+    its rejection sampling keeps fewer points than asked (a pepper mesh
+    from a file, a small estimate). Every caller here uses what it gets, so
+    the note only reaches the terminal (Python's last-resort handler) as a
+    stray line between the progress lines; other trimesh messages pass."""
+    return not str(record.msg).startswith("only got ")
+
+
+import logging as _logging
+
+_logging.getLogger("trimesh").addFilter(_DropShortSampleNotes)
+
 __version__ = "0.1.0"
