@@ -20,6 +20,6 @@ def _DropShortSampleNotes(record) -> bool:
 
 import logging as _logging
 
-_logging.getLogger("trimesh").addFilter(_DropShortSampleNotes)
+_logging.getLogger("trimesh.sample").addFilter(_DropShortSampleNotes)
 
 __version__ = "0.1.0"

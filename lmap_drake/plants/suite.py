@@ -83,39 +83,59 @@ def PaperSuite() -> dict[str, PlantSceneConfig]:
     return out
 
 
-def RandomSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneConfig]:
+def RandomSuite(n: int, seed: int, max_draws: int = 20, scenario_text: str = "{}"
+                ) -> dict[str, PlantSceneConfig]:
     """``n`` random plant scenes from ``seed`` (deterministic). A draw the
     plant generator cannot build as requested (e.g. a small leaf that cannot
-    hide the drawn occlusion) is replaced by the next draw."""
-    return _BuildableDraws(n, seed, _RandomScene, "random", max_draws)
+    hide the drawn occlusion) is replaced by the next draw. ``scenario_text``
+    (YAML overrides every episode applies after the scene, e.g. a
+    ``plant_scene.fruit.mesh_file``) is applied before that check, so that
+    the scenes are buildable as the episodes will run them."""
+    return _BuildableDraws(n, seed, _RandomScene, "random", max_draws, scenario_text)
 
 
-def _BuildableDraws(n: int, seed: int, draw, prefix: str, max_draws: int
-                    ) -> dict[str, PlantSceneConfig]:
+class SuiteError(ValueError):
+    """No buildable scene in a random suite's draws (the message says why)."""
+
+
+def _BuildableDraws(n: int, seed: int, draw, prefix: str, max_draws: int,
+                    scenario_text: str = "{}") -> dict[str, PlantSceneConfig]:
     """``n`` scenes ``draw(rng)`` named ``<prefix>_<seed>_<i>``, each the
-    first buildable one of at most ``max_draws`` draws."""
+    first buildable one (with ``scenario_text`` applied) of at most
+    ``max_draws`` draws. Raises SuiteError with the generator's last reason
+    when none is."""
     rng = np.random.default_rng(seed)
     out = {}
     for i in range(n):
         for _ in range(max_draws):
             cfg = draw(rng)
-            if _Buildable(cfg):
+            why = _WhyNotBuildable(cfg, scenario_text)
+            if not why:
                 break
         else:
-            raise ValueError(f"{prefix} suite ({n} scenes, seed {seed}): no buildable scene "
-                             f"in {max_draws} draws")
+            more = ("" if scenario_text.strip() in ("", "{}") else
+                    f" with the overrides {scenario_text.strip()}")
+            raise SuiteError(f"{prefix} suite ({n} scenes, seed {seed}): no buildable scene "
+                             f"in {max_draws} draws{more}; the last: {why}")
         cfg.name = f"{prefix}_{seed}_{i:03d}"
         out[cfg.name] = cfg
     return out
 
 
-def _Buildable(cfg: PlantSceneConfig) -> bool:
-    """True if the plant generator builds ``cfg`` as requested from the
-    default camera (its occlusion is reachable, the fruit hangs on the
-    branch; several fruits: their leaves fit clear of each other)."""
+def _WhyNotBuildable(cfg: PlantSceneConfig, scenario_text: str = "{}") -> str:
+    """"" if the plant generator builds ``cfg`` as requested (its occlusion
+    is reachable, the fruit hangs on the branch; several fruits: their
+    leaves fit clear of each other) from camera0, after the YAML overrides
+    ``scenario_text``; else the generator's reason."""
     from lmap_drake.plants.generator import PlantGenerationError
     from lmap_drake.scenario import DefaultCameraConfig
-    p_WC = DefaultCameraConfig().X_PB.GetDeterministicValue().translation()
+    camera = DefaultCameraConfig()
+    if scenario_text.strip() not in ("", "{}"):
+        from lmap_drake.scenario import LoadScenario
+        body = "".join(f"  {line}\n" for line in _PlantSceneYaml(cfg).splitlines())
+        sc = LoadScenario(scenario_text=["plant_scene:\n" + body, scenario_text])
+        cfg, camera = sc.plant_scene, sc.cameras.get("camera0", camera)
+    p_WC = camera.X_PB.GetDeterministicValue().translation()
     try:
         if cfg.kind == "multi":
             from lmap_drake.plants.multi import GenerateMultiPlant
@@ -123,9 +143,9 @@ def _Buildable(cfg: PlantSceneConfig) -> bool:
         else:
             from lmap_drake.plants.generator import GeneratePlant
             GeneratePlant(cfg, p_WC)
-    except PlantGenerationError:
-        return False
-    return True
+    except PlantGenerationError as err:
+        return str(err) or type(err).__name__
+    return ""
 
 
 def RandomMultiSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneConfig]:
