@@ -274,10 +274,15 @@ def cmd_eval(args) -> int:
     out = Path(args.output) if args.output else DefaultOutputFolder(prefix="eval-")
     if args.scenarios:
         from lmap_drake.plants.suite import RandomSuite, SuiteYaml
-        EnsureWritableFolder(out)
-        suite_file = out / "suite.yaml"
-        text = SuiteYaml(RandomSuite(args.scenarios, args.seed),
-                         f"# RandomSuite({args.scenarios}, {args.seed})")
+        # The draws are checked with --scenario_text applied (e.g. a pepper
+        # mesh of the user's that a drawn leaf cannot hide as asked).
+        over = args.scenario_text if args.scenario_text.strip() not in ("", "{}") else "{}"
+        text = SuiteYaml(RandomSuite(args.scenarios, args.seed, scenario_text=over),
+                         f"# RandomSuite({args.scenarios}, {args.seed})" +
+                         ("" if over == "{}" else
+                          f", buildable with the overrides {' '.join(over.split())}"))
+        EnsureWritableFolder(out)         # after the draws: a suite that cannot be
+        suite_file = out / "suite.yaml"    # drawn leaves no folder behind
         if not (args.resume and suite_file.exists() and suite_file.read_text() == text):
             suite_file.write_text(text)
     else:

@@ -320,6 +320,18 @@ def test_eval_takes_a_file_fruit_for_the_suite_and_names_a_missing_one(capsys, t
     assert not (tmp_path / "e").exists()
 
 
+def test_eval_random_scenes_that_cannot_be_built_with_the_overrides_exit_2(capsys, tmp_path):
+    """``--scenarios N`` draws every scene with ``--scenario_text`` applied;
+    when no draw can be built so, one line says why and no folder is left."""
+    code, err = _run(capsys, "eval", "--output", str(tmp_path / "e"), "--methods", "lmap",
+                     "--scenarios", "1", "--scenario_text",
+                     "{plant_scene: {occlusion: 0.99, leaf: {length: 0.06, width: 0.03}}}")
+    assert code == EXIT_BAD_INPUT, err
+    assert "no buildable scene in 20 draws with the overrides" in err and "occlusion" in err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "e").exists()
+
+
 def test_torn_lines_are_set_aside_and_rerun(tmp_path):
     from lmap_drake.evaluation import tables as T
     good = {"status": "done", "eval": {"episode_id": "a|lmap|adaptive|s0|1234abcd"}}

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 
+from lmap_drake.errors import InputError
 from lmap_drake.plants.pepper import SamplePepperShape
 from lmap_drake.scenario import FruitConfig, PlantSceneConfig
 from pydrake.geometry import Rgba
@@ -94,8 +95,10 @@ def RandomSuite(n: int, seed: int, max_draws: int = 20, scenario_text: str = "{}
     return _BuildableDraws(n, seed, _RandomScene, "random", max_draws, scenario_text)
 
 
-class SuiteError(ValueError):
-    """No buildable scene in a random suite's draws (the message says why)."""
+class SuiteError(InputError, ValueError):
+    """No buildable scene in a random suite's draws (the message says why;
+    bad input, exit code 2: the scene count, seed and overrides asked for
+    cannot be built)."""
 
 
 def _BuildableDraws(n: int, seed: int, draw, prefix: str, max_draws: int,
@@ -114,7 +117,7 @@ def _BuildableDraws(n: int, seed: int, draw, prefix: str, max_draws: int,
                 break
         else:
             more = ("" if scenario_text.strip() in ("", "{}") else
-                    f" with the overrides {scenario_text.strip()}")
+                    f" with the overrides {' '.join(scenario_text.split())}")
             raise SuiteError(f"{prefix} suite ({n} scenes, seed {seed}): no buildable scene "
                              f"in {max_draws} draws{more}; the last: {why}")
         cfg.name = f"{prefix}_{seed}_{i:03d}"
