@@ -276,9 +276,14 @@ def cmd_eval(args) -> int:
         from lmap_drake.plants.suite import RandomSuite, SuiteYaml
         # The draws are checked with --scenario_text applied (e.g. a pepper
         # mesh of the user's that a drawn leaf cannot hide as asked).
+        from lmap_drake.evaluation.progress import Progress
         over = args.scenario_text if args.scenario_text.strip() not in ("", "{}") else "{}"
-        text = SuiteYaml(RandomSuite(args.scenarios, args.seed, scenario_text=over),
-                         f"# RandomSuite({args.scenarios}, {args.seed})" +
+        _stage(f"eval: drawing {args.scenarios} random scene(s) from seed {args.seed}, each "
+               f"built once by the plant generator" + ("" if over == "{}" else
+                                                      " with --scenario_text applied"))
+        with Progress(args.scenarios, desc="scenes", unit="scene") as bar:
+            suite = RandomSuite(args.scenarios, args.seed, scenario_text=over, on_scene=bar.Step)
+        text = SuiteYaml(suite, f"# RandomSuite({args.scenarios}, {args.seed})" +
                          ("" if over == "{}" else
                           f", buildable with the overrides {' '.join(over.split())}"))
         EnsureWritableFolder(out)         # after the draws: a suite that cannot be

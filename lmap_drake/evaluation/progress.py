@@ -102,19 +102,19 @@ class Progress:
 
     def __init__(self, total: int, say: Callable[[str], None] = print,
                  enabled: bool | None = None, file: TextIO | None = None,
-                 desc: str = "eval"):
+                 desc: str = "eval", unit: str = "ep"):
         self.total, self._say = total, say
         self.file = file or sys.stderr
         if enabled is None:
             enabled = bool(getattr(self.file, "isatty", lambda: False)())
         self.enabled = enabled and total > 0
         self.bar = None
-        self._desc = desc
+        self._desc, self._unit = desc, unit
 
     def __enter__(self) -> "Progress":
         if self.enabled:
             from tqdm import tqdm
-            self.bar = tqdm(total=self.total, desc=self._desc, unit="ep", file=self.file,
+            self.bar = tqdm(total=self.total, desc=self._desc, unit=self._unit, file=self.file,
                             dynamic_ncols=True, mininterval=1.0, smoothing=0.0)
         return self
 

@@ -62,3 +62,10 @@ def test_random_suite_that_cannot_be_built_says_why():
                                          r"\{plant_scene.*the last: .*occlusion") as err:
         RandomSuite(2, seed=1, max_draws=3, scenario_text=text)
     assert isinstance(err.value, InputError)
+
+
+def test_random_suite_reports_each_scene_drawn():
+    from lmap_drake.plants.suite import RandomSuite
+    calls = []
+    suite = RandomSuite(2, seed=1, on_scene=lambda: calls.append(len(calls)))
+    assert len(calls) == 2 == len(suite)
