@@ -467,7 +467,9 @@ class ShapeConfig:
     points; ``rotation_lr_scale``: the rotation's share of the Adam step,
     ``reestimate_rotation_lr_scale`` the same for the re-estimate after the
     action; ``rotation_hold_steps``: the first SSC estimate keeps the
-    rotation still for this many Adam steps, 0 = off). ``branch_*``: branch completion (slab
+    rotation still for this many Adam steps, 0 = off;
+    ``reestimate_rotation_hold_steps`` the same for the re-estimate;
+    ``reestimate_w_rot``: the re-estimate's pull toward upright, 0 = off). ``branch_*``: branch completion (slab
     thickness, radius factor, cylinder mesh resolution, ARAP match distance;
     metres). ``leaf_split_angle_deg`` (plants with several fruits): touching leaves
     (one cluster of points) are told apart where their surfaces meet at more
@@ -503,6 +505,8 @@ class ShapeConfig:
     reestimate_w_neg_completed_branch: float = 0.01
     rotation_lr_scale: float = 0.3
     reestimate_rotation_lr_scale: float = 1.0
+    reestimate_w_rot: float = 0.0
+    reestimate_rotation_hold_steps: int = 50
     rotation_hold_steps: int = 50
     learning_rate: float = 0.01
     iterations: int = 300
@@ -1195,6 +1199,8 @@ _RULES = {
     "shape.w_rot": ">=0",
     "shape.rotation_lr_scale": ">0",
     "shape.reestimate_rotation_lr_scale": ">0",
+    "shape.reestimate_w_rot": ">=0",
+    "shape.reestimate_rotation_hold_steps": ">=0",
     "shape.rotation_hold_steps": ">=0",
     "shape.init_scale_bounds": "2x>0",
     "shape.refresh_every": ">=1",

@@ -94,8 +94,25 @@ set: 7.9 -> 7.5 deg, 34.3 -> 33.2 cm^3; the seed moves these means by 0.1-0.2
 deg). 100 and 150 steps were alike (7.3 / 8.0 / 5.7, 7.4 / 7.9 / 6.0), 50 is
 the shortest that gained. HoMa-style keeps no hold: with it its angle went
 6.9 -> 7.5 / 5.3 -> 5.5 deg (first set / family; no scene terms, no
-start-up push). The re-estimate keeps
-none either. Tried and not kept, none better on all three: the rotation's
+start-up push). The re-estimate after the action holds its rotation for 50
+steps too (``reestimate_rotation_hold_steps``): it starts from the mean
+shape at scale 1, and on a near-round fruit seen whole the first steps
+turned it 30 deg into a worse fit (one sphere-like mesh: Chamfer 0.22 cm,
+0.10 with the hold). Measured over whole episodes (``lmap-drake eval``, the
+real segmenter and camera; final Chamfer cm / volume cm^3 / centre cm /
+angle deg): the 12 suite scenes 0.167 / 15.5 / 0.181 / 3.64 -> 0.160 / 13.4
+/ 0.169 / 3.40, 8 random scenes 0.246 / 24.5 / 0.340 / 6.11 -> 0.246 / 24.0
+/ 0.338 / 6.00, 6 external meshes x 2 random scenes 0.234 / 17.5 / 0.318 /
+8.18 -> 0.226 / 18.3 / 0.310 / 7.75; then, not used to choose, 4 external
+meshes x 4 scenes 0.205 / 9.8 / 0.278 / 7.85 -> 0.190 / 8.2 / 0.254 / 6.43
+and 4 never-seen ones x 2 scenes 0.279 / 12.1 / 0.423 / 11.0 -> 0.279 /
+11.5 / 0.416 / 11.1. A 100-step hold was mixed (external set 0.216 / 17.3
+/ 0.291 / 7.98, suite 0.160 / 13.9 / 0.171 / 3.51). A pull toward upright
+instead (``reestimate_w_rot`` 0.1) helped the external set (0.208 / 13.7 /
+0.272 / 7.72) but turned the suite's tilted fruits upright (angle 3.64 ->
+4.31 deg), so it stays 0; the paper's re-estimate peduncle weight 0.01 was
+also checked against 0.1 (suite angle 3.64 -> 4.09 deg with 0.1: kept).
+Tried and not kept, none better on all three: the rotation's
 moments restarted when it is released (25 steps, at 0.1x or 0.05x: 7.8 /
 7.9 / 5.7 and 8.3 / 8.2 / 7.0), beta2 0.99 for the rotation (8.2 / 8.3 /
 5.8), a 0.45x or 0.6x rotation step (8.0 / 8.4 / 5.7; 8.8 / 8.4 / 6.1), 400
@@ -229,7 +246,8 @@ class SscParams:
             p.w_ped = cfg.reestimate_w_ped
             p.w_neg_completed_branch = cfg.reestimate_w_neg_completed_branch
             p.rotation_lr_scale = cfg.reestimate_rotation_lr_scale
-            p.rotation_hold_steps = 0
+            p.w_rot = cfg.reestimate_w_rot
+            p.rotation_hold_steps = cfg.reestimate_rotation_hold_steps
         return p
 
 

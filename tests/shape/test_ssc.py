@@ -118,8 +118,13 @@ def test_params_from_config_reestimate():
     # the first estimate slows the rotation; the re-estimate after the
     # action keeps plain Adam
     assert (p.rotation_lr_scale, q.rotation_lr_scale) == (0.3, 1.0)
-    # only the first estimate holds the rotation still at first
-    assert (p.rotation_hold_steps, q.rotation_hold_steps) == (50, 0)
+    # both hold the rotation still at first, from their own keys
+    assert (p.rotation_hold_steps, q.rotation_hold_steps) == (50, 50)
+    assert (p.w_rot, q.w_rot) == (0.0, 0.0)
+    cfg.rotation_hold_steps, cfg.reestimate_rotation_hold_steps = 7, 3
+    cfg.w_rot, cfg.reestimate_w_rot = 0.5, 0.2
+    p, q = SscParams.FromConfig(cfg), SscParams.FromConfig(cfg, reestimate=True)
+    assert (p.rotation_hold_steps, q.rotation_hold_steps, p.w_rot, q.w_rot) == (7, 3, 0.5, 0.2)
 
 
 def test_the_rotation_is_held_still_for_the_first_steps_then_turns(template):
