@@ -127,3 +127,22 @@ def test_station_applies_the_model_and_enabled_false_gives_the_renderer_images()
     assert CameraProfile(CameraNoiseConfig()) == "l515"
     assert CameraProfile(CameraNoiseConfig(enabled=False)) == "ideal"
     assert CameraProfile(CameraNoiseConfig(depth_unit=0.001)) == "custom"
+
+
+def test_every_dropout_lies_within_perception_no_return_margin_of_a_return():
+    """``perception.no_return_margin_px`` keeps no-return pixels next to a
+    return from carving free space (they may be this camera's dropouts, a
+    surface there): the default must cover every dropout the default camera
+    model makes, here in the default scene's first view, and not be far
+    wider (it also withholds the free space beside every silhouette)."""
+    from scipy import ndimage
+
+    from lmap_drake.plants.world import RenderStill
+    s = LoadScenario()
+    _, clean_d, _ = RenderStill(LoadScenario(scenario_text="{camera_noise: {enabled: false}}"))
+    _, noisy_d, _ = RenderStill(s)
+    dropped = np.isfinite(clean_d) & ~np.isfinite(noisy_d)
+    assert dropped.sum() > 100
+    to_return = ndimage.distance_transform_edt(~np.isfinite(noisy_d))
+    band = float(to_return[dropped].max())
+    assert band <= s.perception.no_return_margin_px <= 2.0 * band
