@@ -273,19 +273,21 @@ def cmd_eval(args) -> int:
         labels = [S.PointLabel(i, p) for i, p in enumerate(points)]
     out = Path(args.output) if args.output else DefaultOutputFolder(prefix="eval-")
     if args.scenarios:
+        from lmap_drake.evaluation.progress import Progress
         from lmap_drake.plants.suite import RandomSuite, SuiteYaml
+        from lmap_drake.scenario import IsEmptyOverride
         # The draws are checked with --scenario_text applied (e.g. a pepper
         # mesh of the user's that a drawn leaf cannot hide as asked).
-        from lmap_drake.evaluation.progress import Progress
-        over = args.scenario_text if args.scenario_text.strip() not in ("", "{}") else "{}"
+        over = "" if IsEmptyOverride(args.scenario_text) else args.scenario_text
         _stage(f"eval: drawing {args.scenarios} random scene(s) from seed {args.seed}, each "
-               f"built once by the plant generator" + ("" if over == "{}" else
-                                                      " with --scenario_text applied"))
+               f"built once by the plant generator" +
+               (" with --scenario_text applied" if over else ""))
         with Progress(args.scenarios, desc="scenes", unit="scene") as bar:
-            suite = RandomSuite(args.scenarios, args.seed, scenario_text=over, on_scene=bar.Step)
+            suite = RandomSuite(args.scenarios, args.seed, scenario_text=args.scenario_text,
+                                on_scene=bar.Step)
         text = SuiteYaml(suite, f"# RandomSuite({args.scenarios}, {args.seed})" +
-                         ("" if over == "{}" else
-                          f", buildable with the overrides {' '.join(over.split())}"))
+                         (f", buildable with the overrides {' '.join(over.split())}"
+                          if over else ""))
         EnsureWritableFolder(out)         # after the draws: a suite that cannot be
         suite_file = out / "suite.yaml"    # drawn leaves no folder behind
         if not (args.resume and suite_file.exists() and suite_file.read_text() == text):

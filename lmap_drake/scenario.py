@@ -1036,6 +1036,11 @@ def _ReadScenarioFile(path: Path) -> str:
         raise ScenarioError(f"cannot read scenario file {path}: {err.strerror or err}") from None
 
 
+def IsEmptyOverride(text: str | None) -> bool:
+    """True when a ``--scenario_text`` overrides nothing (empty or ``{}``)."""
+    return not text or text.strip() in ("", "{}")
+
+
 def LoadScenario(*, filename: str | Path | None = None,
                  scenario_name: str | None = None,
                  scenario_text: str | list[str] = "{}", bare: bool = False) -> Scenario:
@@ -1080,7 +1085,7 @@ def LoadScenario(*, filename: str | Path | None = None,
         sources.append((raw_all[name] or {}, where))
     texts = [scenario_text] if isinstance(scenario_text, str) else list(scenario_text)
     for text in texts:
-        if not text or text.strip() in ("", "{}"):
+        if IsEmptyOverride(text):
             continue
         raw = _RawYaml(text, "--scenario_text")
         if not isinstance(raw, dict):

@@ -12,7 +12,7 @@ from pydrake.common.yaml import yaml_dump_typed
 
 from lmap_drake.errors import InputError
 from lmap_drake.plants.pepper import SamplePepperShape
-from lmap_drake.scenario import FruitConfig, PlantSceneConfig
+from lmap_drake.scenario import FruitConfig, IsEmptyOverride, PlantSceneConfig
 from pydrake.geometry import Rgba
 
 LEAVES = {
@@ -118,7 +118,7 @@ def _BuildableDraws(n: int, seed: int, draw, prefix: str, max_draws: int,
             if not why:
                 break
         else:
-            more = ("" if scenario_text.strip() in ("", "{}") else
+            more = ("" if IsEmptyOverride(scenario_text) else
                     f" with the overrides {' '.join(scenario_text.split())}")
             raise SuiteError(f"{prefix} suite ({n} scenes, seed {seed}): no buildable scene "
                              f"in {max_draws} draws{more}; the last: {why}")
@@ -137,7 +137,7 @@ def _WhyNotBuildable(cfg: PlantSceneConfig, scenario_text: str = "{}") -> str:
     from lmap_drake.plants.generator import PlantGenerationError
     from lmap_drake.scenario import DefaultCameraConfig
     camera = DefaultCameraConfig()
-    if scenario_text.strip() not in ("", "{}"):
+    if not IsEmptyOverride(scenario_text):
         from lmap_drake.scenario import LoadScenario
         body = "".join(f"  {line}\n" for line in _PlantSceneYaml(cfg).splitlines())
         sc = LoadScenario(scenario_text=["plant_scene:\n" + body, scenario_text])

@@ -12,7 +12,7 @@ latent ``z`` (init: mean training latent), ``log s``, a rotation vector
 ``w`` with ``R = exp([w]_x)`` (init 0, R = I; lr times
 ``rotation_lr_scale``, 0.3, and held still for the first
 ``rotation_hold_steps``, 50; the re-estimate's ``reestimate_rotation_lr_scale``,
-1, no hold) and ``t``.
+1, and ``reestimate_rotation_hold_steps``, 50) and ``t``.
 
 Why the rotation takes a smaller step. Adam moves every parameter by about
 ``lr`` per step whenever its gradient keeps its sign, however weak the
