@@ -127,3 +127,34 @@ def test_a_plant_with_several_fruits_gets_its_time_per_fruit_in_run_and_eval():
     assert EpisodeTimeLimit(three) == 3 * SECONDS_PER_FRUIT
     one.planner.targets = "all"
     assert EpisodeTimeLimit(one) == HARDWARE_MAX_FRUITS * SECONDS_PER_FRUIT
+
+
+def test_eval_held_leaf_scores_the_views_of_a_recorded_episode(episode, tmp_path):
+    """scripts/eval_held_leaf.py on the recording of the episode: every
+    labelled view is scored once, the views after a motion hold the leaf
+    the planner grasped (the gripper is closed on it), and the network sees
+    most of that leaf and of the fruit. A folder without a recording is
+    skipped with a note; with none left the script exits 2, writing
+    nothing."""
+    import json
+    import runpy
+    from lmap_drake.episode import SaveEpisode
+    from lmap_drake.paths import REPO_ROOT
+    from lmap_drake.scenario import DumpScenario
+    main = runpy.run_path(str(REPO_ROOT / "scripts" / "eval_held_leaf.py"),
+                          run_name="eval_held_leaf")["main"]
+    run = tmp_path / "run"
+    SaveEpisode(episode, run)
+    DumpScenario(episode.world.scenario, run / "scenario.yaml")
+    out = tmp_path / "held.json"
+    assert main(["--runs", str(run), str(tmp_path / "empty"), "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    motions = len(episode.record["motions"])
+    assert res["meta"]["views"] == motions + 1 and res["meta"]["held_views"] == motions
+    (w, s), = [(k, v) for k, v in res.items() if k != "meta"]
+    assert [row["held_leaf"] is not None for row in s["views"]] == [False] + [True] * motions
+    assert s["held_leaf_recall"]["n"] == motions and s["held_leaf_recall"]["median"] > 0.5
+    assert s["fruit_iou"]["n"] == motions + 1 and s["fruit_iou"]["median"] > 0.5
+    none = tmp_path / "none.json"
+    assert main(["--runs", str(tmp_path / "empty"), "--out", str(none)]) == 2
+    assert not none.exists()
