@@ -239,8 +239,10 @@ class MultiFruitConfig:
     shoot and are swung to hide ``occlusion`` of the fruit from camera0
     (counting every leaf of the plant; ignored with 0 leaves). ``fruit``:
     shape and colour as ``plant_scene.fruit`` (its ``tilt_deg``,
-    ``tilt_azimuth_deg``, ``peduncle_*`` are used; ``height_on_branch``,
-    ``gap_to_branch``, ``lean_deg`` and ``mesh_file`` are not)."""
+    ``tilt_azimuth_deg``, ``peduncle_*`` and ``mesh_file`` / ``mesh_scale``
+    / ``peduncle_file`` / ``peduncle_point`` (a pepper mesh from a file, as
+    for ``kind: procedural``) are used; ``height_on_branch``,
+    ``gap_to_branch`` and ``lean_deg`` are not)."""
     height: float = 0.25
     side: float = 1.0
     occlusion: float = 0.7
@@ -1470,7 +1472,8 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
         except FruitMeshError as err:
             fail(err.key, err.detail)
     need(not fr.mesh_file or ps.kind == "procedural", "plant_scene.fruit.mesh_file",
-         "needs plant_scene.kind: procedural")
+         "needs plant_scene.kind: procedural (a multi-fruit plant takes a file per fruit: "
+         "plant_scene.multi.fruits[i].fruit.mesh_file)")
     if ps.kind == "multi":
         from lmap_drake.plants.multi import ValidateMultiConfig
         from lmap_drake.plants.generator import PlantGenerationError

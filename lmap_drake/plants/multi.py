@@ -27,7 +27,7 @@ from lmap_drake.plants.generator import (OCCLUSION_CLAMP, OCCLUSION_TOLERANCE, S
                                          _leaf_vertices, _rot_about, _unit)
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape, OrientTets,
                                     TriangulateLeaf)
-from lmap_drake.plants.pepper import MakePepper, PepperShapeOf
+from lmap_drake.plants.pepper import MakePepper, Pepper, PepperShapeOf
 
 MAX_FRUITS, MIN_FRUITS = 4, 2
 MAX_LEAVES, MIN_LEAVES = 6, 2
@@ -71,6 +71,8 @@ class MultiFruit:
     stripe_color: object = None
     stalk_radius: float = 0.004
     peduncle_mesh_W: trimesh.Trimesh | None = None
+    fruit_file: str = ""                 # fruit.mesh_file (resolved), "" = procedural
+    fruit_mesh_repairs: list = dc.field(default_factory=list)
     occlusion_requested: float = float("nan")
     occlusion_predicted: float = 0.0     # hidden fraction of the camera-visible surface, all leaves
     occlusion_clamped: bool = False
@@ -130,6 +132,8 @@ class MultiPlantModel:
                         "occlusion_clamped": f.occlusion_clamped,
                         "occluders": list(f.occluders),
                         "one_leaf_ceiling": f.one_leaf_ceiling,
+                        "fruit_source": f.fruit_file or "procedural",
+                        "fruit_mesh_repairs": list(f.fruit_mesh_repairs),
                         "own_leaves": [j for j, lf in enumerate(self.leaves) if lf.fruit == i]}
                        for i, f in enumerate(self.fruits)],
             "leaves": [{"index": j, "leaf_attach_W": lf.attach_W.tolist(), "shoot": lf.shoot,
@@ -193,8 +197,10 @@ def ValidateMultiConfig(ps) -> None:
              f"must be in [0, 0.1] m, got {f.shoot_extra}")
         need(num(f.shoot_rise_deg) and 0 <= f.shoot_rise_deg <= 60, f"{p}.shoot_rise_deg",
              f"must be in [0, 60], got {f.shoot_rise_deg}")
-        need(not f.fruit.mesh_file, f"{p}.fruit.mesh_file",
-             "is not supported for plant_scene.kind: multi (procedural peppers only)")
+        need(not f.fruit.peduncle_file or f.fruit.mesh_file, f"{p}.fruit.peduncle_file",
+             f"needs {key}.{p}.fruit.mesh_file (the procedural pepper has its own stalk)")
+        if f.fruit.mesh_file:
+            FileFruit(f.fruit, f"{key}.{p}.fruit")      # checked before anything is built
         need(len(f.fruit.size) == 3 and all(num(x) and x > 0 for x in f.fruit.size),
              f"{p}.fruit.size", f"needs 3 values > 0, got {list(f.fruit.size)}")
         for name in ("tilt_deg", "tilt_azimuth_deg", "peduncle_length", "peduncle_radius"):
@@ -304,11 +310,32 @@ class _FruitView:
 
 # --- the generator ---------------------------------------------------------
 
+def FileFruit(fruit_cfg, key: str):
+    """``LoadFruitMeshOf`` a fruit config with ``mesh_file`` set, its errors
+    naming ``key`` (e.g. ``plant_scene.multi.fruits[1].fruit``) instead of
+    ``plant_scene.fruit``."""
+    from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
+    try:
+        return LoadFruitMeshOf(fruit_cfg)
+    except FruitMeshError as err:
+        raise MultiConfigError(err.key.replace("plant_scene.fruit", key, 1),
+                               err.detail.replace("plant_scene.fruit.", key + ".")) from None
+
+
 def _PlaceFruit(fc, i: int, stem: np.ndarray, base, d_fwd, e_lat, stem_radius, shoot_radius):
     """Fruit ``i`` of config ``fc`` (a MultiFruitConfig) beside the stem and
-    its shoot (points from the stem to just beyond the peduncle)."""
+    its shoot (points from the stem to just beyond the peduncle); a
+    ``fruit.mesh_file`` pepper is placed like the procedural one (its
+    canonical frame: origin at the volume centroid, +z the peduncle axis)."""
     fr = fc.fruit
-    pepper = MakePepper(PepperShapeOf(fr))
+    file_fruit = None
+    if fr.mesh_file:
+        file_fruit = FileFruit(fr, f"plant_scene.multi.fruits[{i}].fruit")
+        pepper = Pepper(mesh=file_fruit.mesh, p_O_peduncle=file_fruit.p_O_peduncle, shape=None,
+                        peduncle=file_fruit.peduncle,
+                        p_O_peduncle_tip=file_fruit.p_O_peduncle_tip)
+    else:
+        pepper = MakePepper(PepperShapeOf(fr))
     side = 1.0 if fc.side > 0 else -1.0
     e_out = side * e_lat
     tilt_axis = _rot_about([0, 0, 1], np.deg2rad(fr.tilt_azimuth_deg)) @ d_fwd
@@ -352,6 +379,8 @@ def _PlaceFruit(fc, i: int, stem: np.ndarray, base, d_fwd, e_lat, stem_radius, s
                       volume=float(mesh.volume), shoot=i + 1, color=fr.color,
                       stripe_color=fr.stripe_color, stalk_radius=fr.peduncle_radius,
                       peduncle_mesh_W=peduncle_W,
+                      fruit_file=file_fruit.file if file_fruit else "",
+                      fruit_mesh_repairs=list(file_fruit.repairs) if file_fruit else [],
                       occlusion_requested=float(fc.occlusion) if fc.num_leaves else float("nan")
                       ), shoot
 

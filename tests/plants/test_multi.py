@@ -225,3 +225,63 @@ def test_make_suite_refuses_a_negative_seed_in_one_line(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "--seed and --random must be >= 0" in r.stderr
     assert "Traceback" not in r.stderr and not out.exists()
+
+
+def _file_pepper(folder, scale=1.0):
+    """An egg-shaped test fruit (3.4 x 3.4 x 4.4 cm, OBJ) and a straight
+    stalk mesh on its top (STL), in the file convention (+z = peduncle
+    axis), times ``scale``."""
+    import trimesh
+    fruit = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    fruit.apply_scale([0.017, 0.017, 0.022])
+    stalk = trimesh.creation.cylinder(radius=0.003, segment=[[0, 0, 0.020], [0.01, 0, 0.05]])
+    for m in (fruit, stalk):
+        m.apply_scale(scale)
+    fruit.export(folder / "egg.obj")
+    stalk.export(folder / "egg.peduncle.stl")
+    return folder / "egg.obj", folder / "egg.peduncle.stl", fruit.volume / scale ** 3
+
+
+def test_a_fruit_mesh_from_a_file_on_a_multi_plant(tmp_path):
+    """``multi.fruits[i].fruit.mesh_file`` places the file's pepper (and its
+    stalk, ``peduncle_file``) on its shoot like a procedural one: the same
+    volume, the stalk from the file stalk's far end to the shoot, the
+    requested occlusion, the file named in the ground truth; the other
+    fruits stay procedural."""
+    f, ped, volume = _file_pepper(tmp_path)
+    s = LoadScenario(scenario_text=(
+        "{plant_scene: {kind: multi, multi: {num_leaves: 2, fruits: [{height: 0.2}, "
+        "{height: 0.42, side: -1, occlusion: 0.6, fruit: {mesh_file: '%s', peduncle_file: '%s'}}"
+        "]}}}" % (f, ped)))
+    m = GenerateMultiPlant(s.plant_scene, P_WC)
+    procedural, egg = m.fruits
+    assert egg.volume == pytest.approx(volume, rel=1e-6)
+    assert egg.mesh_W.is_watertight and egg.peduncle_mesh_W is not None
+    # the file stalk's far end is where the straight stalk to the shoot starts
+    assert np.abs(egg.peduncle_mesh_W.vertices - egg.stalk_W[0]).sum(1).min() < 1e-9
+    assert BranchClearance(egg.stalk_W[1:], m.branches[egg.shoot]).min() < 0
+    assert egg.occlusion_predicted == pytest.approx(0.6, abs=OCCLUSION_TOLERANCE)
+    gt = m.GroundTruthDict()["fruits"]
+    assert gt[1]["fruit_source"] == str(f) and gt[0]["fruit_source"] == "procedural"
+    assert procedural.peduncle_mesh_W is None
+
+
+@pytest.mark.parametrize("fruit, key, words", [
+    ("{mesh_file: /nope/egg.obj}", "plant_scene.multi.fruits[1].fruit.mesh_file", "not found"),
+    ("{mesh_file: MM}", "plant_scene.multi.fruits[1].fruit.mesh_file",
+     "set plant_scene.multi.fruits[1].fruit.mesh_scale: 0.001"),
+    ("{peduncle_file: PED}", "plant_scene.multi.fruits[1].fruit.peduncle_file",
+     "needs plant_scene.multi.fruits[1].fruit.mesh_file"),
+])
+def test_a_bad_fruit_file_on_a_multi_plant_names_the_fruit(tmp_path, fruit, key, words):
+    """Checked when the scenario loads, before anything is built; the
+    message names that fruit's key and the file."""
+    mm = tmp_path / "mm"
+    mm.mkdir()
+    f_mm, ped_mm, _ = _file_pepper(mm, scale=1000.0)
+    fruit = fruit.replace("MM", str(f_mm)).replace("PED", str(ped_mm))
+    with pytest.raises(ScenarioError) as err:
+        LoadScenario(scenario_text="{plant_scene: {kind: multi, multi: {fruits: [{height: 0.2}, "
+                                   "{height: 0.42, side: -1, fruit: %s}]}}}" % fruit)
+    msg = str(err.value)
+    assert msg.startswith(key + " ") and words in msg, msg
