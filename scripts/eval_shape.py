@@ -45,11 +45,18 @@ before anything is evaluated (exit code 2, the file named).
 
   .venv/bin/python scripts/make_test_peppers.py --out out/test_peppers --count 6
   .venv/bin/python scripts/eval_shape.py --fruit_mesh_dir out/test_peppers --out out/shape_files.json
+
+``OUT_figures/`` (beside ``--out``) gets a picture of the first ``--figures``
+(1) cases of each fruit per condition (``ShapeCaseFigure``: the camera's and
+a side view of the truth and each method's estimate). The JSON, the
+Markdown and the pictures are written at the end (an interrupted run leaves
+only ``OUT_figures.partial/``).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -234,7 +241,14 @@ def main(argv=None):
                     help="comma-separated: initial_occlusion, without_occlusion")
     ap.add_argument("--scenario_names", default=None,
                     help="comma-separated suite scenes (default: the first --num_cases)")
+    ap.add_argument("--figures", type=int, default=1,
+                    help="pictures of the first N cases of each fruit (of the run without "
+                         "--fruit_mesh_dir), each condition: the camera's and a side view of "
+                         "the truth and every method's estimate, in OUT_figures/ (0: none)")
     a = ap.parse_args(argv)
+    if a.figures < 0:
+        from lmap_drake.errors import InputError
+        raise InputError(f"--figures must be >= 0, got {a.figures}")
     fruit_files, fruits = None, {}
     if a.fruit_mesh_dir:
         from lmap_drake.plants.fruit_mesh import LoadFruitMesh
@@ -261,23 +275,84 @@ def main(argv=None):
     seeds = [int(x) for x in a.seeds.split(",")]
     rows, source, skipped = [], None, []
     t_all = time.time()
+    from lmap_drake.evaluation.progress import Progress
+    out = Path(a.out)
+    figures = out.parent / (out.stem + "_figures")
+    figures_tmp = figures.with_name(figures.name + ".partial")
+    if a.figures:
+        shutil.rmtree(figures_tmp, ignore_errors=True)
+        figures_tmp.mkdir(parents=True)
+    todo = list(Cases(a.source, a.num_cases, fruit_files, names))
+    bar = Progress(len(todo), desc="shape", unit="case").__enter__()
+    try:
+        _Evaluate(todo, conditions, seeds, methods, P, cfg, dec, mean, a.figures, figures_tmp,
+                  rows, skipped, bar)
+    finally:
+        bar.__exit__(None, None, None)
+    source = todo[0][0] if todo else None
+    res = {"source": source, "num_cases": len({r["case"] for r in rows}), "threads": a.threads,
+           "iterations": P.iterations, "seeds": seeds,
+           "total_seconds": round(time.time() - t_all, 1)}
+    if not rows:
+        from lmap_drake.errors import InputError
+        shutil.rmtree(figures_tmp, ignore_errors=True)
+        raise InputError("no case could be built" + (
+            f" ({len(skipped)} skipped: {skipped[0]['reason']})" if skipped else ""))
+    res.update(Means(rows, methods))
+    if fruit_files is not None:
+        res["fruit_mesh_dir"] = str(a.fruit_mesh_dir)
+        res["fruits"] = fruits
+        res["per_fruit"] = {f: Means([r for r in rows if r["fruit"] == f], methods)
+                            for f in fruits if any(r["fruit"] == f for r in rows)}
+        res["skipped"] = skipped
+    if len(seeds) > 1:
+        res["seed_std"] = {m: {cond: {k: float(np.std([np.mean(
+            [r[k] for r in rows if r["method"] == m and r["condition"] == cond
+             and r["seed"] == sd]) for sd in seeds])) for k in METRICS} for cond in CONDITIONS}
+            for m in methods}
+    res["rows"] = rows
+    out.parent.mkdir(parents=True, exist_ok=True)
+    md = Markdown(res, methods)
+    md_path = Path(a.md or out.with_suffix(".md"))
+    if a.figures:       # the figures first: a complete JSON comes with its pictures
+        shutil.rmtree(figures, ignore_errors=True)
+        figures_tmp.replace(figures)
+        res["figures"] = str(figures)
+        md += f"\nPictures of the first {a.figures} case(s) of each fruit: `{figures}/`.\n"
+    for path, text in ((md_path, md), (out, json.dumps(res, indent=1))):
+        tmp = path.with_name(path.name + ".partial")
+        tmp.write_text(text)
+        tmp.replace(path)
+    print(md)
+
+
+def _Evaluate(todo, conditions, seeds, methods, P, cfg, dec, mean, n_figures, figures_dir,
+              rows, skipped, bar) -> None:
+    """Fits every method to every case of ``todo`` (``Cases`` items), appending
+    the metric rows to ``rows`` and the scenes a fruit could not be placed in
+    to ``skipped``; pictures of the first ``n_figures`` cases of each fruit
+    into ``figures_dir``."""
     from lmap_drake.plants.generator import PlantGenerationError
-    for src, name, fruit, make in Cases(a.source, a.num_cases, fruit_files, names):
-        source = src
+    drawn: dict = {}
+    for src, name, fruit, make in todo:
         try:
             cases = {cond: make(cond == "initial_occlusion") for cond in conditions}
         except PlantGenerationError as err:
-            if fruit_files is None:
+            if not fruit:
                 raise
             skipped.append({"case": name, "fruit": fruit, "reason": str(err)})
-            print(f"{name:28s} skipped: {err}", flush=True)
+            bar.Say(f"{name:28s} skipped: {err}")
+            bar.Step()
             continue
+        draw = drawn.get(fruit, 0) < n_figures
+        drawn[fruit] = drawn.get(fruit, 0) + 1
         for cond in conditions:
             case = cases[cond]
             sem = case.semantic
             negatives = None
             for seed in seeds:
                 P.seed = seed
+                fits, scores = {}, {}
                 for m in methods:
                     tm = {}
                     est = CompleteScene(sem, dec, mean, P, m, cfg.free_space_voxel, timings=tm)
@@ -302,36 +377,23 @@ def main(argv=None):
                                  ped_iters=int(sum(t["ped"] > 0 for t in tr)),
                                  neg_inside=int((f.sdf_W(negatives) < -5e-4).sum()))
                     rows.append(r)
-                    print(f"{case.name:28s} {cond:18s} {m:7s} s{seed} CD {r['chamfer_cm']:.2f} cm"
-                          f"  V {r['volume_err_cm3']:6.1f} cm3  c {r['center_err_cm']:.2f} cm  "
-                          f"ang {r['angle_err_deg']:5.1f} deg  {r['seconds']:.2f} s  "
-                          f"(vis {case.visible_fraction:.2f})", flush=True)
-    res = {"source": source, "num_cases": len({r["case"] for r in rows}), "threads": a.threads,
-           "iterations": P.iterations, "seeds": seeds,
-           "total_seconds": round(time.time() - t_all, 1)}
-    if not rows:
-        from lmap_drake.errors import InputError
-        raise InputError("no case could be built" + (
-            f" ({len(skipped)} skipped: {skipped[0]['reason']})" if skipped else ""))
-    res.update(Means(rows, methods))
-    if fruit_files is not None:
-        res["fruit_mesh_dir"] = str(a.fruit_mesh_dir)
-        res["fruits"] = fruits
-        res["per_fruit"] = {f: Means([r for r in rows if r["fruit"] == f], methods)
-                            for f in fruits if any(r["fruit"] == f for r in rows)}
-        res["skipped"] = skipped
-    if len(seeds) > 1:
-        res["seed_std"] = {m: {cond: {k: float(np.std([np.mean(
-            [r[k] for r in rows if r["method"] == m and r["condition"] == cond
-             and r["seed"] == sd]) for sd in seeds])) for k in METRICS} for cond in CONDITIONS}
-            for m in methods}
-    res["rows"] = rows
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1))
-    md = Markdown(res, methods)
-    Path(a.md or out.with_suffix(".md")).write_text(md)
-    print(md)
+                    fits[m], scores[m] = f, r
+                    bar.Say(f"{case.name:28s} {cond:18s} {m:7s} s{seed} CD {r['chamfer_cm']:.2f} cm"
+                            f"  V {r['volume_err_cm3']:6.1f} cm3  c {r['center_err_cm']:.2f} cm  "
+                            f"ang {r['angle_err_deg']:5.1f} deg  {r['seconds']:.2f} s  "
+                            f"(vis {case.visible_fraction:.2f})")
+                if draw and seed == seeds[0]:
+                    from lmap_drake.evaluation.figures import ShapeCaseFigure
+                    ShapeCaseFigure(sem, case.gt_vertices_W, case.gt_center_W, fits, scores,
+                                    figures_dir / f"{_FileName(case.name)}_{cond}.png",
+                                    title=f"{case.name}, {cond.replace('_', ' ')} "
+                                          f"(visible {case.visible_fraction:.0%})")
+        bar.Step()
+
+
+def _FileName(name: str) -> str:
+    """A case name as a file name (``fruit@scene``: ``@`` kept)."""
+    return "".join(ch if ch.isalnum() or ch in "@._-" else "_" for ch in name)
 
 
 if __name__ == "__main__":

@@ -39,6 +39,13 @@ def test_eval_shape_on_a_folder_of_meshes(tmp_path):
         assert r["center_side_cm"] >= 0 and abs(split - r["center_err_cm"]) < 1e-3
     assert len(res["rows"]) == 6
     assert "| tiny |" in (tmp_path / "shape.md").read_text()
+    # one picture per condition of the fruit's first case, nothing partial left
+    pics = sorted(p.name for p in (tmp_path / "shape_figures").iterdir())
+    assert pics == [f"tiny@small_leaf_thin_branch_round_red_heavy_{c}.png"
+                    for c in ("initial_occlusion", "without_occlusion")]
+    assert res["figures"] == str(tmp_path / "shape_figures")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["peppers", "shape.json", "shape.md",
+                                                         "shape_figures"]
 
 
 def test_eval_shape_tables_only_the_conditions_asked_for(tmp_path):
@@ -49,8 +56,9 @@ def test_eval_shape_tables_only_the_conditions_asked_for(tmp_path):
     mod = runpy.run_path(str(REPO_ROOT / "scripts" / "eval_shape.py"), run_name="eval_shape")
     out = tmp_path / "shape.json"
     assert mod["main"](["--fruit_mesh_dir", str(d), "--out", str(out), "--iterations", "20",
-                        "--methods", "ssc", "--conditions", "initial_occlusion",
+                        "--methods", "ssc", "--conditions", "initial_occlusion", "--figures", "0",
                         "--scenario_names", "small_leaf_thin_branch_round_red_heavy"]) in (0, None)
+    assert not (tmp_path / "shape_figures").exists()
     md = (tmp_path / "shape.md").read_text()
     assert "| initial occlusion | SSC |" in md
     assert "without occlusion" not in md and "nan" not in md
