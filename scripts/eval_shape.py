@@ -78,31 +78,6 @@ CONDITIONS = ("initial_occlusion", "without_occlusion")
 NAMES = {"supeps": "SupEps", "homa": "HoMa (DeepSDF, no scene)", "ssc": "SSC"}
 
 
-MESH_SUFFIXES = (".obj", ".ply", ".stl")
-
-
-def FruitMeshFiles(folder) -> dict:
-    """NAME -> (fruit file, peduncle file or "") for every
-    ``folder/NAME.{obj,ply,stl}`` (``NAME.peduncle.*`` are the stalks)."""
-    from lmap_drake.errors import InputError
-    d = Path(folder)
-    if not d.is_dir():
-        raise InputError(f"--fruit_mesh_dir {folder}: not a folder")
-    files = sorted(f for f in d.iterdir() if f.suffix.lower() in MESH_SUFFIXES
-                   and not f.stem.endswith(".peduncle"))
-    if not files:
-        raise InputError(f"--fruit_mesh_dir {folder} holds no .obj, .ply or .stl mesh")
-    out = {}
-    for f in files:
-        if f.stem in out:
-            raise InputError(f"--fruit_mesh_dir {folder}: two meshes named {f.stem} "
-                             f"({out[f.stem][0].name}, {f.name})")
-        peds = [d / f"{f.stem}.peduncle{x}" for x in MESH_SUFFIXES]
-        peds = [p for p in peds if p.is_file()]
-        out[f.stem] = (f, peds[0] if peds else "")
-    return out
-
-
 def Cases(source: str, num: int, fruit_files: dict | None = None, names=None):
     """(source, case name, fruit name, make(occluded) -> ShapeCase)."""
     suite = REPO_ROOT / benchmark.SUITE_FILE
@@ -251,8 +226,8 @@ def main(argv=None):
         raise InputError(f"--figures must be >= 0, got {a.figures}")
     fruit_files, fruits = None, {}
     if a.fruit_mesh_dir:
-        from lmap_drake.plants.fruit_mesh import LoadFruitMesh
-        fruit_files = FruitMeshFiles(a.fruit_mesh_dir)
+        from lmap_drake.plants.fruit_mesh import FruitMeshFolder, LoadFruitMesh
+        fruit_files = FruitMeshFolder(a.fruit_mesh_dir)
         for name, (f, ped) in fruit_files.items():   # every file checked before any work
             fm = LoadFruitMesh(str(f), str(ped) if ped else "")
             fruits[name] = {"file": str(f), "peduncle_file": str(ped) if ped else "",

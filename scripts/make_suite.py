@@ -5,6 +5,8 @@
     python scripts/make_suite.py --random 50 --seed 3 --out out/random_50.yaml
     python scripts/make_suite.py --multi              # diagrams/multi_suite.yaml (multi-fruit plants)
     python scripts/make_suite.py --multi --random 6 --seed 7   # random multi-fruit plants
+    python scripts/make_suite.py --multi --random 6 --seed 7 --fruit_mesh_dir DIR
+        # their peppers drawn from DIR/NAME.{obj,ply,stl} (+ NAME.peduncle.*)
 """
 import argparse
 from pathlib import Path
@@ -21,14 +23,27 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None)
     p.add_argument("--multi", action="store_true", help="the multi-fruit plant scenes")
+    p.add_argument("--fruit_mesh_dir", default=None,
+                   help="with --random: every pepper drawn from the meshes DIR/NAME.{obj,ply,stl} "
+                        "(+ NAME.peduncle.*) instead of the procedural family")
     a = p.parse_args()
     if a.seed < 0 or a.random < 0:
         p.error(f"--seed and --random must be >= 0, got --seed {a.seed} --random {a.random}")
+    meshes, files = (), ""
+    if a.fruit_mesh_dir:
+        if a.random <= 0:
+            p.error("--fruit_mesh_dir needs --random N")
+        from lmap_drake.plants.fruit_mesh import FruitMeshFolder, LoadFruitMesh
+        found = FruitMeshFolder(a.fruit_mesh_dir)
+        for f, ped in found.values():         # every file checked before any scene is drawn
+            LoadFruitMesh(str(f), str(ped))
+        meshes = [(f.resolve(), Path(ped).resolve() if ped else "") for f, ped in found.values()]
+        files = f" --fruit_mesh_dir {a.fruit_mesh_dir} ({len(meshes)} meshes)"
     extra = ""
     if a.multi and a.random > 0:
-        suite, extra = RandomMultiSuite(a.random, a.seed), MULTI_SCENE_EXTRA
+        suite, extra = RandomMultiSuite(a.random, a.seed, fruit_meshes=meshes), MULTI_SCENE_EXTRA
         header = (f"# {a.random} random multi-fruit plants, seed {a.seed}: scripts/make_suite.py "
-                  f"--multi --random {a.random} --seed {a.seed}")
+                  f"--multi --random {a.random} --seed {a.seed}{files}")
         out = Path(a.out or f"out/random_multi_{a.random}_seed{a.seed}.yaml")
     elif a.multi:
         suite, extra = MultiSuite(), MULTI_SCENE_EXTRA
@@ -40,8 +55,9 @@ def main() -> None:
                   "# row (robot.X_WB), see lmap_drake/plants/suite.py.")
         out = Path(a.out or DIAGRAMS_DIR / "multi_suite.yaml")
     elif a.random > 0:
-        suite = RandomSuite(a.random, a.seed)
-        header = f"# {a.random} random plant scenes, seed {a.seed}: scripts/make_suite.py"
+        suite = RandomSuite(a.random, a.seed, fruit_meshes=meshes)
+        header = (f"# {a.random} random plant scenes, seed {a.seed}: scripts/make_suite.py "
+                  f"--random {a.random} --seed {a.seed}{files}")
         out = Path(a.out or f"out/random_{a.random}_seed{a.seed}.yaml")
     else:
         suite = PaperSuite()

@@ -292,3 +292,27 @@ def LoadFruitMeshOf(fruit_cfg) -> FruitMesh:
     """``LoadFruitMesh`` of a ``FruitConfig`` with ``mesh_file`` set."""
     return LoadFruitMesh(fruit_cfg.mesh_file, fruit_cfg.peduncle_file, fruit_cfg.mesh_scale,
                          fruit_cfg.peduncle_point)
+
+
+def FruitMeshFolder(folder, option: str = "--fruit_mesh_dir") -> dict:
+    """NAME -> (fruit file, peduncle file or "") for every
+    ``folder/NAME.{obj,ply,stl}`` (``NAME.peduncle.*`` are the stalks), in
+    name order; InputError naming ``option`` when the folder is missing,
+    holds no mesh or two meshes of one name. The files are not read here
+    (``LoadFruitMesh`` checks them)."""
+    d = Path(folder)
+    if not d.is_dir():
+        raise InputError(f"{option} {folder}: not a folder")
+    files = sorted(f for f in d.iterdir() if f.suffix.lower() in SUFFIXES
+                   and not f.stem.endswith(".peduncle"))
+    if not files:
+        raise InputError(f"{option} {folder} holds no .obj, .ply or .stl mesh")
+    out = {}
+    for f in files:
+        if f.stem in out:
+            raise InputError(f"{option} {folder}: two meshes named {f.stem} "
+                             f"({out[f.stem][0].name}, {f.name})")
+        peds = [d / f"{f.stem}.peduncle{x}" for x in SUFFIXES]
+        peds = [q for q in peds if q.is_file()]
+        out[f.stem] = (f, peds[0] if peds else "")
+    return out

@@ -85,7 +85,7 @@ def PaperSuite() -> dict[str, PlantSceneConfig]:
 
 
 def RandomSuite(n: int, seed: int, max_draws: int = 20, scenario_text: str = "{}",
-                on_scene=None) -> dict[str, PlantSceneConfig]:
+                on_scene=None, fruit_meshes=()) -> dict[str, PlantSceneConfig]:
     """``n`` random plant scenes from ``seed`` (deterministic). A draw the
     plant generator cannot build as requested (e.g. a small leaf that cannot
     hide the drawn occlusion) is replaced by the next draw. ``scenario_text``
@@ -93,8 +93,29 @@ def RandomSuite(n: int, seed: int, max_draws: int = 20, scenario_text: str = "{}
     ``plant_scene.fruit.mesh_file``) is applied before that check, so that
     the scenes are buildable as the episodes will run them. ``on_scene()``
     is called after each scene is drawn (a progress bar: every draw is built
-    by the plant generator, 0.3-1 s)."""
-    return _BuildableDraws(n, seed, _RandomScene, "random", max_draws, scenario_text, on_scene)
+    by the plant generator, 0.3-1 s). ``fruit_meshes`` ((fruit file,
+    peduncle file or "") pairs, e.g. ``FruitMeshFolder(dir).values()``):
+    each scene's pepper is one of them, drawn with the scene (its colour and
+    tilt as drawn), instead of a procedural one."""
+    draw = _WithFileFruits(_RandomScene, fruit_meshes)
+    return _BuildableDraws(n, seed, draw, "random", max_draws, scenario_text, on_scene)
+
+
+def _WithFileFruits(draw, fruit_meshes):
+    """``draw(rng)`` whose fruits' ``mesh_file`` / ``peduncle_file`` are then
+    drawn from ``fruit_meshes`` (unchanged when there are none, so a seed
+    gives the same procedural suite as before)."""
+    meshes = [(str(f), str(p or "")) for f, p in fruit_meshes]
+    if not meshes:
+        return draw
+
+    def with_files(rng):
+        cfg = draw(rng)
+        fruits = [f.fruit for f in cfg.multi.fruits] if cfg.kind == "multi" else [cfg.fruit]
+        for fr in fruits:
+            fr.mesh_file, fr.peduncle_file = meshes[int(rng.integers(len(meshes)))]
+        return cfg
+    return with_files
 
 
 class SuiteError(InputError, ValueError):
@@ -155,13 +176,16 @@ def _WhyNotBuildable(cfg: PlantSceneConfig, scenario_text: str = "{}") -> str:
     return ""
 
 
-def RandomMultiSuite(n: int, seed: int, max_draws: int = 20) -> dict[str, PlantSceneConfig]:
+def RandomMultiSuite(n: int, seed: int, max_draws: int = 20,
+                     fruit_meshes=()) -> dict[str, PlantSceneConfig]:
     """``n`` random multi-fruit plants from ``seed`` (deterministic): 2-4
     fruits of random procedural shape, colour, size (5.5-7.5 cm) and tilt,
     spread up the stem on alternating sides, each under 0-2 leaves hiding
     40-85 % of it, and up to one free leaf more (at most 6 leaves). A draw
-    the generator cannot build is replaced by the next one."""
-    return _BuildableDraws(n, seed, _RandomMultiScene, "random_multi", max_draws)
+    the generator cannot build is replaced by the next one. ``fruit_meshes``:
+    every fruit's pepper drawn from these files instead (see ``RandomSuite``)."""
+    return _BuildableDraws(n, seed, _WithFileFruits(_RandomMultiScene, fruit_meshes),
+                           "random_multi", max_draws)
 
 
 def _RandomMultiScene(rng) -> PlantSceneConfig:
