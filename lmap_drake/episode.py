@@ -118,8 +118,7 @@ def RunScriptedPullEpisode(scenario: Scenario, out: Path,
     record["wall_seconds"] = time.time() - t0
     (out / "outcome.json").write_text(json.dumps(record, indent=2))
     (out / "scene.html").write_text(meshcat.StaticHtml())
-    progress("outcome: " + ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
-                                      for k, v in outcome.items()))
+    progress(OutcomeLine(outcome))
     return files + ["rgb.png", "depth.png", "label.png", "rgb_after.png", "label_after.png",
                     "outcome.json", "scene.html"]
 
@@ -878,11 +877,18 @@ def RunLmapEpisode(scenario: Scenario, out: Path, progress: Callable[[str], None
     r = result.record
     progress(f"episode {r['status']}: {r['message'] or '(no message)'}")
     if r["outcome"] is not None:
-        progress("outcome: " + json.dumps(r["outcome"]))
+        progress(OutcomeLine(r["outcome"]))
     if r["shape_initial"] and r["shape_final"]:
         progress(f"Chamfer {r['shape_initial']['chamfer_cm']:.2f} cm -> "
                  f"{r['shape_final']['chamfer_cm']:.2f} cm; wall {r['wall_seconds']:.0f} s")
     return files, str(r["status"])
+
+
+def OutcomeLine(outcome: dict) -> str:
+    """The outcome as one line for the terminal (floats to 3 decimals; the
+    full values are in ``outcome.json`` / ``episode.json``)."""
+    return "outcome: " + ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
+                                   for k, v in outcome.items())
 
 
 # ------------------------------------------------------------------ replay

@@ -16,3 +16,20 @@ def test_trimesh_short_sample_notes_are_dropped_other_messages_pass(caplog):
     msgs = [r.getMessage() for r in caplog.records]
     assert "another note" in msgs
     assert not any(m.startswith("only got") for m in msgs), msgs
+
+
+def test_meshcat_note_on_the_deformable_leaf_is_dropped_other_drake_messages_pass(caplog):
+    """The plant station with Meshcat, initialised: Drake's "only supports
+    Mesh/Convex ... .obj" note about the FEM leaf's .vtk does not reach the
+    user; another Drake warning does."""
+    from pydrake.geometry import Meshcat
+    from pydrake.systems.analysis import Simulator
+    from lmap_drake.plants.world import MakePlantStation
+    from lmap_drake.scenario import LoadDefaultScenario
+    with caplog.at_level(logging.WARNING):
+        station = MakePlantStation(LoadDefaultScenario(), Meshcat())
+        Simulator(station).Initialize()
+        logging.getLogger("drake").warning("another drake note")
+    msgs = [r.getMessage() for r in caplog.records]
+    assert "another drake note" in msgs
+    assert not any("Mesh/Convex" in m for m in msgs), msgs

@@ -653,7 +653,7 @@ class ArmController(LeafSystem):
         st.replan_log = st.replan_log + [f"{plan.status}: {plan.message}"]
         st.replan_results = st.replan_results + [plan]
         if plan.status != "ok":
-            self.progress(f"no further motion: {plan.status}: {plan.message}")
+            self.progress(f"no further motion: {plan.message or plan.status}")
             return False
         a = plan.chosen.action
         try:
