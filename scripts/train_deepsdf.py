@@ -79,20 +79,13 @@ from lmap_drake.plants.pepper import (FAMILY_VERSION, MakePepper, SamplePepperSh
                                       SampleWidePepperShape)
 from lmap_drake.shape import deepsdf
 
-MESH_SUFFIXES = (".obj", ".ply", ".stl")
 CUBE_MARGIN = 0.005     # m: a scan must fit inside the training cube with this margin
 
 
 def ScanFiles(folder) -> list[Path]:
     """The fruit meshes of ``folder`` (sorted; ``*.peduncle.*`` skipped)."""
-    d = Path(folder)
-    if not d.is_dir():
-        raise InputError(f"--meshes {folder}: not a folder")
-    files = sorted(f for f in d.iterdir() if f.suffix.lower() in MESH_SUFFIXES
-                   and not f.stem.endswith(".peduncle"))
-    if not files:
-        raise InputError(f"--meshes {folder} holds no .obj, .ply or .stl mesh")
-    return files
+    from lmap_drake.plants.fruit_mesh import FruitMeshFolder
+    return [f for f, _ in FruitMeshFolder(folder, "--meshes").values()]
 
 
 def LoadScans(files, scale: float = 1.0) -> list:
