@@ -248,7 +248,7 @@ def main(argv=None):
     if a.iterations:
         P.iterations = a.iterations
     seeds = [int(x) for x in a.seeds.split(",")]
-    rows, source, skipped = [], None, []
+    rows, skipped = [], []
     t_all = time.time()
     from lmap_drake.evaluation.progress import Progress
     out = Path(a.out)
