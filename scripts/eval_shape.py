@@ -110,13 +110,11 @@ def CentreOffsetCm(est, case, sem) -> dict:
     ray from the camera to the true centre (``center_depth_cm``, + = too
     far), the world vertical across it (``center_up_cm``, + = too high)
     and the rest (``center_side_cm``, unsigned)."""
+    from lmap_drake.evaluation.figures import ShapeViewAxes
     from lmap_drake.shape.metrics import MeshCentroid
     c_true = MeshCentroid(case.gt_vertices_W, case.gt_faces)
     off = (MeshCentroid(est.vertices_W, est.faces) - c_true) * 100.0
-    ray = c_true - np.asarray(sem.X_WC, float)[:3, 3]
-    ray /= np.linalg.norm(ray)
-    up = np.array([0.0, 0.0, 1.0]) - ray[2] * ray
-    up /= np.linalg.norm(up)
+    ray, up, _ = ShapeViewAxes(sem.X_WC, c_true)
     depth, height = float(off @ ray), float(off @ up)
     side = float(np.linalg.norm(off - depth * ray - height * up))
     return dict(center_depth_cm=depth, center_up_cm=height, center_side_cm=side)

@@ -351,6 +351,7 @@ def SavePlantFigure(result, out: Path) -> list[str]:
 
 # Outline colours of the shape-completion methods (``ShapeCaseFigure``).
 METHOD_COLORS = {"supeps": "tab:purple", "homa": "tab:blue", "ssc": "tab:red"}
+NAME_OF_METHOD = {"supeps": "SupEps", "homa": "HoMa-style", "ssc": "SSC"}
 
 
 def ShapeViewAxes(X_WC: np.ndarray, center_W: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -427,6 +428,3 @@ def ShapeCaseFigure(semantic, gt_vertices_W: np.ndarray, gt_center_W: np.ndarray
                title_fontsize=8)
     fig.savefig(path, dpi=90, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)
-
-
-NAME_OF_METHOD = {"supeps": "SupEps", "homa": "HoMa-style", "ssc": "SSC"}

@@ -71,6 +71,13 @@ class FruitMesh:
     def volume(self) -> float:
         return float(self.mesh.volume)
 
+    def AsPepper(self):
+        """The ``plants.pepper.Pepper`` the plant generators place (no
+        procedural shape; the stalk mesh, if any, as its curved peduncle)."""
+        from lmap_drake.plants.pepper import Pepper
+        return Pepper(mesh=self.mesh, p_O_peduncle=self.p_O_peduncle, shape=None,
+                      peduncle=self.peduncle, p_O_peduncle_tip=self.p_O_peduncle_tip)
+
 
 def ResolveMeshPath(name: str) -> Path:
     """An absolute path, or one relative to the current directory, else to

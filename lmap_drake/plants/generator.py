@@ -18,7 +18,7 @@ import trimesh
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape,
                                     OrientTets, TriangulateLeaf, HalfWidth)
 from lmap_drake.errors import InputError
-from lmap_drake.plants.pepper import MakePepper, Pepper, PepperShapeOf
+from lmap_drake.plants.pepper import MakePepper, PepperShapeOf
 
 # A generated plant's occlusion (ray cast from camera0) may differ from the
 # requested ``plant_scene.occlusion`` by at most OCCLUSION_TOLERANCE. When
@@ -248,7 +248,7 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     if fr.mesh_file:
         from lmap_drake.plants.fruit_mesh import LoadFruitMeshOf
         file_fruit = LoadFruitMeshOf(fr)
-        pepper = Pepper(mesh=file_fruit.mesh, p_O_peduncle=file_fruit.p_O_peduncle, shape=None)
+        pepper = file_fruit.AsPepper()
     else:
         pepper = MakePepper(PepperShapeOf(fr))
     tilt_axis = _rot_about([0, 0, 1], np.deg2rad(fr.tilt_azimuth_deg)) @ d_fwd
@@ -269,10 +269,7 @@ def GeneratePlant(cfg, p_WC: np.ndarray) -> PlantModel:
     top = center + R_WO @ pepper.p_O_peduncle
     tip = top + axis * fr.peduncle_length
     peduncle_W = None
-    if file_fruit is not None and file_fruit.peduncle is not None:
-        peduncle_W = file_fruit.peduncle.copy().apply_transform(X_WO)
-        tip = center + R_WO @ file_fruit.p_O_peduncle_tip
-    elif pepper.peduncle is not None:       # a procedural curved peduncle
+    if pepper.peduncle is not None:         # a curved peduncle: procedural or a file's
         peduncle_W = pepper.peduncle.copy().apply_transform(X_WO)
         tip = center + R_WO @ pepper.p_O_peduncle_tip
     top_W = float(branch[-1, 2])

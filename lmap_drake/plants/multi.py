@@ -27,7 +27,7 @@ from lmap_drake.plants.generator import (OCCLUSION_CLAMP, OCCLUSION_TOLERANCE, S
                                          _leaf_vertices, _rot_about, _unit)
 from lmap_drake.plants.leaf import (BoundaryTriangles, ExtrudeToTets, LeafShape, OrientTets,
                                     TriangulateLeaf)
-from lmap_drake.plants.pepper import MakePepper, Pepper, PepperShapeOf
+from lmap_drake.plants.pepper import MakePepper, PepperShapeOf
 
 MAX_FRUITS, MIN_FRUITS = 4, 2
 MAX_LEAVES, MIN_LEAVES = 6, 2
@@ -331,9 +331,7 @@ def _PlaceFruit(fc, i: int, stem: np.ndarray, base, d_fwd, e_lat, stem_radius, s
     file_fruit = None
     if fr.mesh_file:
         file_fruit = FileFruit(fr, f"plant_scene.multi.fruits[{i}].fruit")
-        pepper = Pepper(mesh=file_fruit.mesh, p_O_peduncle=file_fruit.p_O_peduncle, shape=None,
-                        peduncle=file_fruit.peduncle,
-                        p_O_peduncle_tip=file_fruit.p_O_peduncle_tip)
+        pepper = file_fruit.AsPepper()
     else:
         pepper = MakePepper(PepperShapeOf(fr))
     side = 1.0 if fc.side > 0 else -1.0
