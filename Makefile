@@ -1,6 +1,7 @@
 # Two commands for a fresh machine (Debian/Ubuntu, Python 3.11):
 #   make run    one simulated episode on the default scenario (output in out/<timestamp>-<random>/)
 #   make test   the test suite
+#   make docs   the documentation site (mkdocs build --strict into site/)
 # Both install what they need on first use: system libraries through apt
 # (sudo if not root) and a virtualenv in .venv with the package in editable mode.
 PYTHON ?= python3
@@ -10,13 +11,16 @@ SYSTEM_LIBS := libusb-1.0-0 libegl1 libegl-mesa0 libgl1-mesa-dri graphviz
 ARGS ?=
 PYTEST_ARGS ?=
 
-.PHONY: run test setup system-deps clean
+.PHONY: run test docs setup system-deps clean
 
 run: $(STAMP)
 	$(VENV)/bin/lmap-drake run $(ARGS)
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q $(PYTEST_ARGS)
+
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/python -m mkdocs build --strict
 
 setup: $(STAMP)
 
@@ -37,4 +41,4 @@ system-deps:
 	fi
 
 clean:
-	rm -rf $(VENV) *.egg-info out
+	rm -rf $(VENV) *.egg-info out site
