@@ -186,10 +186,14 @@ def _Mention(doc: str, name: str) -> str:
     if not doc:
         return ""
     pattern = re.compile(r"``" + re.escape(name) + r"``|``[^`]*\b" + re.escape(name) + r"\b[^`]*``")
-    for para in re.split(r"\n\s*\n", doc):
-        flat = " ".join(para.split())
-        for sentence in _SENTENCE.split(flat):
-            if pattern.search(sentence):
+    sentences = [s for para in re.split(r"\n\s*\n", doc)
+                 for s in _SENTENCE.split(" ".join(para.split()))]
+    for sentence in sentences:
+        if pattern.search(sentence):
+            return sentence
+    for sentence in sentences:          # a family: ``branch_*``, ``peduncle_*``
+        for prefix in re.findall(r"``(\w+)\*``", sentence):
+            if name.startswith(prefix):
                 return sentence
     return ""
 
@@ -241,7 +245,8 @@ def WalkScenario():
         for f in cls.__fields__:
             value = getattr(instance, f.name)
             key = f"{path}.{f.name}"
-            if not add(section, key, f.type, value, "", cls.__name__):
+            doc = (getattr(getattr(cls, f.name, None), "__doc__", "") or "").split("\n\n")[0]
+            if not add(section, key, f.type, value, _Rst(" ".join(doc.split())), cls.__name__):
                 children.append((key, f.type, value))
         for key, t, value in children:
             recurse(key, t, value)
@@ -369,6 +374,12 @@ class _Parser(BaseException):
 def CliParser() -> argparse.ArgumentParser:
     """The ``lmap-drake`` parser, caught at ``parse_args`` (nothing runs)."""
     from lmap_drake import cli
+    for name in ("BuildParser", "MakeParser", "Parser"):   # a builder, if the CLI has one
+        build = getattr(cli, name, None)
+        if callable(build):
+            parser = build()
+            if isinstance(parser, argparse.ArgumentParser):
+                return parser
     caught = []
     original = argparse.ArgumentParser.parse_args
 
