@@ -2,6 +2,8 @@
 scenario reference generated from the config dataclasses that lists every
 key a scenario has."""
 import importlib.util
+import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -72,6 +74,11 @@ def test_readme_is_at_most_200_lines():
     text = "\n".join(lines)
     for command in ("make run", "make test"):
         assert command in text
+    links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    local = [link for link in links if "://" not in link]
+    assert local, "the README links into docs/"
+    for link in local:
+        assert (REPO / link).exists(), link
 
 
 @pytest.mark.parametrize("make", [Scenario, LoadDefaultScenario],
@@ -116,7 +123,7 @@ def test_mkdocs_build_strict(tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
         cwd=REPO, capture_output=True, text=True, timeout=600,
-        env={**__import__("os").environ, "NO_MKDOCS_2_WARNING": "1"})
+        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
     assert result.returncode == 0, result.stdout + result.stderr
     for page in ("reference/scenario", "reference/cli", "reference/file-formats",
                  "tutorials/first-episode", "how-to/hardware-bring-up",
