@@ -31,12 +31,18 @@ import re
 import sys
 import textwrap
 import tokenize
+import types
 import typing
 from pathlib import Path
+
+import numpy as np
+from pydrake.math import RollPitchYaw
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 if str(REPO_ROOT) not in sys.path:          # the checkout being documented
     sys.path.insert(0, str(REPO_ROOT))
+
+from lmap_drake import cli, scenario as scenario_module  # noqa: E402  (after the path)
 
 # Drake value types: shown as one key (their YAML spelling is in the table).
 _VALUE_TYPES = {"Transform": "`{translation: [x, y, z], rotation: !Rpy {deg: [r, p, y]}, "
@@ -72,7 +78,6 @@ def _TypeName(t) -> str:
         args = typing.get_args(t)
         return " | ".join(_TypeName(a) for a in args)
     try:
-        import types
         if isinstance(t, types.UnionType):
             return " | ".join(_TypeName(a) for a in typing.get_args(t))
     except AttributeError:
@@ -117,8 +122,6 @@ def _Default(v) -> str:
         return f"rgba {[round(x, 3) for x in (v.r(), v.g(), v.b(), v.a())]}"
     if name == "Transform":
         try:
-            import numpy as np
-            from pydrake.math import RollPitchYaw
             X = v.GetDeterministicValue()
             rpy = np.rad2deg(RollPitchYaw(X.rotation()).vector())
             base = f", base_frame {v.base_frame}" if v.base_frame else ""
@@ -212,7 +215,6 @@ def _Cell(text: str) -> str:
 def WalkScenario():
     """Walks ``Scenario`` from its type hints. Returns the sections met, in
     order; every leaf key belongs to exactly one."""
-    from lmap_drake import scenario as scenario_module
     Scenario = scenario_module.Scenario
     sections: list[Section] = []
     seen: set[str] = set()
@@ -373,7 +375,6 @@ class _Parser(BaseException):
 
 def CliParser() -> argparse.ArgumentParser:
     """The ``lmap-drake`` parser, caught at ``parse_args`` (nothing runs)."""
-    from lmap_drake import cli
     for name in ("BuildParser", "MakeParser", "Parser"):   # a builder, if the CLI has one
         build = getattr(cli, name, None)
         if callable(build):
