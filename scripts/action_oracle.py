@@ -17,7 +17,7 @@ import sys
 from lmap_drake.studies.action_oracle import SUITE, RunOracle
 
 
-def main() -> int:
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, help="JSON file to write")
@@ -26,7 +26,7 @@ def main() -> int:
     p.add_argument("--top", type=int, default=6, help="candidates executed per scene")
     p.add_argument("--energy_weight", type=float, default=1.0)
     p.add_argument("--workers", type=int, default=2)
-    a = p.parse_args()
+    a = p.parse_args(argv)
     return RunOracle(**vars(a))
 
 
