@@ -970,7 +970,7 @@ def _bad_scalars(schema, data, path: str) -> list[str]:
     return []
 
 
-def _RawYaml(text: str, where: str = "the YAML text"):
+def RawYaml(text: str, where: str = "the YAML text"):
     """Plain-YAML parse that keeps Drake's tagged values (``!Rpy``) as maps.
     A duplicate key or malformed YAML raises ScenarioError naming ``where``
     (Drake's loader would silently keep the last duplicate)."""
@@ -1060,7 +1060,7 @@ def LoadScenario(*, filename: str | Path | None = None,
     if filename is not None:
         path = Path(filename)
         text = _ReadScenarioFile(path)
-        raw_all = _RawYaml(text, str(path))
+        raw_all = RawYaml(text, str(path))
         if raw_all is None:
             raw_all = {}
         if not isinstance(raw_all, dict):
@@ -1089,7 +1089,7 @@ def LoadScenario(*, filename: str | Path | None = None,
     for text in texts:
         if IsEmptyOverride(text):
             continue
-        raw = _RawYaml(text, "--scenario_text")
+        raw = RawYaml(text, "--scenario_text")
         if not isinstance(raw, dict):
             raise ScenarioError(f"--scenario_text must be a YAML map such as "
                                 f"\"{{planner: {{energy_weight: 0.5}}}}\", got {text!r}")

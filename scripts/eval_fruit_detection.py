@@ -11,65 +11,16 @@ instances kept, the true fruits seen and the phantoms.
     python scripts/eval_fruit_detection.py --scenario_file diagrams/multi_suite.yaml \\
         --out out/fruit_detection.json
 
-The planner takes instances of ``shape.min_fruit_points`` (20) points or
-more after DBSCAN with ``perception.dbscan_min_points`` (15): a fruit 5-12 %
-visible can show as a sliver beside its leaf that segnet labels fruit but
-that keeps few points (the defaults were 30 and 30 before this study).
-
-Writes JSON: ``{"settings": [{"dbscan_min_points", "min_instance_points",
-"instances", "fruits_seen", "phantoms", "fruits"}], "plants": {name:
-{"fruits": N, "instances": {dbscan_min_points: [{"points", "fruit",
-"on_fruit"}]}}}}``.
+The study is ``lmap_drake.studies.fruit_detection`` (the JSON it writes,
+why the planner's thresholds are what they are).
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses as dc
-import json
 import sys
-from pathlib import Path
 
-import numpy as np
-
-
-def MatchInstances(points_W: np.ndarray, instance: np.ndarray, fruit_trees: list,
-                   on_fruit: float = 0.006) -> list[dict]:
-    """Every instance id >= 0 of ``points_W`` (N, 3) m: its point count, the
-    true fruit whose surface its points are nearest (median distance;
-    ``fruit_trees`` are KD-trees of surface samples, one per fruit) and the
-    fraction of its points within ``on_fruit`` (m) of that surface."""
-    points_W, instance = np.asarray(points_W, float), np.asarray(instance)
-    out = []
-    if not len(fruit_trees):
-        return [{"points": int((instance == i).sum()), "fruit": None, "on_fruit": 0.0}
-                for i in np.unique(instance[instance >= 0])]
-    for i in np.unique(instance[instance >= 0]):
-        P = points_W[instance == i]
-        D = np.stack([t.query(P)[0] for t in fruit_trees])
-        best = int(np.argmin(np.median(D, axis=1)))
-        out.append({"points": int(len(P)), "fruit": best,
-                    "on_fruit": round(float(np.mean(D[best] < on_fruit)), 3)})
-    return out
-
-
-def Summarize(plants: dict, dbscan_values: list[int], thresholds: list[int]) -> list[dict]:
-    """Per (DBSCAN min_points, smallest instance) pair: instances kept, true
-    fruits seen (by an instance mostly on them), phantoms, and all fruits."""
-    rows = []
-    for mp in dbscan_values:
-        for thr in thresholds:
-            inst = seen = phantoms = fruits = 0
-            for plant in plants.values():
-                fruits += plant["fruits"]
-                kept = [r for r in plant["instances"][str(mp)] if r["points"] >= thr]
-                inst += len(kept)
-                real = {r["fruit"] for r in kept if r["on_fruit"] >= 0.5}
-                seen += len(real)
-                phantoms += sum(r["on_fruit"] < 0.5 for r in kept)
-            rows.append({"dbscan_min_points": mp, "min_instance_points": thr,
-                         "instances": inst, "fruits_seen": seen, "phantoms": phantoms,
-                         "fruits": fruits})
-    return rows
+from lmap_drake.errors import InputError
+from lmap_drake.studies.fruit_detection import EvalFruitDetection
 
 
 def main(argv=None) -> int:
@@ -85,57 +36,11 @@ def main(argv=None) -> int:
                     help="simulated seconds before rendering (the FEM leaves settle)")
     ap.add_argument("--out", required=True, help="output JSON file")
     args = ap.parse_args(argv)
-    files = [Path(f) for f in args.scenario_file]
-    for f in files:
-        if not f.is_file():
-            print(f"eval_fruit_detection: error: --scenario_file {f} does not exist",
-                  file=sys.stderr)
-            return 2
-    if min(args.dbscan_min_points + args.min_instance_points) < 1 or args.on_fruit <= 0:
-        print("eval_fruit_detection: error: --dbscan_min_points and --min_instance_points "
-              "must be >= 1, --on_fruit > 0", file=sys.stderr)
+    try:
+        EvalFruitDetection(**vars(args))
+    except InputError as err:
+        print(f"eval_fruit_detection: error: {err}", file=sys.stderr)
         return 2
-    from lmap_drake.shape.benchmark import SuiteScenarioNames
-    jobs = [(f, n) for f in files for n in SuiteScenarioNames(f)
-            if not args.scenario_names or n in args.scenario_names]
-    if not jobs:
-        print("eval_fruit_detection: error: no scenario selected", file=sys.stderr)
-        return 2
-
-    import trimesh
-    from scipy.spatial import cKDTree
-    from tqdm import tqdm
-
-    from lmap_drake.perception.observe import SemanticSceneFromImages
-    from lmap_drake.plants.world import GetPlantModel, RenderStill
-    from lmap_drake.scenario import LoadScenario
-
-    plants = {}
-    for f, name in tqdm(jobs, desc="eval_fruit_detection", unit="plant", file=sys.stderr):
-        s = LoadScenario(filename=str(f), scenario_name=name, scenario_text=[])
-        model = GetPlantModel(s)
-        meshes = [fr.mesh_W for fr in getattr(model, "fruits", [])] or [model.fruit_mesh_W]
-        trees = [cKDTree(trimesh.sample.sample_surface_even(m, 20000, seed=0)[0])
-                 for m in meshes]
-        rgb, depth, label = RenderStill(s, args.settle)
-        row = {"fruits": len(meshes), "instances": {}}
-        for mp in args.dbscan_min_points:
-            cfg = dc.replace(s.perception, dbscan_min_points=mp)
-            sem = SemanticSceneFromImages(rgb, depth, label, s.cameras["camera0"], cfg)
-            row["instances"][str(mp)] = MatchInstances(sem.fruit_points_W, sem.fruit_instance,
-                                                       trees, args.on_fruit)
-        plants[name] = row
-    settings = Summarize(plants, args.dbscan_min_points, args.min_instance_points)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(out.suffix + ".part")
-    tmp.write_text(json.dumps({"settings": settings, "plants": plants}, indent=1))
-    tmp.replace(out)
-    for r in settings:
-        print(f"DBSCAN min_points {r['dbscan_min_points']:3d}, instances >= "
-              f"{r['min_instance_points']:3d} points: {r['fruits_seen']} of {r['fruits']} "
-              f"fruits seen, {r['phantoms']} phantoms ({r['instances']} instances)")
-    print(f"wrote {out}")
     return 0
 
 

@@ -7,115 +7,17 @@ them to ``OUT/recording/``, with the renderer's labels).
     python scripts/eval_held_leaf.py --runs out/*/ --weights old.pt models/segnet/segnet.pt \\
         --out held.json
 
-A view is *held* when the gripper reads under 2 cm open; its held leaf is
-the labelled leaf with the most points within 4 cm of the TCP (the
-episode's scenario gives the robot's base, the view's joints the TCP):
-``systems.planning.HeldLeaf`` on the labelled leaves' points. Per
-weights file: the held leaf's recall (the fraction of its pixels the
-network calls leaf), the recall of every other leaf in held views and of
-every leaf in views without a held leaf, and the fruit IoU per view.
-Views whose images repeat (the same episode run twice) count once.
-
-Writes JSON: ``{weights: {"held_leaf_recall": {median, mean, below_0.5, n},
-"other_leaf_recall": {...}, "rest_leaf_recall": {...}, "fruit_iou": {...},
-"views": [...]}}``.
+The study is ``lmap_drake.studies.held_leaf`` (what a held view is, the
+JSON it writes).
 """
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
-
-HELD_OPENING = 0.02   # m: the gripper reads less than this while it holds a leaf
-
-
-def _summary(x: list[float]) -> dict:
-    a = np.asarray(x, float)
-    if not len(a):
-        return {"n": 0}
-    return {"n": int(len(a)), "median": round(float(np.median(a)), 4),
-            "mean": round(float(a.mean()), 4), "below_0.5": int((a < 0.5).sum())}
-
-
-def _RunViews(run: Path) -> list[dict]:
-    """The labelled views of one episode folder: images, joints, gripper,
-    camera, and its robot model."""
-    from lmap_drake.perception.points import Intrinsics
-    from lmap_drake.perception.recording import LoadRecording
-    from lmap_drake.planning.robot_model import RobotModel
-    from lmap_drake.scenario import LoadScenario
-    rec = LoadRecording(run)
-    c = rec.camera
-    K = Intrinsics(int(c["width"]), int(c["height"]), float(c["fx"]), float(c["fy"]),
-                   float(c["cx"]), float(c["cy"]))
-    scenario = LoadScenario(filename=run / "scenario.yaml", scenario_text=[], bare=True)
-    robot = RobotModel(scenario.robot.X_WB.GetDeterministicValue())
-    out = []
-    for v in rec.views:
-        if v.label is None:
-            continue
-        out.append({"run": str(run), "index": v.index, "rgb": v.rgb, "depth": v.depth,
-                    "label": v.label, "q": v.q, "gripper": v.gripper,
-                    "X_WC": rec.X_WC, "K": K, "robot": robot})
-    return out
-
-
-def _LeafLabels(label: np.ndarray) -> list[int]:
-    from lmap_drake.labels import LEAF, DecodeLabels
-    cls, _ = DecodeLabels(label)
-    return [int(v) for v in np.unique(label[cls == LEAF])]
-
-
-def HeldLeafLabel(view: dict) -> int | None:
-    """The label of the held leaf in ``view`` (None when nothing is held):
-    ``systems.planning.HeldLeaf`` on the labelled leaves' points."""
-    from lmap_drake.perception.points import DeprojectPixels
-    from lmap_drake.systems.planning import HeldLeaf
-    from lmap_drake.types import SemanticScene
-    if float(np.ravel(view["gripper"])[0]) >= HELD_OPENING:
-        return None
-    tcp = view["robot"].TcpPose(np.asarray(view["q"], float)).translation()
-    labels = _LeafLabels(view["label"])
-    pts = [DeprojectPixels(view["depth"], view["label"] == lab, view["K"], view["X_WC"])
-           for lab in labels]
-    held = HeldLeaf(SemanticScene(leaf_points_W=np.vstack(pts + [np.zeros((0, 3))]),
-                                  leaf_instance=np.repeat(labels, [len(x) for x in pts])),
-                    tcp)
-    return None if held < 0 else held
-
-
-def Evaluate(views: list[dict], weights: list[str]) -> dict:
-    from lmap_drake.labels import FRUIT, LEAF
-    from lmap_drake.perception.segmentation import ClassIou, SegNetSegmenter, TruthClassMap
-    held = [HeldLeafLabel(v) for v in views]
-    res = {}
-    for w in weights:
-        seg = SegNetSegmenter(views[0]["K"], w)
-        rows, hl, ol, rl, fi = [], [], [], [], []
-        for v, h in zip(views, held):
-            cls = seg.Segment(v["rgb"], v["depth"]).class_map
-            truth = TruthClassMap(v["label"])
-            row = {"run": v["run"], "view": v["index"], "held_leaf": h, "leaves": {}}
-            for lab in _LeafLabels(v["label"]):
-                mask = v["label"] == lab
-                if mask.sum() < 200:
-                    continue
-                r = float((cls[mask] == LEAF).mean())
-                row["leaves"][int(lab)] = round(r, 4)
-                (hl if h == int(lab) else ol if h is not None else rl).append(r)
-            iou = ClassIou(cls, truth, FRUIT)
-            if np.isfinite(iou):
-                row["fruit_iou"] = round(float(iou), 4)
-                fi.append(float(iou))
-            rows.append(row)
-        res[w] = {"held_leaf_recall": _summary(hl), "other_leaf_recall": _summary(ol),
-                  "rest_leaf_recall": _summary(rl), "fruit_iou": _summary(fi), "views": rows}
-    return res
+from lmap_drake.errors import InputError
+from lmap_drake.studies.held_leaf import EvalHeldLeaf
 
 
 def main(argv=None) -> int:
@@ -126,51 +28,14 @@ def main(argv=None) -> int:
                     help="segnet weights files (default: the shipped one)")
     ap.add_argument("--out", required=True, type=Path, help="output JSON file")
     a = ap.parse_args(argv)
-    from lmap_drake.scenario import PerceptionConfig
-    from lmap_drake.paths import REPO_ROOT
-    weights = a.weights or [str(REPO_ROOT / PerceptionConfig().segnet_weights)]
-    for w in weights:
-        if not Path(w).is_file():
-            print(f"error: --weights: no such file: {w}", file=sys.stderr)
-            return 2
-    runs = [r for r in a.runs if (r / "recording" / "recording.json").is_file()]
-    for r in a.runs:
-        if r not in runs:
-            print(f"note: {r}: no recording/recording.json, skipped", file=sys.stderr)
-    if not runs:
-        print("error: --runs: no folder with a recording", file=sys.stderr)
+    try:
+        EvalHeldLeaf(a.runs, a.weights, a.out)
+    except InputError as err:
+        print(f"error: {err}", file=sys.stderr)
         return 2
-    t0 = time.time()
-    views, seen = [], set()
-    for r in runs:
-        for v in _RunViews(r):
-            key = hashlib.sha1(np.ascontiguousarray(v["rgb"]).tobytes()).digest()
-            if key not in seen:
-                seen.add(key)
-                views.append(v)
-    if not views:
-        print("error: the recordings hold no labelled views (hardware recordings have no "
-              "labels)", file=sys.stderr)
-        return 2
-    res = Evaluate(views, weights)
-    res["meta"] = {"runs": [str(r) for r in runs], "views": len(views),
-                   "held_views": sum(1 for row in next(iter(res.values()))["views"]
-                                     if row["held_leaf"] is not None),
-                   "seconds": round(time.time() - t0, 1)}
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = a.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(res, indent=1))
-    tmp.replace(a.out)
-    for w in weights:
-        s = res[w]
-        print(f"{w}: held leaf recall {s['held_leaf_recall']}; other leaves in held views "
-              f"{s['other_leaf_recall']}; leaves without a held one {s['rest_leaf_recall']}; "
-              f"fruit IoU {s['fruit_iou']}")
-    print(f"{res['meta']['views']} views ({res['meta']['held_views']} held) -> {a.out}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from lmap_drake.errors import RunMain
     sys.exit(RunMain(main, prog="eval_held_leaf.py", strip_debug=True))

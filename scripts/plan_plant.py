@@ -40,7 +40,7 @@ def PlanScene(s, quiet: bool = True) -> dict:
     from lmap_drake.shape.completion import CompletePlant
     from lmap_drake.shape.deepsdf import LoadDecoder
     from lmap_drake.shape.ssc import SscParams
-    from lmap_drake.systems.planning import _ImageTangents
+    from lmap_drake.systems.planning import ImageTangents
     from lmap_drake.systems.shape_completion import BranchParamsFromConfig
     world = PlantWorldSim(s)
     world.Hold(0.3)
@@ -55,7 +55,7 @@ def PlanScene(s, quiet: bool = True) -> dict:
                           min_fruit_points=s.shape.min_fruit_points)
     t_shape = time.perf_counter() - t0
     X_WC = s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
-    tan = _ImageTangents(s)
+    tan = ImageTangents(s)
     robot = RobotModel(s.robot.X_WB.GetDeterministicValue())
     order, occ = FruitOrder(plant, X_WC, s.planner, tan)
     gt = world.model.fruits if hasattr(world.model, "fruits") else []

@@ -173,7 +173,7 @@ def _EvalEntry(spec: dict, suite_file) -> dict:
                 base_scenario_text=spec.get("scenario_text", "{}"))
 
 
-def _json_default(x):
+def JsonDefault(x):
     try:
         return float(x)
     except Exception:
@@ -260,7 +260,7 @@ def _RunGroups(groups: list[tuple[Path, list[dict]]], suite_file: str | Path,
             if log not in logs:
                 logs[log] = stack.enter_context(open(log, "a"))
             f = logs[log]
-            f.write(json.dumps(rec, default=_json_default) + "\n")
+            f.write(json.dumps(rec, default=JsonDefault) + "\n")
             f.flush()
             os.fsync(f.fileno())
             if rec.get("status") == "error":

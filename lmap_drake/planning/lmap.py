@@ -666,7 +666,7 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     angles = np.deg2rad(np.asarray(cfg.arc_angles_deg, float))
     failed = []
     for g in grasps:
-        actions = _GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
+        actions = GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
         cands = _IkAndRobotChecks(ctx, g, cfg, actions)
         if all(c.approach is None for c in cands):
             failed.append((g, actions))
@@ -730,7 +730,7 @@ def _SecondChanceGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: Candidate
     for g in near:
         if g.grasp_id in tried:
             continue
-        actions = _GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
+        actions = GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
         cands = _IkAndRobotChecks(ctx, g, cfg, actions)
         out.candidates += cands
         out.dropped_grasps = [d for d in out.dropped_grasps if d["grasp_id"] != g.grasp_id]
@@ -789,7 +789,7 @@ def _DeeperGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: CandidateSet,
             continue
         for g in deep:
             g = Grasp(g.p_WG, g.R_WG, DEEPER_GRASP_IDS * (k + 1) + g.grasp_id)
-            actions = _GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
+            actions = GraspActions(ctx, cfg, g, pivot, angles, all_dirs)
             cands = _FirstApproach(ctx, cfg, g, actions, [g.R_WG] + GraspAlternatives(g.R_WG),
                                    [None] + _AlternativeLabels())
             out.candidates += cands or []
@@ -852,7 +852,7 @@ def PullDistances(cfg: PlannerConfig, p_WG: np.ndarray, hinge_W: np.ndarray | No
     return ds
 
 
-def _GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all_dirs
+def GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all_dirs
                   ) -> list[Action]:
     """Every configured motion (pulls, arcs, twists) from grasp ``g``."""
     actions = []

@@ -202,8 +202,8 @@ def _closest(mesh: trimesh.Trimesh, points) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _ray_hit(mesh: trimesh.Trimesh, origin, direction) -> float:
-    from lmap_drake.plants.pepper import _RayHitDistance
-    return _RayHitDistance(mesh, np.asarray(origin, float), np.asarray(direction, float))
+    from lmap_drake.plants.pepper import RayHitDistance
+    return RayHitDistance(mesh, np.asarray(origin, float), np.asarray(direction, float))
 
 
 def _LoadFruitMesh(mesh_file: str, peduncle_file: str, scale: float,

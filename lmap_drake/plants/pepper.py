@@ -177,7 +177,7 @@ def _cone(v: np.ndarray, s: PepperShape) -> np.ndarray:
     return out
 
 
-def _RayHitDistance(mesh: trimesh.Trimesh, origin, direction) -> float:
+def RayHitDistance(mesh: trimesh.Trimesh, origin, direction) -> float:
     """Distance (m) along the ray to the first hit with ``mesh`` (inf if none)."""
     import open3d as o3d
     scene = o3d.t.geometry.RaycastingScene()
@@ -212,7 +212,7 @@ def MakePepper(shape: PepperShape, subdivisions: int = 4) -> Pepper:
     # The attachment point is where the +z axis through the centroid leaves
     # the surface (the centroid may be slightly off-axis with asymmetry).
     p = np.array([0.0, 0.0, top[2] - com[2]])
-    t_hit = _RayHitDistance(mesh, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    t_hit = RayHitDistance(mesh, np.zeros(3), np.array([0.0, 0.0, 1.0]))
     if np.isfinite(t_hit):
         p = np.array([0.0, 0.0, t_hit])
     return _WithPeduncle(Pepper(mesh=mesh, p_O_peduncle=np.asarray(p, float), shape=shape))

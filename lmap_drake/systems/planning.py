@@ -77,7 +77,7 @@ def _ScenarioCameraPose(scenario: Scenario) -> np.ndarray:
     return scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
 
 
-def _ImageTangents(scenario: Scenario) -> tuple:
+def ImageTangents(scenario: Scenario) -> tuple:
     """camera0's image extent as tangents (x_min, x_max, y_min, y_max)."""
     c = scenario.cameras["camera0"]
     fx, fy = c.focal_x(), c.focal_y()
@@ -97,7 +97,7 @@ class ActionCandidates(LeafSystem):
         self._scenario = scenario
         self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
         self._X_WC = _ScenarioCameraPose(scenario)
-        self._image_tan = _ImageTangents(scenario)
+        self._image_tan = ImageTangents(scenario)
         self.DeclareAbstractInputPort(
             "scene_estimate", AbstractValue.Make(SceneEstimate(semantic=SemanticScene())))
         self.DeclareVectorInputPort("ur5.position", 6)
@@ -372,7 +372,7 @@ class PlantPlanning(LeafSystem):
         self._scenario = scenario
         self._robot = robot or RobotModel(scenario.robot.X_WB.GetDeterministicValue())
         self._X_WC = _ScenarioCameraPose(scenario)
-        self._image_tan = _ImageTangents(scenario)
+        self._image_tan = ImageTangents(scenario)
         self._plant = self.DeclareAbstractInputPort(
             "plant_estimate", AbstractValue.Make(PlantEstimate(SemanticScene())))
         self._q = self.DeclareVectorInputPort("ur5.position", 6)

@@ -98,17 +98,16 @@ def test_segnet_finds_the_fruit_on_the_noisy_camera(color):
 def test_segnet_sees_a_leaf_the_gripper_holds_turned(kind, twist, arc):
     """The default plant's leaf, held by the closed gripper at one of the
     planner's grasp points and turned about its attachment as a twist (or
-    an arc and a twist) leaves it (``make_segnet_data.HeldLeaf``), rendered
+    an arc and a twist) leaves it (``studies.segnet_data.HeldLeaf``), rendered
     with the default noisy camera: the network calls most of the leaf leaf,
     and little of it fruit. (The weights before the held-leaf renders: 48 %
     and 16 % leaf, 52 % and 16 % fruit; in recorded episodes a re-plan from
     the held leaf then found no leaf at the grasp.)"""
-    import runpy
     from lmap_drake.labels import DecodeLabels
     from lmap_drake.plants.world import RenderStill
-    maker = runpy.run_path(str(REPO_ROOT / "scripts" / "make_segnet_data.py"), run_name="msd")
+    from lmap_drake.studies.segnet_data import HeldLeaf
     s = LoadScenario(filename=REPO_ROOT / "diagrams" / "default.yaml")
-    held = maker["HeldLeaf"](s, np.random.default_rng(0), kind=kind, twist_deg=twist,
+    held = HeldLeaf(s, np.random.default_rng(0), kind=kind, twist_deg=twist,
                              arc_deg=arc, pull_m=0.01)
     rgb, depth, label = RenderStill(s, leaf_positions=held)
     cls, _ = DecodeLabels(label)

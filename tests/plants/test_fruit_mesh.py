@@ -2,7 +2,6 @@
 places them like the procedural pepper, ground truth comes from the mesh,
 and bad files are refused at load naming the key and the file."""
 import json
-import runpy
 from pathlib import Path
 
 import numpy as np
@@ -10,14 +9,14 @@ import pytest
 import trimesh
 
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, REPO_ROOT
+from lmap_drake.plants.pepper_meshes import MakeTestPepper
 from lmap_drake.scenario import LoadScenario, ScenarioError
 
 P_WC = np.array([0.5, -0.6, 0.47])
-_MAKER = runpy.run_path(str(REPO_ROOT / "scripts" / "make_test_peppers.py"), run_name="mtp")
 
 
 def _pepper(tmp_path, kind="blob", seed=3, scale=1.0, ext="obj", peduncle=True):
-    fruit, ped = _MAKER["MakeTestPepper"](kind, np.random.default_rng(seed), peduncle)
+    fruit, ped = MakeTestPepper(kind, np.random.default_rng(seed), peduncle)
     fruit.apply_translation([0.01, -0.02, 0.03])       # the file's origin is ignored
     if ped is not None:
         ped.apply_translation([0.01, -0.02, 0.03])
@@ -82,7 +81,7 @@ def test_file_fruit_renders_with_fruit_and_branch_labels(tmp_path):
 
 def test_small_hole_is_repaired_and_recorded(tmp_path):
     from lmap_drake.plants.fruit_mesh import LoadFruitMesh
-    fruit, _ = _MAKER["MakeTestPepper"]("bent", np.random.default_rng(1), False)
+    fruit, _ = MakeTestPepper("bent", np.random.default_rng(1), False)
     holed = fruit.copy()
     holed.update_faces(np.arange(len(holed.faces)) != 100)    # one triangle missing
     f = tmp_path / "holed.ply"

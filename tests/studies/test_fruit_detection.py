@@ -1,7 +1,6 @@
-"""scripts/eval_fruit_detection.py: fruit instances matched to the true
-fruits, counted per threshold."""
+"""lmap_drake.studies.fruit_detection (scripts/eval_fruit_detection.py):
+fruit instances matched to the true fruits, counted per threshold."""
 import json
-import runpy
 import subprocess
 import sys
 
@@ -9,9 +8,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from lmap_drake.paths import REPO_ROOT
+from lmap_drake.studies.fruit_detection import MatchInstances, Summarize
 
 SCRIPT = REPO_ROOT / "scripts" / "eval_fruit_detection.py"
-_MOD = runpy.run_path(str(SCRIPT), run_name="eval_fruit_detection")
 
 
 def _sphere_points(center, radius, n, rng):
@@ -27,13 +26,13 @@ def test_instances_are_matched_to_their_fruit_or_called_phantoms():
     c = np.c_[np.linspace(0.05, 0.1, 25), np.zeros(25), np.zeros(25)]   # a stalk: no fruit
     P = np.vstack([a, b, c])
     inst = np.r_[np.full(40, 0), np.full(12, 1), np.full(25, 2)]
-    rows = _MOD["MatchInstances"](P, np.r_[inst[:-1], -1], trees)    # one noise point
+    rows = MatchInstances(P, np.r_[inst[:-1], -1], trees)    # one noise point
     assert [r["points"] for r in rows] == [40, 12, 24]
     assert [r["fruit"] for r in rows[:2]] == [1, 0]
     assert rows[0]["on_fruit"] == 1.0 and rows[1]["on_fruit"] == 1.0
     assert rows[2]["on_fruit"] < 0.5                                 # a phantom
     plants = {"p": {"fruits": 2, "instances": {"30": rows}}}
-    (lo, hi) = _MOD["Summarize"](plants, [30], [10, 30])
+    (lo, hi) = Summarize(plants, [30], [10, 30])
     assert (lo["instances"], lo["fruits_seen"], lo["phantoms"]) == (3, 2, 1)
     assert (hi["instances"], hi["fruits_seen"], hi["phantoms"]) == (1, 1, 0)
     assert lo["fruits"] == hi["fruits"] == 2

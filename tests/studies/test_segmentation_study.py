@@ -1,16 +1,15 @@
-"""scripts/eval_segmentation.py writes per-backend, per-scenario IoU JSON."""
+"""lmap_drake.studies.segmentation (scripts/eval_segmentation.py) writes
+per-backend, per-scenario IoU JSON."""
 import json
-import runpy
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+from lmap_drake.paths import REPO_ROOT as REPO
+from lmap_drake.studies.segmentation import EvalSegmentation
 
 
 def test_eval_segmentation_writes_means(tmp_path):
-    mod = runpy.run_path(str(REPO / "scripts" / "eval_segmentation.py"), run_name="eval_seg")
     out = tmp_path / "seg.json"
-    assert mod["main"](["--out", str(out), "--scenario_file", str(REPO / "diagrams/default.yaml"),
-                        "--scenario_names", "Defaults"]) == 0
+    EvalSegmentation(out=str(out), scenario_file=REPO / "diagrams/default.yaml",
+                     scenario_names=["Defaults"])
     res = json.loads(out.read_text())
     assert res["_meta"]["camera"] == "l515"          # the default, noisy camera
     for backend in ("segnet", "color_depth", "label"):

@@ -1,7 +1,6 @@
-"""scripts/train_deepsdf.py on a folder of scans (kept tiny: 2 procedural
-shapes, 3 scans, a few steps)."""
+"""lmap_drake.shape.training (scripts/train_deepsdf.py) on a folder of
+scans (kept tiny: 2 procedural shapes, 3 scans, a few steps)."""
 import json
-import runpy
 import subprocess
 import sys
 import time
@@ -11,16 +10,17 @@ import pytest
 
 from lmap_drake.errors import InputError
 from lmap_drake.paths import REPO_ROOT
+from lmap_drake.plants.pepper_meshes import MakeTestPepper
 from lmap_drake.shape.deepsdf import LoadDecoder
+from lmap_drake.shape.training import DeepSdfTrainingOptions, TrainDeepSdf
 
-_MAKER = runpy.run_path(str(REPO_ROOT / "scripts" / "make_test_peppers.py"), run_name="mtp")
 _SCRIPT = str(REPO_ROOT / "scripts" / "train_deepsdf.py")
 
 
 def _scans(d, n=3, scale=1.0):
     d.mkdir(exist_ok=True)
     for i, kind in enumerate(["sculpted", "bent", "blob"][:n]):
-        fruit, ped = _MAKER["MakeTestPepper"](kind, np.random.default_rng(100 + i), True)
+        fruit, ped = MakeTestPepper(kind, np.random.default_rng(100 + i), True)
         fruit.apply_scale(scale)
         fruit.export(d / f"scan{i}.{['ply', 'stl', 'obj'][i]}")
         ped.export(d / f"scan{i}.peduncle.ply")       # stalks are skipped
@@ -28,17 +28,16 @@ def _scans(d, n=3, scale=1.0):
     return d
 
 
-def _main():
-    return runpy.run_path(_SCRIPT, run_name="train_deepsdf")["main"]
+def _train(**options):
+    TrainDeepSdf(DeepSdfTrainingOptions(**options))
 
 
 def test_train_on_scans_mixed_with_family(tmp_path):
     scans = _scans(tmp_path / "scans")
     out = tmp_path / "w"
-    _main()(["--meshes", str(scans), "--family", "mixed", "--num_shapes", "2",
-             "--samples_per_shape", "1024",
-             "--steps", "80", "--checkpoint_every", "30", "--holdout_scans", "1",
-             "--holdout_family", "1", "--holdout_iterations", "20", "--out_dir", str(out)])
+    _train(meshes=str(scans), family="mixed", num_shapes=2, samples_per_shape=1024,
+           steps=80, checkpoint_every=30, holdout_scans=1, holdout_family=1,
+           holdout_iterations=20, out_dir=str(out))
     s = json.loads((out / "train_summary.json").read_text())
     assert len(s["scans_trained"]) == 2 and len(s["scans_held_out"]) == 1
     assert not set(s["scans_trained"]) & set(s["scans_held_out"])
@@ -55,17 +54,15 @@ def test_train_on_scans_mixed_with_family(tmp_path):
         "mean_latent.npy", "pepper_decoder.pt", "train_summary.json"]
     # Fine-tuning from these weights keeps the architecture.
     out2 = tmp_path / "w2"
-    _main()(["--meshes", str(scans), "--num_shapes", "1", "--samples_per_shape", "512",
-             "--steps", "3", "--holdout_scans", "0", "--holdout_family", "0",
-             "--init", str(out / "pepper_decoder.pt"), "--out_dir", str(out2)])
+    _train(meshes=str(scans), num_shapes=1, samples_per_shape=512, steps=3, holdout_scans=0,
+           holdout_family=0, init=str(out / "pepper_decoder.pt"), out_dir=str(out2))
     assert json.loads((out2 / "train_summary.json").read_text())["heldout"] == {}
     # With held-out shapes, a fine-tune reports the starting weights' error
     # on the same shapes next to its own.
     out3 = tmp_path / "w3"
-    _main()(["--meshes", str(scans), "--num_shapes", "1", "--samples_per_shape", "512",
-             "--steps", "3", "--holdout_scans", "1", "--holdout_family", "1",
-             "--holdout_iterations", "5", "--init", str(out / "pepper_decoder.pt"),
-             "--out_dir", str(out3)])
+    _train(meshes=str(scans), num_shapes=1, samples_per_shape=512, steps=3, holdout_scans=1,
+           holdout_family=1, holdout_iterations=5, init=str(out / "pepper_decoder.pt"),
+           out_dir=str(out3))
     h = json.loads((out3 / "train_summary.json").read_text())["heldout"]
     for kind in ("scans", "family"):
         assert set(h[kind]["init_per_shape_chamfer_cm"]) == set(h[kind]["per_shape_chamfer_cm"])
@@ -76,13 +73,12 @@ def test_bad_scan_stops_before_training_naming_the_file(tmp_path):
     scans = _scans(tmp_path / "mm", n=1, scale=1000.0)        # a file in millimetres
     out = tmp_path / "w"
     with pytest.raises(InputError, match=r"scan0\.ply.*--mesh_scale: 0\.001"):
-        _main()(["--meshes", str(scans), "--num_shapes", "2", "--steps", "2",
-                 "--out_dir", str(out)])
+        _train(meshes=str(scans), num_shapes=2, steps=2, out_dir=str(out))
     assert not out.exists() or not any(out.iterdir())
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(InputError, match="holds no .obj"):
-        _main()(["--meshes", str(empty), "--out_dir", str(out)])
+        _train(meshes=str(empty), out_dir=str(out))
 
 
 def test_checkpoints_and_an_interrupted_run_leave_no_finished_weights(tmp_path):

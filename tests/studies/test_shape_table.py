@@ -1,27 +1,26 @@
-"""scripts/eval_shape.py --fruit_mesh_dir: pepper meshes from a folder in the
-suite's scenes, the usual JSON layout plus per-fruit rows (kept cheap: one
-tiny mesh, one scene, 40 iterations)."""
+"""lmap_drake.studies.shape_table (scripts/eval_shape.py) with
+fruit_mesh_dir: pepper meshes from a folder in the suite's scenes, the
+usual JSON layout plus per-fruit rows (kept cheap: one tiny mesh, one
+scene, 40 iterations)."""
 import json
-import runpy
 
 import numpy as np
 
 from lmap_drake.paths import REPO_ROOT
-
-_MAKER = runpy.run_path(str(REPO_ROOT / "scripts" / "make_test_peppers.py"), run_name="mtp")
+from lmap_drake.plants.pepper_meshes import MakeTestPepper
+from lmap_drake.studies.shape_table import RunShapeTable, ShapeTableOptions
 
 
 def test_eval_shape_on_a_folder_of_meshes(tmp_path):
     d = tmp_path / "peppers"
     d.mkdir()
-    fruit, ped = _MAKER["MakeTestPepper"]("sculpted", np.random.default_rng(2), True)
+    fruit, ped = MakeTestPepper("sculpted", np.random.default_rng(2), True)
     fruit.export(d / "tiny.ply")
     ped.export(d / "tiny.peduncle.ply")
     (d / "notes.txt").write_text("not a mesh")
-    mod = runpy.run_path(str(REPO_ROOT / "scripts" / "eval_shape.py"), run_name="eval_shape")
     out = tmp_path / "shape.json"
-    assert mod["main"](["--fruit_mesh_dir", str(d), "--out", str(out), "--iterations", "40",
-                        "--scenario_names", "small_leaf_thin_branch_round_red_heavy"]) in (0, None)
+    RunShapeTable(ShapeTableOptions(fruit_mesh_dir=str(d), out=str(out), iterations=40,
+                                    scenario_names="small_leaf_thin_branch_round_red_heavy"))
     res = json.loads(out.read_text())
     assert res["source"] == "suite+files" and res["skipped"] == []
     assert set(res["fruits"]) == {"tiny"}
@@ -51,13 +50,12 @@ def test_eval_shape_on_a_folder_of_meshes(tmp_path):
 def test_eval_shape_tables_only_the_conditions_asked_for(tmp_path):
     d = tmp_path / "peppers"
     d.mkdir()
-    fruit, _ = _MAKER["MakeTestPepper"]("blob", np.random.default_rng(3), False)
+    fruit, _ = MakeTestPepper("blob", np.random.default_rng(3), False)
     fruit.export(d / "one.obj")
-    mod = runpy.run_path(str(REPO_ROOT / "scripts" / "eval_shape.py"), run_name="eval_shape")
     out = tmp_path / "shape.json"
-    assert mod["main"](["--fruit_mesh_dir", str(d), "--out", str(out), "--iterations", "20",
-                        "--methods", "ssc", "--conditions", "initial_occlusion", "--figures", "0",
-                        "--scenario_names", "small_leaf_thin_branch_round_red_heavy"]) in (0, None)
+    RunShapeTable(ShapeTableOptions(fruit_mesh_dir=str(d), out=str(out), iterations=20,
+                                    methods="ssc", conditions="initial_occlusion", figures=0,
+                                    scenario_names="small_leaf_thin_branch_round_red_heavy"))
     assert not (tmp_path / "shape_figures").exists()
     md = (tmp_path / "shape.md").read_text()
     assert "| initial occlusion | SSC |" in md
@@ -69,7 +67,7 @@ def test_eval_shape_refuses_a_bad_mesh_before_any_work(tmp_path, capsys):
     import sys
     d = tmp_path / "peppers"
     d.mkdir()
-    fruit, _ = _MAKER["MakeTestPepper"]("bent", np.random.default_rng(0), False)
+    fruit, _ = MakeTestPepper("bent", np.random.default_rng(0), False)
     fruit.apply_scale(1000.0).export(d / "in_mm.stl")
     r = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "eval_shape.py"),
                         "--fruit_mesh_dir", str(d), "--out", str(tmp_path / "s.json")],

@@ -1,0 +1,45 @@
+"""The scripts in ``scripts/`` are thin argparse shells around the package:
+each loads (its package imports resolve) and parses its flags (``--help``
+lists them and exits 0). What they run is tested beside the package code;
+their exit codes where a test runs them (calibrate_energy_cap,
+eval_fruit_detection, eval_shape, eval_held_leaf, train_deepsdf)."""
+import runpy
+
+import pytest
+
+from lmap_drake.paths import REPO_ROOT
+
+SHELLS = {
+    "action_oracle": ["--out", "--scenario_file", "--scenario_names", "--top",
+                      "--energy_weight", "--workers"],
+    "calibrate_energy_cap": ["records", "--out"],
+    "eval_deformation_vs_fem": ["--out", "--scenarios", "--corr_scenarios", "--corr_directions",
+                                "--corr_distances", "--grasp_fallbacks",
+                                "--keep_degenerate_leaf_mesh"],
+    "eval_fruit_detection": ["--scenario_file", "--dbscan_min_points", "--min_instance_points",
+                             "--on_fruit", "--settle", "--out"],
+    "eval_hazard_prediction": ["--out", "--families", "--pool", "--then_twist", "--then_arc",
+                               "--then_turn_band", "--repredict", "--hinge_bending_weight"],
+    "eval_held_leaf": ["--runs", "--weights", "--out"],
+    "eval_segmentation": ["--out", "--scenario_file", "--backends", "--scenarios", "--seed",
+                          "--settle"],
+    "eval_shape": ["--out", "--md", "--methods", "--fruit_mesh_dir", "--conditions",
+                   "--figures"],
+    "make_segnet_data": ["--out", "--count", "--seed", "--workers", "--arm_near_leaf",
+                         "--multi", "--held_leaf"],
+    "make_test_peppers": ["--out", "--count", "--seed", "--kinds", "--no_peduncle"],
+    "train_deepsdf": ["--out_dir", "--family", "--meshes", "--mesh_scale", "--init",
+                      "--time_limit_s"],
+    "train_segnet": ["--data", "--out", "--steps", "--batch", "--init"],
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHELLS))
+def test_script_parses_its_flags(name, capsys):
+    main = runpy.run_path(str(REPO_ROOT / "scripts" / f"{name}.py"), run_name=name)["main"]
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    usage = capsys.readouterr().out
+    for flag in SHELLS[name]:
+        assert flag in usage, (name, flag)
