@@ -89,7 +89,7 @@ def _Advance(world, action, speed: float, hold: float) -> list:
     """Run ``action`` on ``world`` (in place) at the controller's timing,
     then hold; the outcome samples taken meanwhile."""
     from lmap_drake.planning.motion import PlanActionPath, TimeJointPath
-    from lmap_drake.systems.arm_controller import ROTATION_SPEED
+    from lmap_drake.systems.arm_motion import ROTATION_SPEED
     n0 = len(world.samples)
     q_path = PlanActionPath(world.robot, action, world.q_cmd)
     # the controller's timing: the pull speed along the path, turns at most
