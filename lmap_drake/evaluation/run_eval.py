@@ -1,6 +1,6 @@
 """``lmap-drake eval``: runs episodes of a scenario suite on an engine
 (``engines.py``: worker processes on this machine, or Ray tasks) and
-writes the Table II-V analogues (see ``tables.py``); ``RunSweep`` does it
+writes the Table II-V analogues (``tables.py``, ``report.py``); ``RunSweep`` does it
 for every point of a grid of scenario overrides (``sweep.py``).
 
 Each worker loads its own scenario and builds its own diagram and models;
