@@ -47,7 +47,7 @@ def RenderScenePng(scenario, path, rgb=None, label=None) -> None:
 
 
 def _Interpenetration(world) -> dict:
-    from lmap_drake.plants.multi import LeafLeafPenetration, MeshesCross
+    from lmap_drake.plants.multi_geometry import LeafLeafPenetration, MeshesCross
     import trimesh
     from lmap_drake.plants.leaf import BoundaryTriangles
     Vs = [world.LeafVertices(j) for j in range(world.num_leaves)]

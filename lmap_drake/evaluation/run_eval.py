@@ -1,6 +1,6 @@
 """``lmap-drake eval``: runs episodes of a scenario suite on an engine
 (``engines.py``: worker processes on this machine, or Ray tasks) and
-writes the Table II-V analogues (see ``tables.py``); ``RunSweep`` does it
+writes the Table II-V analogues (``tables.py``, ``report.py``); ``RunSweep`` does it
 for every point of a grid of scenario overrides (``sweep.py``).
 
 Each worker loads its own scenario and builds its own diagram and models;
@@ -33,6 +33,7 @@ from typing import Callable
 
 from lmap_drake.errors import InputError
 from lmap_drake.evaluation import progress as P
+from lmap_drake.evaluation import report as R
 from lmap_drake.evaluation import tables as T
 from lmap_drake.evaluation.engines import InitWorker as _init_worker  # noqa: F401
 from lmap_drake.evaluation.engines import MakeEngine
@@ -287,7 +288,7 @@ def RunEvaluation(specs: list[dict], suite_file: str | Path, out: str | Path,
     t_start = time.perf_counter()
     summary = _RunGroups([(out, specs)], suite_file, engine, workers, address,
                          threads_per_worker, resume, progress, bar)
-    files = T.WriteTables(T.ReadRecords(out / "episodes.jsonl"), out, threshold, notes=notes)
+    files = R.WriteTables(T.ReadRecords(out / "episodes.jsonl"), out, threshold, notes=notes)
     progress(f"wrote {', '.join(['episodes.jsonl'] + files)} to {out} "
              f"({time.perf_counter() - t_start:.0f} s)")
     return dict(summary, files=files)
@@ -315,7 +316,7 @@ def RunSweep(point_specs: list[list[dict]], sweep, points: list[dict], labels: l
     for (folder, _), p in zip(groups, points):
         rs = T.ReadRecords(folder / "episodes.jsonl")
         records.append(rs)
-        T.WriteTables(rs, folder, threshold, notes=f"Sweep point {S.OverrideText(p)} "
+        R.WriteTables(rs, folder, threshold, notes=f"Sweep point {S.OverrideText(p)} "
                       f"({Path(sweep_file).name}).")
     data = S.Summary(sweep, points, labels, records, threshold, str(sweep_file))
     (out / "sweep_summary.json").write_text(json.dumps(data, indent=2))

@@ -389,8 +389,8 @@ class PlantWorldSim:
             d = np.full(len(allV), np.inf)
             if inside.any() and self.multi:    # one ray-casting scene of every fruit
                 if getattr(self, "_fruits_sdf", None) is None:
-                    from lmap_drake.plants.multi import _o3d_scene
-                    self._fruits_sdf = _o3d_scene(fruit_meshes)
+                    from lmap_drake.plants.multi_geometry import RaycastScene
+                    self._fruits_sdf = RaycastScene(fruit_meshes)
                 import open3d as o3d
                 d[inside] = self._fruits_sdf.compute_signed_distance(
                     o3d.core.Tensor(allV[inside].astype(np.float32)),

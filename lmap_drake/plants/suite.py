@@ -166,7 +166,7 @@ def _WhyNotBuildable(cfg: PlantSceneConfig, scenario_text: str = "{}") -> str:
     p_WC = camera.X_PB.GetDeterministicValue().translation()
     try:
         if cfg.kind == "multi":
-            from lmap_drake.plants.multi import GenerateMultiPlant
+            from lmap_drake.plants.multi_generator import GenerateMultiPlant
             GenerateMultiPlant(cfg, p_WC)
         else:
             from lmap_drake.plants.generator import GeneratePlant

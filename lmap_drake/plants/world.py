@@ -41,7 +41,7 @@ def _CachedPlantModel(plant_scene_yaml: str, p_WC: tuple):
 @functools.lru_cache(maxsize=8)
 def _CachedMultiPlantModel(plant_scene_yaml: str, p_WC: tuple):
     from pydrake.common.yaml import yaml_load_typed
-    from lmap_drake.plants.multi import GenerateMultiPlant
+    from lmap_drake.plants.multi_generator import GenerateMultiPlant
     from lmap_drake.scenario import PlantSceneConfig
     cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
     return GenerateMultiPlant(cfg, np.array(p_WC))

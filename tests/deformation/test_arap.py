@@ -4,8 +4,6 @@ from scipy.spatial import cKDTree
 
 from lmap_drake.deformation import (
     Action, ArapProblem, MakeActions, PredictDeformations, PullDirections)
-from lmap_drake.deformation.arap import (
-    MatrixToQuaternion, PolarRotationQuaternion, PolarRotationSvd, QuaternionToMatrix)
 
 from leaf_fixtures import R_TIP, TEST_CONFIG as CFG
 
@@ -17,21 +15,6 @@ def brute_energy(g, positions, rotations):
         e, ed = g.nodes_W[i] - g.nodes_W[j], positions[i] - positions[j]
         E += w * np.sum((ed - rotations[i] @ e) ** 2) + w * np.sum((-ed + rotations[j] @ e) ** 2)
     return E
-
-
-def test_polar_rotation_matches_svd_including_reflections():
-    rng = np.random.default_rng(3)
-    M = rng.normal(size=(400, 3, 3))
-    q0 = np.zeros((4, 400))
-    q0[0] = 1.0
-    R, q = PolarRotationQuaternion(M.transpose(1, 2, 0), q0)
-    R = R.transpose(2, 0, 1)
-    assert (np.linalg.det(M) < 0).sum() > 100
-    assert np.allclose(R, PolarRotationSvd(M), atol=1e-6)
-    assert np.allclose(np.linalg.det(R), 1.0)
-    assert np.allclose(QuaternionToMatrix(q).transpose(2, 0, 1), R, atol=1e-6)
-    assert np.allclose(QuaternionToMatrix(MatrixToQuaternion(R.transpose(1, 2, 0))),
-                       R.transpose(1, 2, 0), atol=1e-12)
 
 
 def test_rigid_translation_of_all_constraints_is_free(tip_graph):

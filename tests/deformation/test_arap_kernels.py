@@ -7,7 +7,7 @@ from lmap_drake.deformation import (
     ArapProblem, MakeActions, PredictDeformations,
     PullDirections)
 from lmap_drake.deformation import arap_kernels as K
-from lmap_drake.deformation.arap import PolarRotationSvd
+from lmap_drake.deformation.rotations import PolarRotationSvd
 
 from leaf_fixtures import R_TIP, TEST_CONFIG as CFG
 

@@ -4,6 +4,7 @@ import json
 
 import pytest
 
+from lmap_drake.evaluation import report as R
 from lmap_drake.evaluation import tables as T
 
 
@@ -162,7 +163,7 @@ def test_write_tables_json_markdown_plots(tmp_path):
     log.write_text("".join(json.dumps(r) + "\n" for r in rs) + '{"torn')
     records = T.ReadRecords(log)
     assert len(records) == 4
-    files = T.WriteTables(records, tmp_path, notes="partial")
+    files = R.WriteTables(records, tmp_path, notes="partial")
     for k in ("table2", "table3", "table4", "table5"):
         assert f"{k}.json" in files and (tmp_path / f"{k}.png").stat().st_size > 1000
     t2 = json.loads((tmp_path / "table2.json").read_text())
@@ -227,5 +228,5 @@ def test_fruit_table_counts_reveals_among_the_fruits_one_leaf_can_reveal():
     assert abs(t["shape_final"]["chamfer_cm"]["mean"] - 0.24) < 1e-9
     assert abs(t["shape_final_moved"]["chamfer_cm"]["mean"] - 0.3) < 1e-9
     assert t["shape_final_moved"]["chamfer_cm"]["n"] == 2
-    md = T.FruitMarkdown(T.FruitTable([a, b]))
+    md = R.FruitMarkdown(T.FruitTable([a, b]))
     assert "| 3 (0.60) | 2 of 3 | 4 | 1 |" in md

@@ -6,10 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from lmap_drake.plants.generator import MeshSignedDistance, PlantGenerationError
-from lmap_drake.plants.multi import (MultiConfigError, GenerateMultiPlant, LeafLeafGap,
-                                     SaveMultiGroundTruth, BranchClearance, _FruitView,
-                                     OCCLUSION_TOLERANCE)
+from lmap_drake.plants.generator import (OCCLUSION_TOLERANCE, MeshSignedDistance,
+                                         PlantGenerationError)
+from lmap_drake.plants.multi import MultiConfigError, SaveMultiGroundTruth
+from lmap_drake.plants.multi_generator import GenerateMultiPlant
+from lmap_drake.plants.multi_geometry import BranchClearance, FruitView, LeafLeafGap
 from lmap_drake.scenario import (LoadScenario, MultiFruitConfig, PlantSceneConfig,
                                  ScenarioError)
 
@@ -69,7 +70,7 @@ def test_per_fruit_occlusion_and_occluders(default_plant):
             assert set(own) <= set(f.occluders)
     # Independent check of one fruit: a fresh ray cast with every leaf.
     others = [g.mesh_W for k, g in enumerate(m.fruits) if k != 0]
-    view = _FruitView(m.fruits[0].mesh_W, others, P_WC, n=2000)
+    view = FruitView(m.fruits[0].mesh_W, others, P_WC, n=2000)
     occ = view.Occlusion([lf.Surface() for lf in m.leaves])
     assert occ == pytest.approx(m.fruits[0].occlusion_predicted, abs=0.04)
 
@@ -95,7 +96,7 @@ def test_one_leaf_ceiling_is_what_the_fruit_shows_with_its_best_leaf_taken_away(
     two = [i for i in range(len(m.fruits)) if sum(lf.fruit == i for lf in m.leaves) == 2]
     for i, f in enumerate(m.fruits):
         others = [g.mesh_W for k, g in enumerate(m.fruits) if k != i]
-        view = _FruitView(f.mesh_W, others, P_WC, n=2000)
+        view = FruitView(f.mesh_W, others, P_WC, n=2000)
         best = max([1 - view.Occlusion([s for k, s in enumerate(surfs) if k != j])
                     for j in f.occluders] or [1 - view.Occlusion(surfs)])
         assert f.one_leaf_ceiling == pytest.approx(best, abs=0.05)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
-from lmap_drake.plants.multi import LeafLeafPenetration
+from lmap_drake.plants.multi_geometry import LeafLeafPenetration
 from lmap_drake.plants.simworld import PlantWorldSim
 from lmap_drake.scenario import LoadScenario
 

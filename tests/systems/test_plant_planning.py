@@ -154,7 +154,7 @@ def test_a_fruit_whose_motion_cannot_be_executed_is_skipped(monkeypatch):
     """The chosen motion of the first fruit has no joint path (IK fails
     along it): that fruit is recorded as such and the other is revealed;
     the episode is not aborted."""
-    import lmap_drake.systems.arm_controller as ac
+    import lmap_drake.systems.arm_motion as ac
     from lmap_drake.planning.motion import MotionError
     real = ac.PlanActionPath
     calls = []
