@@ -135,8 +135,8 @@ def Spearman(x, y) -> float | None:
 # --- the simulation side ----------------------------------------------------
 
 def _scenario_names(path: Path) -> list[str]:
-    from lmap_drake.scenario import _RawYaml
-    return [k for k in (_RawYaml(path.read_text()) or {}) if not str(k).startswith("_")]
+    from lmap_drake.scenario import RawYaml
+    return [k for k in (RawYaml(path.read_text()) or {}) if not str(k).startswith("_")]
 
 
 def _unit(v) -> np.ndarray:

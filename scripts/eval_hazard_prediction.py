@@ -269,9 +269,7 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     from lmap_drake.plants.simworld import PlantWorldSim
     from lmap_drake.shape.completion import CompletePlant
     from lmap_drake.shape.deepsdf import LoadDecoder
-    from lmap_drake.shape.ssc import SscParams
     from lmap_drake.systems.planning import _ImageTangents
-    from lmap_drake.systems.shape_completion import BranchParamsFromConfig
     from tqdm import tqdm
 
     world = PlantWorldSim(scenario, progress=lambda m: None)
@@ -282,8 +280,8 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     sem = SemanticSceneFromImages(im["rgb_image"], im["depth_image"], im["label_image"],
                                   scenario.cameras["camera0"], pcfg)
     dec, mean, _ = LoadDecoder(scenario.shape.weights_file)
-    plant = CompletePlant(sem, dec, mean, SscParams.FromConfig(scenario.shape), "ssc",
-                          scenario.shape.free_space_voxel, BranchParamsFromConfig(scenario.shape),
+    plant = CompletePlant(sem, dec, mean, scenario.shape.ssc, "ssc",
+                          scenario.shape.free_space_voxel, scenario.shape.branch,
                           leaf_split_angle_deg=scenario.shape.leaf_split_angle_deg,
                           min_fruit_points=scenario.shape.min_fruit_points)
     X_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()
@@ -423,7 +421,7 @@ def Repredict(path: str, deformation_text: str, hinge_bending_weight: float) -> 
     from lmap_drake.deformation.action import Action, HingeAxes, MakeArcActions
     from lmap_drake.deformation.predict import PredictDeformations
     from lmap_drake.planning.hazard import HazardMeasures
-    from lmap_drake.scenario import DeformationConfig
+    from lmap_drake.deformation.config import DeformationConfig
     d = json.loads(Path(path).read_text())
     cfg = dc.replace(DeformationConfig(), **(yaml.safe_load(deformation_text) or {}))
     pooled, out = [], {}

@@ -126,7 +126,7 @@ def main(argv=None) -> int:
                     help="segnet weights files (default: the shipped one)")
     ap.add_argument("--out", required=True, type=Path, help="output JSON file")
     a = ap.parse_args(argv)
-    from lmap_drake.scenario import PerceptionConfig
+    from lmap_drake.perception.config import PerceptionConfig
     from lmap_drake.paths import REPO_ROOT
     weights = a.weights or [str(REPO_ROOT / PerceptionConfig().segnet_weights)]
     for w in weights:

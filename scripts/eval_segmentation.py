@@ -52,8 +52,8 @@ def _default_scenarios() -> tuple[Path, list[str]]:
 
 
 def _scenario_names(path: Path) -> list[str]:
-    from lmap_drake.scenario import _RawYaml
-    return [k for k in (_RawYaml(path.read_text()) or {}) if not str(k).startswith("_")]
+    from lmap_drake.scenario import RawYaml
+    return [k for k in (RawYaml(path.read_text()) or {}) if not str(k).startswith("_")]
 
 
 def _fruit_color(rgb: np.ndarray, truth: np.ndarray) -> str | None:

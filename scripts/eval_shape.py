@@ -55,6 +55,7 @@ only ``OUT_figures.partial/``).
 from __future__ import annotations
 
 import argparse
+import dataclasses as dc
 import json
 import shutil
 import time
@@ -65,13 +66,13 @@ import torch
 from pydrake.common.yaml import yaml_load_typed
 
 from lmap_drake.paths import REPO_ROOT
-from lmap_drake.scenario import ShapeConfig
+from lmap_drake.scenario import MigrateScenarioText
+from lmap_drake.shape.config import ShapeConfig
 from lmap_drake.shape import benchmark
 from lmap_drake.shape.completion import CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints
 from lmap_drake.shape.metrics import MeshVolume, ShapeMetrics
-from lmap_drake.shape.ssc import SscParams
 
 METRICS = ("chamfer_cm", "volume_err_cm3", "center_err_cm", "angle_err_deg", "seconds")
 CONDITIONS = ("initial_occlusion", "without_occlusion")
@@ -206,7 +207,7 @@ def main(argv=None):
     ap.add_argument("--iterations", type=int, default=None)
     ap.add_argument("--seeds", default="0", help="optimiser seeds, comma-separated")
     ap.add_argument("--shape_text", default="{}",
-                    help="YAML overrides of ShapeConfig, e.g. \"{peduncle_max_distance: 0.03}\"")
+                    help="YAML overrides of ShapeConfig, e.g. \"{ssc: {peduncle_max_distance: 0.03}}\"")
     ap.add_argument("--fruit_mesh_dir", default=None,
                     help="evaluate the pepper meshes DIR/NAME.{obj,ply,stl} (+ NAME.peduncle.*) "
                          "in the suite's scenes instead of the procedural peppers")
@@ -240,11 +241,11 @@ def main(argv=None):
     if bad:
         from lmap_drake.errors import InputError
         raise InputError(f"--conditions: unknown {bad[0]!r} (choose from {', '.join(CONDITIONS)})")
-    cfg = yaml_load_typed(schema=ShapeConfig, data=a.shape_text, defaults=ShapeConfig())
+    cfg = yaml_load_typed(schema=ShapeConfig, defaults=ShapeConfig(),
+                          data=MigrateScenarioText(a.shape_text, "--shape_text", named=False,
+                                                   section="shape"))
     dec, mean, _ = LoadDecoder(cfg.weights_file, getattr(cfg, "mean_latent_file", "") or None)
-    P = SscParams.FromConfig(cfg)
-    if a.iterations:
-        P.iterations = a.iterations
+    P = dc.replace(cfg.ssc, iterations=a.iterations) if a.iterations else cfg.ssc
     seeds = [int(x) for x in a.seeds.split(",")]
     rows, skipped = [], []
     t_all = time.time()

@@ -38,9 +38,9 @@ class SweepError(InputError):
 def ParseSweep(text: str, where: str) -> list[tuple[str, list]]:
     """[(dotted key, values)] of a sweep file's text, checked for form:
     a non-empty map of dotted keys to non-empty lists of distinct values."""
-    from lmap_drake.scenario import ScenarioError, _RawYaml
+    from lmap_drake.scenario import RawYaml, ScenarioError
     try:
-        raw = _RawYaml(text, where)
+        raw = RawYaml(text, where)
     except ScenarioError as err:
         raise SweepError(str(err)) from None
     if not isinstance(raw, dict) or not raw:

@@ -13,7 +13,7 @@ from pydrake.multibody.tree import RigidBody
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, EncodeLabel
 from lmap_drake.plants.pepper import MakePepperMesh, MeshToObjText
-from lmap_drake.scenario import PlantSceneConfig
+from lmap_drake.plants.config import PlantSceneConfig
 
 
 def RegisterLabeledGeometry(plant: MultibodyPlant, body: RigidBody, X_BG: RigidTransform,

@@ -38,7 +38,7 @@ class ShapeCase:
 def DefaultCamera() -> tuple[np.ndarray, dict]:
     """X_WC (4x4; camera x right, y down, z forward) and intrinsics of the
     default scenario's camera0."""
-    from lmap_drake.scenario import L515_640x480, DefaultCameraConfig
+    from lmap_drake.station.config import DefaultCameraConfig, L515_640x480
     cfg = DefaultCameraConfig()
     X = np.asarray(cfg.X_PB.GetDeterministicValue().GetAsMatrix4(), float)
     return X, dict(L515_640x480)

@@ -186,7 +186,7 @@ def NoisyColor(rgb: np.ndarray, cfg, seed: int, frame: int) -> np.ndarray:
 def CameraProfile(cfg) -> str:
     """Short name of a ``CameraNoiseConfig`` for reports: ``ideal`` when off,
     ``l515`` with the default parameters, ``custom`` otherwise."""
-    from lmap_drake.scenario import CameraNoiseConfig
+    from lmap_drake.station.config import CameraNoiseConfig
     if not cfg.enabled:
         return "ideal"
     default = CameraNoiseConfig()

@@ -10,8 +10,8 @@ from lmap_drake.plants.generator import MeshSignedDistance, PlantGenerationError
 from lmap_drake.plants.multi import (MultiConfigError, GenerateMultiPlant, LeafLeafGap,
                                      SaveMultiGroundTruth, BranchClearance, _FruitView,
                                      OCCLUSION_TOLERANCE)
-from lmap_drake.scenario import (LoadScenario, MultiFruitConfig, PlantSceneConfig,
-                                 ScenarioError)
+from lmap_drake.plants.config import MultiFruitConfig, PlantSceneConfig
+from lmap_drake.scenario import LoadScenario, ScenarioError
 
 P_WC = np.array([0.5, -0.6, 0.47])
 
