@@ -478,7 +478,8 @@ def _explain(err: Exception, raw: dict | None, root: str, where: str) -> Scenari
             return ScenarioError(f"{next(m for m in moved if m)} (in {where})")
         if bad:
             msg = (f"unknown key(s) {', '.join(bad)} in {where}; valid keys are the "
-                   f"fields of the Scenario dataclasses in lmap_drake/scenario.py "
+                   f"fields of the Scenario dataclasses (lmap_drake/scenario.py and the "
+                   f"sections' config.py modules) "
                    f"(Drake said: {msg})")
             return ScenarioError(msg)
         bad = _bad_scalars(Scenario, raw, root)

@@ -3,7 +3,6 @@ component) resolves to the same values: every scenario of every
 ``diagrams/*.yaml``, a run's dumped ``scenario.yaml`` and overrides with the
 old keys (``tests/data/scenario_key_moves.json``: old -> new key paths)."""
 import json
-from pathlib import Path
 
 import pytest
 from pydrake.common.yaml import yaml_dump_typed

@@ -1,6 +1,8 @@
 """Configuration of the deformation prediction (embedded deformation graph
 and ARAP solve, paper Sec. III-B): the ``deformation`` section of the
 scenario. Lengths in metres."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
 
 import dataclasses as dc
 

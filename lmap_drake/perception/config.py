@@ -1,5 +1,7 @@
 """Configuration of perception (segmentation, point clouds, view fusion,
 free space): the ``perception`` section of the scenario. Lengths in metres."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
 
 import dataclasses as dc
 

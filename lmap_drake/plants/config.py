@@ -2,6 +2,8 @@
 FEM leaf), the multi-fruit plant, the rigid placeholder, the scripted pull
 and the ground-truth outcome thresholds. The ``plant_scene`` section of the
 scenario. World frame W, metres."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
 
 import dataclasses as dc
 

@@ -3,6 +3,8 @@ section of the scenario, with the fruit fit in ``shape.ssc`` (``SscConfig``,
 ``lmap_drake/shape/ssc.py``) and the branch completion in ``shape.branch``
 (``BranchCompletionConfig``, ``lmap_drake/shape/branch.py``). Lengths in
 metres unless a name says otherwise."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
 
 import dataclasses as dc
 

@@ -4,6 +4,8 @@ their sensor model (``CameraNoiseConfig``); the hardware's own settings are
 in ``lmap_drake.station.hardware_config``. Sections ``robot``, ``cameras``
 and ``camera_noise`` of the scenario. Frames: ``W`` world, ``B`` robot
 base, ``P`` a camera's parent frame."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
 
 import dataclasses as dc
 import typing
