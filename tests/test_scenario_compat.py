@@ -5,9 +5,11 @@ old keys (``tests/data/scenario_key_moves.json``: old -> new key paths)."""
 import json
 
 import pytest
-from pydrake.common.yaml import yaml_dump_typed
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
-from lmap_drake.scenario import MOVED_KEYS, LoadScenario, Scenario, ScenarioError
+from lmap_drake.scenario import (MOVED_KEYS, LoadScenario, MigrateScenarioText, Scenario,
+                                 ScenarioError)
+from lmap_drake.shape.config import ShapeConfig
 from scenario_values import DATA, REPO, SCENARIO_FILES, ScenarioValues
 
 OLD = json.loads(DATA.read_text())
@@ -104,3 +106,11 @@ def test_a_key_set_both_ways_or_left_unmoved_names_the_new_key():
     assert str(err.value) == ("shape.branch_mesh_res is now shape.branch.mesh_res "
                               "(in --scenario_text)")
     assert "\n" not in str(err.value)
+
+
+def test_a_section_alone_migrates_too():
+    """``scripts/eval_shape.py --shape_text`` takes the ``shape`` section alone."""
+    text = MigrateScenarioText("{w_sur: 2.0, branch_slab: 0.02, method: homa}", "--shape_text",
+                               named=False, section="shape")
+    cfg = yaml_load_typed(schema=ShapeConfig, data=text, defaults=ShapeConfig())
+    assert (cfg.ssc.w_sur, cfg.branch.slab, cfg.method) == (2.0, 0.02, "homa")
