@@ -504,8 +504,9 @@ def ReadScenarioFile(path: Path) -> str:
 
 
 # Keys that moved into a sub-section (old dotted path -> new one). YAML with
-# an old key is rewritten to the new one before loading (with a note on
-# nothing: the values are the same); a key set both ways is an error.
+# an old key is rewritten to the new one before loading (same value); a key
+# set both ways is an error, and an old key the rewrite cannot reach (under a
+# YAML merge key) fails with a one-line message naming the new one.
 MOVED_KEYS = {
     **{f"shape.{k}": f"shape.ssc.{k}" for k in (
         "w_sur", "w_neg", "w_ped", "w_reg", "w_neg_completed_branch", "learning_rate",
