@@ -261,7 +261,7 @@ def cmd_eval(args) -> int:
     from lmap_drake.evaluation import tables as T
     from lmap_drake.evaluation.run_eval import ResolveSpecs, RunEvaluation, RunSweep
     from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
-    from lmap_drake.scenario import LoadScenario, RawYaml, _ReadScenarioFile
+    from lmap_drake.scenario import LoadScenario, RawYaml, ReadScenarioFile
 
     methods, distances = _CheckEvalArgs(args)
     _CheckOverride(args.scenario_text)      # fail now on a bad override
@@ -294,7 +294,7 @@ def cmd_eval(args) -> int:
             suite_file.write_text(text)
     else:
         suite_file = Path(args.scenario_file)
-    raw = RawYaml(_ReadScenarioFile(suite_file), str(suite_file))
+    raw = RawYaml(ReadScenarioFile(suite_file), str(suite_file))
     if not isinstance(raw, dict) or not raw:
         raise UsageError(f"{suite_file} holds no named scenarios")
     names = list(raw)

@@ -31,6 +31,15 @@ class WeightsError(InputError, FileNotFoundError):
     """A weights file is missing or unreadable; the message names it."""
 
 
+class ConfigError(InputError, ValueError):
+    """A configuration value is bad: ``key`` is its dotted path (``shape.ssc.w_sur``),
+    ``detail`` what is wrong; the message is the two joined."""
+
+    def __init__(self, key: str, detail: str):
+        super().__init__(f"{key} {detail}")
+        self.key, self.detail = key, detail
+
+
 def OneLine(err: BaseException) -> str:
     """``err`` as one line: its message (or its type when empty)."""
     text = " ".join(str(err).split())

@@ -32,7 +32,7 @@ from lmap_drake.deformation.action import MakeActions, PullDirections
 from lmap_drake.deformation.graph import BuildLeafGraph
 from lmap_drake.deformation.predict import DefaultWorkers, PrepareAndSolveGrasps
 from lmap_drake.deformation.synthetic import OvateLeaf
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 
 
 def BoundaryGrasps(leaf_points_W: np.ndarray, num: int = 15, inset: float = 0.01):

@@ -43,9 +43,8 @@ def BenchScene(s, shapes: str, quiet: bool = False) -> dict:
     else:
         from lmap_drake.shape.completion import CompleteScene
         from lmap_drake.shape.deepsdf import LoadDecoder
-        from lmap_drake.shape.ssc import SscParams
         decoder, mean, _ = LoadDecoder(s.shape.weights_file)
-        scene = CompleteScene(sem, decoder, mean, SscParams.FromConfig(s.shape))
+        scene = CompleteScene(sem, decoder, mean, s.shape.ssc)
     t_shape = time.perf_counter() - t0
     robot = RobotModel(s.robot.X_WB.GetDeterministicValue())
     ctx = PlanningContext(scene, s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4(),

@@ -32,7 +32,7 @@ def main(argv=None):
     ap.add_argument("--iterations", type=int, default=d.iterations)
     ap.add_argument("--seeds", default=d.seeds, help="optimiser seeds, comma-separated")
     ap.add_argument("--shape_text", default=d.shape_text,
-                    help="YAML overrides of ShapeConfig, e.g. \"{peduncle_max_distance: 0.03}\"")
+                    help="YAML overrides of ShapeConfig, e.g. \"{ssc: {peduncle_max_distance: 0.03}}\"")
     ap.add_argument("--fruit_mesh_dir", default=d.fruit_mesh_dir,
                     help="evaluate the pepper meshes DIR/NAME.{obj,ply,stl} (+ NAME.peduncle.*) "
                          "in the suite's scenes instead of the procedural peppers")

@@ -39,9 +39,7 @@ def PlanScene(s, quiet: bool = True) -> dict:
     from lmap_drake.planning.targets import FruitOrder, PlanTarget
     from lmap_drake.shape.completion import CompletePlant
     from lmap_drake.shape.deepsdf import LoadDecoder
-    from lmap_drake.shape.ssc import SscParams
     from lmap_drake.systems.planning import ImageTangents
-    from lmap_drake.systems.shape_completion import BranchParamsFromConfig
     world = PlantWorldSim(s)
     world.Hold(0.3)
     im = world.Images()
@@ -49,8 +47,8 @@ def PlanScene(s, quiet: bool = True) -> dict:
                                   s.cameras["camera0"], s.perception)
     decoder, mean, _ = LoadDecoder(s.shape.weights_file)
     t0 = time.perf_counter()
-    plant = CompletePlant(sem, decoder, mean, SscParams.FromConfig(s.shape), "ssc",
-                          s.shape.free_space_voxel, BranchParamsFromConfig(s.shape),
+    plant = CompletePlant(sem, decoder, mean, s.shape.ssc, "ssc",
+                          s.shape.free_space_voxel, s.shape.branch,
                           leaf_split_angle_deg=s.shape.leaf_split_angle_deg,
                           min_fruit_points=s.shape.min_fruit_points)
     t_shape = time.perf_counter() - t0

@@ -115,7 +115,7 @@ def test_debug_shows_the_traceback(capsys, tmp_path):
 
 # -------------------------------------------- plant generator: no silent scene
 def _p_WC():
-    from lmap_drake.scenario import DefaultCameraConfig
+    from lmap_drake.station.config import DefaultCameraConfig
     return DefaultCameraConfig().X_PB.GetDeterministicValue().translation()
 
 

@@ -26,7 +26,7 @@ from lmap_drake.station.hardware.safety import TcpPositionInBase
 CELL = ("{hardware: {camera: {calibration_file: diagrams/calibration_example.yaml, fps: 6}, "
         "ur: {workspace_min: [-0.85, -0.85, -0.2], joint_speed_limit: 3.0}}, "
         "planner: {num_grasps: 5, num_directions: 6, distances: [0.04, 0.06]}, "
-        "shape: {iterations: 100}}")
+        "shape: {ssc: {iterations: 100}}}")
 LEAF_OPENING = 0.003      # where the fake fingers stall: the leaf between the pads
 
 

@@ -82,8 +82,10 @@ def test_bad_values_are_rejected():
                       ("{planner: {min_usable_grasps: -1}}", r"planner\.min_usable_grasps"),
                       ("{perception: {robot_filter_distance: -0.1}}",
                        r"perception\.robot_filter_distance"),
-                      ("{shape: {fruit_volume_cm3: 0.00015}}", r"shape\.fruit_volume_cm3.*m\^3"),
-                      ("{shape: {fruit_volume_cm3: 150000}}", r"shape\.fruit_volume_cm3")):
+                      ("{shape: {ssc: {fruit_volume_cm3: 0.00015}}}",
+                       r"shape\.ssc\.fruit_volume_cm3.*m\^3"),
+                      ("{shape: {ssc: {fruit_volume_cm3: 150000}}}",
+                       r"shape\.ssc\.fruit_volume_cm3")):
         with pytest.raises(ScenarioError, match=key):
             LoadScenario(scenario_text=text)
 

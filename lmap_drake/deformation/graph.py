@@ -20,7 +20,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from lmap_drake.deformation.action import DeformationError
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 
 FREE, FIXED, HANDLE = 0, 1, 2
 

@@ -14,7 +14,7 @@ from lmap_drake.deformation.graph import (
     FIXED, HANDLE, BuildGraspGraph, BuildLeafGraph, GraspGraph, LeafGraph)
 from lmap_drake.deformation.interpolate import DenseInterpolator
 from lmap_drake.parallel import DefaultWorkers, ParallelMap  # noqa: F401 (scripts use it)
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 
 
 @dc.dataclass

@@ -23,7 +23,6 @@ import numpy as np
 
 from lmap_drake.errors import InputError
 from lmap_drake.evaluation import tables as T
-from lmap_drake.evaluation.report import SaveFigure
 
 # Keys the method labels own: sweeping them would mislabel the tables.
 RESERVED = {"planner.method": "choose methods with --methods"}
@@ -39,7 +38,7 @@ class SweepError(InputError):
 def ParseSweep(text: str, where: str) -> list[tuple[str, list]]:
     """[(dotted key, values)] of a sweep file's text, checked for form:
     a non-empty map of dotted keys to non-empty lists of distinct values."""
-    from lmap_drake.scenario import ScenarioError, RawYaml
+    from lmap_drake.scenario import RawYaml, ScenarioError
     try:
         raw = RawYaml(text, where)
     except ScenarioError as err:
@@ -221,4 +220,4 @@ def SaveSummaryPlot(summary: dict, path: Path) -> str:
     fig.suptitle(f"sweep {Path(summary['sweep_file']).name} "
                  f"(success: safe and final visibility >= {summary['threshold']:g})",
                  fontsize=9)
-    return SaveFigure(fig, Path(path))
+    return T._SaveFigure(fig, Path(path))

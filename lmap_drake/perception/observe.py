@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lmap_drake.perception.points import BuildSemanticScene, Intrinsics, PointParams
+from lmap_drake.perception.points import BuildSemanticScene, Intrinsics
 from lmap_drake.perception.segmentation import MakeSegmenter
 from lmap_drake.types import SemanticScene
 
@@ -19,5 +19,5 @@ def SemanticSceneFromImages(rgb, depth, label, camera_config, perception_config
     seg = segmenter.Segment(rgb, depth, label)
     X_WC = camera_config.X_PB.GetDeterministicValue().GetAsMatrix4()
     d = np.asarray(getattr(depth, "data", depth))
-    return BuildSemanticScene(seg.class_map, d, K, X_WC, PointParams.FromConfig(perception_config),
+    return BuildSemanticScene(seg.class_map, d, K, X_WC, perception_config,
                               flags=list(getattr(seg, "flags", [])))

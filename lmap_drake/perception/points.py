@@ -21,11 +21,10 @@ import dataclasses as dc
 import numpy as np
 
 from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF
-from lmap_drake.scenario import PerceptionConfig
+from lmap_drake.perception.config import PerceptionConfig
 from lmap_drake.types import SemanticScene
 
 CLASS_FIELDS = {BRANCH: "branch", LEAF: "leaf", FRUIT: "fruit"}
-_PERCEPTION_DEFAULTS = PerceptionConfig()
 
 
 @dc.dataclass(frozen=True)
@@ -208,27 +207,7 @@ def VoxelDownsample(points: np.ndarray, voxel: float,
     return sums / counts[:, None], out_inst
 
 
-@dc.dataclass
-class PointParams:
-    """Point-cloud post-processing parameters (defaults: ``PerceptionConfig``)."""
-    depth_cut: float = _PERCEPTION_DEFAULTS.depth_cut
-    dbscan_eps: float = _PERCEPTION_DEFAULTS.dbscan_eps
-    dbscan_min_points: int = _PERCEPTION_DEFAULTS.dbscan_min_points
-    voxel_size: float = _PERCEPTION_DEFAULTS.voxel_size
-    outlier_neighbors: int = _PERCEPTION_DEFAULTS.outlier_neighbors
-    outlier_std_ratio: float = _PERCEPTION_DEFAULTS.outlier_std_ratio
-    background_stride: int = _PERCEPTION_DEFAULTS.background_stride
-    no_return_free_range: float = _PERCEPTION_DEFAULTS.no_return_free_range
-    no_return_margin_px: float = _PERCEPTION_DEFAULTS.no_return_margin_px
-    flying_pixel_jump: float = _PERCEPTION_DEFAULTS.flying_pixel_jump
-
-    @staticmethod
-    def FromConfig(cfg) -> "PointParams":
-        return PointParams(**{f.name: getattr(cfg, f.name) for f in dc.fields(PointParams)
-                              if hasattr(cfg, f.name)})
-
-
-def ClassPoints(points_W: np.ndarray, params: PointParams) -> tuple[np.ndarray, np.ndarray]:
+def ClassPoints(points_W: np.ndarray, params: PerceptionConfig) -> tuple[np.ndarray, np.ndarray]:
     """One class's full-resolution points -> (downsampled points, instance
     ids). Order: statistical outlier removal, DBSCAN at full resolution (so
     the density the eps / min_points values were chosen for is kept), voxel
@@ -279,7 +258,7 @@ def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, 
 
 
 def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
-                       params: PointParams, flags: list[str] | None = None) -> SemanticScene:
+                       params: PerceptionConfig, flags: list[str] | None = None) -> SemanticScene:
     """Semantic point sets in W from a per-pixel class map (``lmap_drake.labels``
     ids). Pixels beyond ``params.depth_cut`` or without valid depth are
     dropped. Background pixels (robot included) give the ray ends of

@@ -322,7 +322,7 @@ def SamplePepperShape(rng: np.random.Generator, variant: str | None = None) -> P
 
 
 def PepperShapeOf(fr) -> PepperShape:
-    """The ``PepperShape`` of a ``scenario.FruitConfig`` (angles in degrees
+    """The ``PepperShape`` of a ``plants.config.FruitConfig`` (angles in degrees
     there, radians here)."""
     r = np.deg2rad
     return PepperShape(

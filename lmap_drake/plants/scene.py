@@ -12,8 +12,8 @@ from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import RigidBody
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, EncodeLabel
+from lmap_drake.plants.config import PlantSceneConfig
 from lmap_drake.plants.pepper import MakePepperMesh, MeshToObjText
-from lmap_drake.scenario import PlantSceneConfig
 
 
 def RegisterLabeledGeometry(plant: MultibodyPlant, body: RigidBody, X_BG: RigidTransform,

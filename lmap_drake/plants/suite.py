@@ -11,8 +11,10 @@ import numpy as np
 from pydrake.common.yaml import yaml_dump_typed
 
 from lmap_drake.errors import InputError
+from lmap_drake.plants.config import FruitConfig, MultiFruitConfig, PlantSceneConfig
 from lmap_drake.plants.pepper import SamplePepperShape
-from lmap_drake.scenario import FruitConfig, IsEmptyOverride, PlantSceneConfig
+from lmap_drake.scenario import IsEmptyOverride
+from lmap_drake.station.config import DefaultCameraConfig
 from pydrake.geometry import Rgba
 
 LEAVES = {
@@ -53,7 +55,6 @@ def _PlantSceneYaml(cfg: PlantSceneConfig) -> str:
 
     import yaml
 
-    from lmap_drake.scenario import MultiFruitConfig
     plain = copy.deepcopy(cfg)
     plain.multi.fruits = PlantSceneConfig().multi.fruits
     data = yaml.safe_load(yaml_dump_typed(plain, schema=PlantSceneConfig,
@@ -156,7 +157,6 @@ def _WhyNotBuildable(cfg: PlantSceneConfig, scenario_text: str = "{}") -> str:
     leaves fit clear of each other) from camera0, after the YAML overrides
     ``scenario_text``; else the generator's reason."""
     from lmap_drake.plants.generator import PlantGenerationError
-    from lmap_drake.scenario import DefaultCameraConfig
     camera = DefaultCameraConfig()
     if not IsEmptyOverride(scenario_text):
         from lmap_drake.scenario import LoadScenario
@@ -190,7 +190,6 @@ def RandomMultiSuite(n: int, seed: int, max_draws: int = 20,
 
 def _RandomMultiScene(rng) -> PlantSceneConfig:
     """One random multi-fruit plant drawn from ``rng``."""
-    from lmap_drake.scenario import MultiFruitConfig
     nf = int(rng.integers(2, 5))
     heights = 0.11 + np.arange(nf) * (0.27 / max(nf - 1, 1)) + rng.uniform(-0.01, 0.01, nf)
     side = float(rng.choice([-1.0, 1.0]))
@@ -271,7 +270,6 @@ robot:
 
 
 def _multi_fruit(height, side, occlusion, leaves, pepper="round_red", size=None, **fruit):
-    from lmap_drake.scenario import MultiFruitConfig
     f = MultiFruitConfig(height=height, side=side, occlusion=occlusion, num_leaves=leaves)
     f.fruit = _fruit(PEPPERS[pepper])
     if size is not None:

@@ -12,6 +12,7 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram
 
+from lmap_drake.plants.config import PlantSceneConfig
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.station import MakeStation
 
@@ -33,7 +34,6 @@ class LeafGrasp:
 def _CachedPlantModel(plant_scene_yaml: str, p_WC: tuple):
     from pydrake.common.yaml import yaml_load_typed
     from lmap_drake.plants.generator import GeneratePlant
-    from lmap_drake.scenario import PlantSceneConfig
     cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
     return GeneratePlant(cfg, np.array(p_WC))
 
@@ -42,7 +42,6 @@ def _CachedPlantModel(plant_scene_yaml: str, p_WC: tuple):
 def _CachedMultiPlantModel(plant_scene_yaml: str, p_WC: tuple):
     from pydrake.common.yaml import yaml_load_typed
     from lmap_drake.plants.multi_generator import GenerateMultiPlant
-    from lmap_drake.scenario import PlantSceneConfig
     cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
     return GenerateMultiPlant(cfg, np.array(p_WC))
 
@@ -52,7 +51,6 @@ def GetPlantModel(scenario: Scenario):
     ``kind: multi`` one (``MultiPlantModel``); cached, deterministic in the
     scenario."""
     from pydrake.common.yaml import yaml_dump_typed
-    from lmap_drake.scenario import PlantSceneConfig
     kind = scenario.plant_scene.kind
     if kind not in ("procedural", "multi"):
         raise ValueError("GetPlantModel needs plant_scene.kind: procedural or multi")

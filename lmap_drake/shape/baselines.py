@@ -23,7 +23,8 @@ from scipy.spatial.transform import Rotation
 
 from lmap_drake.shape.marching import ExtractIsoSurface
 from lmap_drake.shape.metrics import MeshCentroid
-from lmap_drake.shape.ssc import OptimizeShape, Sim3Matrix, SscParams
+from lmap_drake.shape.config import SscConfig
+from lmap_drake.shape.ssc import OptimizeShape, Sim3Matrix
 from lmap_drake.types import FruitEstimate
 
 
@@ -83,7 +84,7 @@ def FitSuperellipsoid(fruit_points_W: np.ndarray, camera_W: np.ndarray,
                          loss_trace=[dict(cost=float(sol.cost), nfev=int(sol.nfev))])
 
 
-def HomaParams(params: SscParams) -> SscParams:
+def HomaParams(params: SscConfig) -> SscConfig:
     """SSC parameters with the scene-consistency terms switched off, and no
     rotation hold (the hold is for SSC's start inside the leaf and free
     space; without scene terms it cost HoMa-style 0.2-0.6 deg of axis)."""
@@ -91,7 +92,7 @@ def HomaParams(params: SscParams) -> SscParams:
 
 
 def FitHoma(decoder, mean_latent, fruit_points_W, camera_W,
-            params: SscParams | None = None) -> FruitEstimate:
+            params: SscConfig | None = None) -> FruitEstimate:
     """HoMa-style baseline: DeepSDF, surface loss + regularisation only."""
     return OptimizeShape(decoder, mean_latent, fruit_points_W, camera_W, negatives=[],
-                         branch_samples_W=None, params=HomaParams(params or SscParams()))
+                         branch_samples_W=None, params=HomaParams(params or SscConfig()))

@@ -1,6 +1,6 @@
 """Synthetic shape-completion benchmark (world frame W, metres): a pepper of
 the project's family (``SamplePepperShape``) posed in front of the default
-camera (``scenario.DefaultCameraConfig``, 640x480 L515-like intrinsics),
+camera (``station.config.DefaultCameraConfig``, 640x480 L515-like intrinsics),
 a branch rising from its peduncle, and a thin leaf-like plate between camera
 and fruit hiding a chosen fraction of it. Observed points come from ray
 casting (open3d ``RaycastingScene``) with 0.5 mm depth noise; they are
@@ -19,6 +19,7 @@ import open3d as o3d
 from scipy.spatial.transform import Rotation
 
 from lmap_drake.plants.pepper import VARIANTS, MakePepper, SamplePepperShape
+from lmap_drake.station.config import DefaultCameraConfig, L515_640x480
 from lmap_drake.types import SemanticScene
 
 
@@ -38,7 +39,6 @@ class ShapeCase:
 def DefaultCamera() -> tuple[np.ndarray, dict]:
     """X_WC (4x4; camera x right, y down, z forward) and intrinsics of the
     default scenario's camera0."""
-    from lmap_drake.scenario import L515_640x480, DefaultCameraConfig
     cfg = DefaultCameraConfig()
     X = np.asarray(cfg.X_PB.GetDeterministicValue().GetAsMatrix4(), float)
     return X, dict(L515_640x480)

@@ -19,26 +19,13 @@
 """
 from __future__ import annotations
 
-import dataclasses as dc
-
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
+from lmap_drake.shape.config import BranchCompletionConfig
 from lmap_drake.types import BranchEstimate
-
-
-@dc.dataclass
-class BranchCompletionParams:
-    slab: float = 0.01               # m
-    radius_factor: float = 1.0
-    mesh_res: float = 0.003          # m
-    match_distance: float = 0.03     # m
-    handle_weight: float = 10.0
-    max_iterations: int = 30
-    relative_tolerance: float = 1e-4
-    sample_spacing: float = 0.002    # m, surface samples of the completed mesh
 
 
 def PcaAxis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -189,9 +176,9 @@ class Arap:
 
 
 def CompleteBranch(points_W: np.ndarray, camera_W: np.ndarray,
-                   params: BranchCompletionParams | None = None) -> BranchEstimate:
+                   params: BranchCompletionConfig | None = None) -> BranchEstimate:
     """Completed branch mesh and surface samples (W, m) from branch points."""
-    P = params or BranchCompletionParams()
+    P = params or BranchCompletionConfig()
     pts = np.asarray(points_W, float)
     if len(pts) < 10:
         raise ValueError("branch completion needs at least 10 branch points")

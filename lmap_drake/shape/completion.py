@@ -14,12 +14,12 @@ import numpy as np
 from lmap_drake.parallel import ParallelMap
 from lmap_drake.perception.points import SplitOversizedLeaves, SplitTouchingLeaves
 from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
-from lmap_drake.shape.branch import BranchCompletionParams, CompleteBranches
+from lmap_drake.shape.branch import CompleteBranches
+from lmap_drake.shape.config import METHODS, BranchCompletionConfig, SscConfig
 from lmap_drake.shape.free_space import FreeSpacePoints
-from lmap_drake.shape.ssc import OptimizeShape, SscParams
+from lmap_drake.shape.ssc import OptimizeShape
 from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
-METHODS = ("ssc", "homa", "supeps")
 # Fragments whose points lie this close (m, median |SDF|) to another
 # fragment's completed surface are one fruit (``CompletePlant``).
 MERGE_DISTANCE = 0.006
@@ -63,19 +63,19 @@ def LargestInstance(points: np.ndarray, instance: np.ndarray) -> np.ndarray:
 
 
 def CompleteScene(semantic: SemanticScene, decoder=None, mean_latent=None,
-                  params: SscParams | None = None, method: str = "ssc",
+                  params: SscConfig | None = None, method: str = "ssc",
                   free_space_voxel: float = 0.003,
-                  branch_params: BranchCompletionParams | None = None,
+                  branch_params: BranchCompletionConfig | None = None,
                   timings: dict | None = None) -> SceneEstimate:
     """Runs branch completion and fruit shape completion.
 
     ``method``: ``ssc`` (scene-consistent), ``homa`` (surface + reg only) or
     ``supeps`` (superellipsoid). ``params`` carries the SSC weights (use
-    ``SscParams.FromConfig(cfg, reestimate=True)`` after the action).
+    ``ReestimateConfig(cfg.ssc)`` after the action).
     ``timings`` (optional dict) receives seconds per step."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    P = params or SscParams()
+    P = params or SscConfig()
     timings = {} if timings is None else timings
     cam = np.asarray(semantic.X_WC, float)[:3, 3]
     out = SceneEstimate(semantic=semantic, branch=_Branches(semantic, cam, branch_params,
@@ -100,7 +100,7 @@ def _Branches(semantic: SemanticScene, cam: np.ndarray, branch_params, timings: 
 
 
 def _CompleteFruit(semantic: SemanticScene, fruit: np.ndarray, other_fruits: np.ndarray,
-                   branch, decoder, mean_latent, P: SscParams, method: str,
+                   branch, decoder, mean_latent, P: SscConfig, method: str,
                    free_space_voxel: float, timings: dict):
     """One fruit's estimate from its points ``fruit``; ``other_fruits``
     (points of the plant's other fruits) are outside it, like the leaves."""
@@ -205,9 +205,9 @@ def FruitInstances(semantic: SemanticScene, min_points: int = 30) -> list[int]:
 
 
 def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
-                  params: SscParams | None = None, method: str = "ssc",
+                  params: SscConfig | None = None, method: str = "ssc",
                   free_space_voxel: float = 0.003,
-                  branch_params: BranchCompletionParams | None = None,
+                  branch_params: BranchCompletionConfig | None = None,
                   min_fruit_points: int = 30, timings: dict | None = None,
                   merge_distance: float = MERGE_DISTANCE,
                   merge_tolerance: float = MERGE_RESIDUAL_TOLERANCE,
@@ -235,7 +235,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     taken from ``memo``, a ``FitMemo`` kept across the views of an episode)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    P = params or SscParams()
+    P = params or SscConfig()
     timings = {} if timings is None else timings
     cam = np.asarray(semantic.X_WC, float)[:3, 3]
     out = PlantEstimate(semantic=semantic, branch=_Branches(semantic, cam, branch_params,

@@ -181,74 +181,17 @@ pull on extrapolated values.
 """
 from __future__ import annotations
 
-import dataclasses as dc
 import time
 
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from lmap_drake.shape.config import SscConfig
 from lmap_drake.shape.deepsdf import CUBE_RADIUS, DeepSDFDecoder
 from lmap_drake.shape.marching import ExtractIsoSurface, MarchingTetrahedra
 from lmap_drake.shape.metrics import MeshCentroid
-from lmap_drake.scenario import ShapeConfig
 from lmap_drake.types import FruitEstimate
-
-
-_SHAPE_DEFAULTS = ShapeConfig()
-
-
-@dc.dataclass
-class SscParams:
-    """SSC weights and optimiser settings (see the module docstring). The
-    defaults are ``ShapeConfig``'s (one source of truth)."""
-    w_sur: float = _SHAPE_DEFAULTS.w_sur
-    w_neg: float = _SHAPE_DEFAULTS.w_neg
-    w_ped: float = _SHAPE_DEFAULTS.w_ped
-    w_reg: float = _SHAPE_DEFAULTS.w_reg
-    w_neg_completed_branch: float = _SHAPE_DEFAULTS.w_neg_completed_branch
-    learning_rate: float = _SHAPE_DEFAULTS.learning_rate
-    iterations: int = _SHAPE_DEFAULTS.iterations
-    num_peduncle_points: int = _SHAPE_DEFAULTS.num_peduncle_points
-    loss_length_unit: float = _SHAPE_DEFAULTS.loss_length_unit
-    push_from_camera: float = _SHAPE_DEFAULTS.push_from_camera
-    max_surface_points: int = _SHAPE_DEFAULTS.max_surface_points
-    max_negative_points: int = _SHAPE_DEFAULTS.max_negative_points
-    negative_margin: float = _SHAPE_DEFAULTS.negative_margin
-    max_negative_candidates: int = _SHAPE_DEFAULTS.max_negative_candidates
-    peduncle_max_distance: float = _SHAPE_DEFAULTS.peduncle_max_distance
-    peduncle_cone_deg: float = _SHAPE_DEFAULTS.peduncle_cone_deg
-    peduncle_huber: float = _SHAPE_DEFAULTS.peduncle_huber
-    peduncle_moves_scale: bool = _SHAPE_DEFAULTS.peduncle_moves_scale
-    peduncle_follow_axis: bool = _SHAPE_DEFAULTS.peduncle_follow_axis
-    peduncle_slide: bool = _SHAPE_DEFAULTS.peduncle_slide
-    peduncle_base_distance: float = _SHAPE_DEFAULTS.peduncle_base_distance
-    init_from_observation: bool = _SHAPE_DEFAULTS.init_from_observation
-    fruit_volume_cm3: float = _SHAPE_DEFAULTS.fruit_volume_cm3
-    rotation_lr_scale: float = _SHAPE_DEFAULTS.rotation_lr_scale
-    rotation_hold_steps: int = _SHAPE_DEFAULTS.rotation_hold_steps
-    w_rot: float = _SHAPE_DEFAULTS.w_rot
-    init_scale_bounds: list = dc.field(
-        default_factory=lambda: list(_SHAPE_DEFAULTS.init_scale_bounds))
-    refresh_every: int = _SHAPE_DEFAULTS.refresh_every
-    mesh_spacing: float = _SHAPE_DEFAULTS.mesh_spacing
-    seed: int = 0
-
-    @staticmethod
-    def FromConfig(cfg, reestimate: bool = False) -> "SscParams":
-        """From ``lmap_drake.scenario.ShapeConfig`` (re-estimation mode uses
-        its ``reestimate_*`` weights)."""
-        p = SscParams()
-        for f in dc.fields(SscParams):
-            if hasattr(cfg, f.name):
-                setattr(p, f.name, getattr(cfg, f.name))
-        if reestimate:
-            p.w_ped = cfg.reestimate_w_ped
-            p.w_neg_completed_branch = cfg.reestimate_w_neg_completed_branch
-            p.rotation_lr_scale = cfg.reestimate_rotation_lr_scale
-            p.w_rot = cfg.reestimate_w_rot
-            p.rotation_hold_steps = cfg.reestimate_rotation_hold_steps
-        return p
 
 
 class Adam:
@@ -369,7 +312,7 @@ def TemplateStats(decoder, z: np.ndarray) -> dict:
 
 
 def InitialPose(decoder, z0: np.ndarray, fruit_points_W: np.ndarray, camera_W: np.ndarray,
-                P: "SscParams") -> tuple[float, np.ndarray]:
+                P: SscConfig) -> tuple[float, np.ndarray]:
     """The starting scale s0 and centre t0 (W, m).
 
     ``init_from_observation`` False: s0 = the prior scale (``PriorScale``
@@ -414,7 +357,7 @@ def _subsample(p: np.ndarray, n: int, rng) -> np.ndarray:
 def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points_W: np.ndarray,
                   camera_W: np.ndarray, negatives: list[tuple[np.ndarray, float]] = (),
                   branch_samples_W: np.ndarray | None = None,
-                  params: SscParams | None = None, init: dict | None = None) -> FruitEstimate:
+                  params: SscConfig | None = None, init: dict | None = None) -> FruitEstimate:
     """Joint latent + Sim(3) optimisation (see the module docstring).
 
     ``negatives``: (points (N,3) W, weight) pairs; ``branch_samples_W``:
@@ -425,7 +368,7 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
     peduncle axis R e_z, batched numpy ``sdf_W``, per-iteration trace of the
     losses, the scale and the axis R e_z).
     """
-    P = params or SscParams()
+    P = params or SscConfig()
     rng = np.random.default_rng(P.seed)
     t_start = time.time()
     fruit = np.asarray(fruit_points_W, float)

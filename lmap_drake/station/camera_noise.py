@@ -4,7 +4,7 @@ camera: what the renderer's perfect images lack and a real user's camera has.
 Functional core (``NoisyDepth``, ``NoisyColor``) on numpy images, and the
 thin ``CameraNoise`` LeafSystem the simulated station puts between the
 ``RgbdSensor`` and its exported ``camera0.*`` ports. Parameters and the
-figures behind their defaults: ``lmap_drake.scenario.CameraNoiseConfig``.
+figures behind their defaults: ``lmap_drake.station.config.CameraNoiseConfig``.
 
 Depth (metres along the optical axis; +inf = no return, the encoding of the
 hardware RealSense client, which maps every dropout to +inf):
@@ -43,6 +43,7 @@ from pydrake.systems.sensors import ImageDepth32F, ImageRgba8U
 from scipy import ndimage
 
 from lmap_drake.perception.points import DepthNormals
+from lmap_drake.station.config import CameraNoiseConfig
 
 
 def _Rng(seed: int, *extra: int) -> np.random.Generator:
@@ -186,7 +187,6 @@ def NoisyColor(rgb: np.ndarray, cfg, seed: int, frame: int) -> np.ndarray:
 def CameraProfile(cfg) -> str:
     """Short name of a ``CameraNoiseConfig`` for reports: ``ideal`` when off,
     ``l515`` with the default parameters, ``custom`` otherwise."""
-    from lmap_drake.scenario import CameraNoiseConfig
     if not cfg.enabled:
         return "ideal"
     default = CameraNoiseConfig()

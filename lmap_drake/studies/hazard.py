@@ -72,14 +72,13 @@ from lmap_drake.planning.lmap import (AttachLeaf, EquivalentTurnDeg, EstimateHin
 from lmap_drake.planning.motion import MotionError, PlanActionPath, TimeJointPath
 from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
 from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
-from lmap_drake.scenario import DeformationConfig, LoadScenario, PlannerConfig
+from lmap_drake.deformation.config import DeformationConfig
+from lmap_drake.scenario import LoadScenario, PlannerConfig
 from lmap_drake.shape.completion import CompletePlant
 from lmap_drake.shape.deepsdf import LoadDecoder
-from lmap_drake.shape.ssc import SscParams
 from lmap_drake.studies.deformation_vs_fem import LeafMeshWorkaround, Spearman
-from lmap_drake.systems.arm_controller import ROTATION_SPEED
+from lmap_drake.systems.arm_motion import ROTATION_SPEED
 from lmap_drake.systems.planning import ImageTangents
-from lmap_drake.systems.shape_completion import BranchParamsFromConfig
 
 DEFAULT_SCENARIOS = ["small_leaf_thin_branch_round_red_heavy",
                      "small_leaf_thin_branch_striped_red_partial",
@@ -284,8 +283,8 @@ def EvaluateMultiScenario(scenario, args: HazardStudyOptions, log) -> dict:
     sem = SemanticSceneFromImages(im["rgb_image"], im["depth_image"], im["label_image"],
                                   scenario.cameras["camera0"], pcfg)
     dec, mean, _ = LoadDecoder(scenario.shape.weights_file)
-    plant = CompletePlant(sem, dec, mean, SscParams.FromConfig(scenario.shape), "ssc",
-                          scenario.shape.free_space_voxel, BranchParamsFromConfig(scenario.shape),
+    plant = CompletePlant(sem, dec, mean, scenario.shape.ssc, "ssc",
+                          scenario.shape.free_space_voxel, scenario.shape.branch,
                           leaf_split_angle_deg=scenario.shape.leaf_split_angle_deg,
                           min_fruit_points=scenario.shape.min_fruit_points)
     X_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4()

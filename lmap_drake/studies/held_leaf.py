@@ -36,7 +36,8 @@ from lmap_drake.perception.points import DeprojectPixels, Intrinsics
 from lmap_drake.perception.recording import LoadRecording
 from lmap_drake.perception.segmentation import ClassIou, SegNetSegmenter, TruthClassMap
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.scenario import LoadScenario, PerceptionConfig
+from lmap_drake.perception.config import PerceptionConfig
+from lmap_drake.scenario import LoadScenario
 from lmap_drake.systems.planning import HeldLeaf
 from lmap_drake.types import SemanticScene
 

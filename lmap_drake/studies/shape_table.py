@@ -69,13 +69,13 @@ from lmap_drake.evaluation.progress import Progress
 from lmap_drake.paths import REPO_ROOT
 from lmap_drake.plants.fruit_mesh import FruitMeshFolder, LoadFruitMesh
 from lmap_drake.plants.generator import PlantGenerationError
-from lmap_drake.scenario import ShapeConfig
+from lmap_drake.scenario import MigrateScenarioText
+from lmap_drake.shape.config import ShapeConfig
 from lmap_drake.shape import benchmark
 from lmap_drake.shape.completion import CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints
 from lmap_drake.shape.metrics import MeshCentroid, MeshVolume, ShapeMetrics
-from lmap_drake.shape.ssc import SscParams
 
 METRICS = ("chamfer_cm", "volume_err_cm3", "center_err_cm", "angle_err_deg", "seconds")
 CONDITIONS = ("initial_occlusion", "without_occlusion")
@@ -235,11 +235,11 @@ def RunShapeTable(a: ShapeTableOptions) -> None:
     bad = [c for c in conditions if c not in CONDITIONS]
     if bad:
         raise InputError(f"--conditions: unknown {bad[0]!r} (choose from {', '.join(CONDITIONS)})")
-    cfg = yaml_load_typed(schema=ShapeConfig, data=a.shape_text, defaults=ShapeConfig())
+    cfg = yaml_load_typed(schema=ShapeConfig, defaults=ShapeConfig(),
+                          data=MigrateScenarioText(a.shape_text, "--shape_text", named=False,
+                                                   section="shape"))
     dec, mean, _ = LoadDecoder(cfg.weights_file, getattr(cfg, "mean_latent_file", "") or None)
-    P = SscParams.FromConfig(cfg)
-    if a.iterations:
-        P.iterations = a.iterations
+    P = dc.replace(cfg.ssc, iterations=a.iterations) if a.iterations else cfg.ssc
     seeds = [int(x) for x in a.seeds.split(",")]
     rows, skipped = [], []
     t_all = time.time()

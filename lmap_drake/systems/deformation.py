@@ -39,7 +39,7 @@ from lmap_drake.deformation.graph import BuildLeafGraph, LeafGraph
 from lmap_drake.deformation.action import DeformationError
 from lmap_drake.deformation.predict import (
     PredictedDeformation, GraspSolution, PrepareGrasp, SolveGrasp, UnmodelledGrasp)
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 from lmap_drake.types import SceneEstimate, SemanticScene
 
 

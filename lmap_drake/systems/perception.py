@@ -50,8 +50,7 @@ from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
 from lmap_drake.perception.fusion import FuseViews
-from lmap_drake.perception.points import (BuildSemanticScene, Intrinsics, PointParams,
-                                         RemovePointsNear)
+from lmap_drake.perception.points import BuildSemanticScene, Intrinsics, RemovePointsNear
 from lmap_drake.perception.segmentation import MakeSegmenter, Segmenter, SegmenterError
 from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.types import SemanticScene
@@ -102,7 +101,6 @@ class Perception(LeafSystem):
         self.set_name("perception")
         self._config = config
         self._K = Intrinsics.FromCameraConfig(camera_config)
-        self._params = PointParams.FromConfig(config)
         self._segmenter = segmenter if segmenter is not None else MakeSegmenter(config, self._K)
         self._X_WC_default = _camera_pose(camera_config)
         self._last = None       # (input fingerprint, scene) of the last ComputeScene
@@ -170,7 +168,7 @@ class Perception(LeafSystem):
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         seg = self._segmenter.Segment(rgb, depth, label)
-        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._params, seg.flags)
+        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._config, seg.flags)
         if q is not None:
             robot_W = np.vstack([self._robot.SurfacePoints(q, h)
                                  for h in (0.0, 0.5 * GRIPPER_MAX_WIDTH)])
@@ -187,7 +185,7 @@ class Perception(LeafSystem):
     def _fuse(self, previous: SemanticScene, scene: SemanticScene) -> SemanticScene:
         if previous.num_views == 0:
             return scene
-        return FuseViews(previous, scene, self._params.voxel_size,
+        return FuseViews(previous, scene, self._config.voxel_size,
                          self._config.fusion_match_distance)
 
     def CaptureView(self, context: Context) -> SemanticScene:

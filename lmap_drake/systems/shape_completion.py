@@ -30,31 +30,18 @@ The DeepSDF decoder is loaded once in the constructor (from
 ``ShapeConfig.weights_file``, or passed in) and kept as an attribute, not
 Context state. ``reestimate=True`` (or the flag ``"reestimate"`` in the
 input's ``flags``) uses the re-estimation weights after the leaf action
-(``reestimate_w_ped``, ``reestimate_w_neg_completed_branch``).
+(``shape.ssc.reestimate_*``).
 """
 from __future__ import annotations
-
-import dataclasses as dc
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from lmap_drake.scenario import ShapeConfig
-from lmap_drake.shape.branch import BranchCompletionParams
 from lmap_drake.shape.completion import CompletePlant, CompleteScene, FitMemo
+from lmap_drake.shape.config import ReestimateConfig, ShapeConfig, SscConfig
 from lmap_drake.shape.deepsdf import LoadDecoder
-from lmap_drake.shape.ssc import SscParams
 from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
-
-
-def BranchParamsFromConfig(cfg: ShapeConfig) -> BranchCompletionParams:
-    p = BranchCompletionParams()
-    for f in dc.fields(BranchCompletionParams):
-        key = "branch_" + f.name
-        if hasattr(cfg, key):
-            setattr(p, f.name, getattr(cfg, key))
-    return p
 
 
 class ShapeCompletion(LeafSystem):
@@ -97,15 +84,15 @@ class ShapeCompletion(LeafSystem):
             "plant_estimate", lambda: AbstractValue.Make(PlantEstimate(SemanticScene())),
             self._calc_plant, prerequisites_of_calc=plant_deps)
 
-    def params(self, reestimate: bool) -> SscParams:
-        return SscParams.FromConfig(self.cfg, reestimate=reestimate)
+    def params(self, reestimate: bool) -> SscConfig:
+        return ReestimateConfig(self.cfg.ssc) if reestimate else self.cfg.ssc
 
     def _calc(self, context, output):
         sem: SemanticScene = self._in.Eval(context)
         re = self.reestimate or "reestimate" in sem.flags
         timings = {}
         est = CompleteScene(sem, self.decoder, self.mean_latent, self.params(re), self.method,
-                            self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg), timings)
+                            self.cfg.free_space_voxel, self.cfg.branch, timings)
         self.last_timings = timings
         output.set_value(est)
 
@@ -123,7 +110,7 @@ class ShapeCompletion(LeafSystem):
         re = self.reestimate or "reestimate" in sem.flags
         timings = {}
         est = CompletePlant(sem, self.decoder, self.mean_latent, self.params(re), self.method,
-                            self.cfg.free_space_voxel, BranchParamsFromConfig(self.cfg),
+                            self.cfg.free_space_voxel, self.cfg.branch,
                             min_fruit_points=self.cfg.min_fruit_points, timings=timings,
                             leaf_split_angle_deg=self.cfg.leaf_split_angle_deg,
                             focus_W=focus, memo=self.fit_memo)

@@ -1,7 +1,7 @@
 """Constants shared by the deformation tests (fixtures: conftest.py)."""
 import numpy as np
 
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 
 # Gripper approaching the leaf tip along -x, closing along z (leaf normal).
 R_TIP = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])

@@ -129,7 +129,7 @@ def test_a_speck_labelled_leaf_near_the_branch_does_not_take_the_petiole():
     from the blade: the virtual petiole and the hinge go to the blade."""
     from lmap_drake.deformation.graph import MainLeafComponent
     from lmap_drake.planning.lmap import AttachLeaf
-    from lmap_drake.scenario import DeformationConfig
+    from lmap_drake.deformation.config import DeformationConfig
     from lmap_drake.types import SceneEstimate, SemanticScene
     leaf, branch = OvateLeaf()
     blade = leaf[leaf[:, 0] > 0.035]                 # petiole unseen: blade from 3.5 cm
@@ -160,7 +160,7 @@ def test_a_blade_hung_by_a_virtual_petiole_is_tied_to_the_branch_in_the_graph():
 
     from lmap_drake.deformation.graph import BuildLeafGraph
     from lmap_drake.planning.lmap import AttachLeaf
-    from lmap_drake.scenario import DeformationConfig
+    from lmap_drake.deformation.config import DeformationConfig
     from lmap_drake.types import SceneEstimate, SemanticScene
     leaf, branch = OvateLeaf()
     cfg = DeformationConfig()
@@ -192,7 +192,7 @@ def test_a_virtual_petiole_whose_chain_of_centroids_breaks_is_thickened():
     the blade hung from nothing): AttachLeaf checks the graph and thickens
     the petiole, so every blade hangs from the branch."""
     from lmap_drake.planning.lmap import AttachLeaf, _HangsFromBranch
-    from lmap_drake.scenario import DeformationConfig
+    from lmap_drake.deformation.config import DeformationConfig
     from lmap_drake.types import SceneEstimate, SemanticScene
     leaf, branch = OvateLeaf()
     cfg = DeformationConfig()

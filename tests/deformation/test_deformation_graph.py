@@ -5,7 +5,7 @@ from lmap_drake.deformation import (
     BuildGraspGraph, BuildLeafGraph, DeformationError, HandleGrid)
 from lmap_drake.deformation.graph import FIXED, FREE, HANDLE, DistanceToLine
 from lmap_drake.deformation.synthetic import OvateLeaf
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 
 # Gripper approaching the leaf tip along -x, closing along z (leaf normal).
 R_TIP = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])

@@ -6,7 +6,7 @@ from lmap_drake.deformation import (
     BuildLeafGraph, DenseInterpolator, MakeActions, PredictDeformations)
 from lmap_drake.deformation.graph import Voxelize
 from lmap_drake.deformation.synthetic import OvateLeaf
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 
 R_TIP = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
 

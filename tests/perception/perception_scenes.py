@@ -58,7 +58,7 @@ def Render(scenario_text: str = "", camera: str = SMALL_CAMERA, ideal: bool = Tr
 def FruitColor(name: str) -> str:
     """Scenario override that paints the fruit (placeholder or plant-world
     schema)."""
-    from lmap_drake.scenario import PlantSceneConfig
+    from lmap_drake.plants.config import PlantSceneConfig
     r, g, b = FRUIT_COLORS[name]
     rgba = f"{{rgba: [{r}, {g}, {b}, 1.0]}}"
     if hasattr(PlantSceneConfig(), "fruit_color"):

@@ -3,7 +3,8 @@ import numpy as np
 
 from lmap_drake.labels import DecodeLabels
 from lmap_drake.perception.fusion import FuseViews
-from lmap_drake.perception.points import BuildSemanticScene, PointParams
+from lmap_drake.perception.config import PerceptionConfig
+from lmap_drake.perception.points import BuildSemanticScene
 from lmap_drake.types import SemanticScene
 from perception_scenes import Render
 
@@ -54,7 +55,7 @@ def test_fusing_with_empty_views():
 def test_fusing_two_rendered_views_grows_the_fruit():
     """Two camera poses of the same plant: the fused fruit set covers more
     of the fruit than either view, and its points still lie on the fruit."""
-    params = PointParams()
+    params = PerceptionConfig()
     scenes = []
     for yaw in (-25.0, 25.0):
         x = 0.5 + np.sin(np.deg2rad(yaw)) * 0.55

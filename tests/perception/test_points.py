@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels
+from lmap_drake.perception.config import PerceptionConfig
 from lmap_drake.perception.points import (BuildSemanticScene, DbscanLabels, DeprojectPixels,
-                                          Intrinsics, PointParams, StatisticalOutlierMask,
-                                          ValidDepthMask, VoxelDownsample)
+                                          Intrinsics, StatisticalOutlierMask, ValidDepthMask,
+                                          VoxelDownsample)
 from perception_scenes import Render
 
 K = Intrinsics(8, 6, 10.0, 10.0, 3.5, 2.5)
@@ -68,7 +69,7 @@ def test_nan_inf_zero_negative_and_far_depth_are_dropped():
 
 def test_all_nan_depth_gives_empty_scene_with_flags():
     cm = np.full((6, 8), FRUIT)
-    scene = BuildSemanticScene(cm, np.full((6, 8), np.nan), K, np.eye(4), PointParams())
+    scene = BuildSemanticScene(cm, np.full((6, 8), np.nan), K, np.eye(4), PerceptionConfig())
     assert scene.is_empty()
     assert {"no_valid_depth", "no_fruit_in_view", "empty_scene"} <= set(scene.flags)
     assert scene.fruit_points_W.shape == (0, 3) and scene.fruit_instance.shape == (0,)
@@ -76,7 +77,7 @@ def test_all_nan_depth_gives_empty_scene_with_flags():
 
 def test_empty_masks_give_empty_sets_not_a_crash():
     scene = BuildSemanticScene(np.zeros((6, 8), int), np.ones((6, 8)), K, np.eye(4),
-                               PointParams())
+                               PerceptionConfig())
     assert scene.is_empty() and "empty_scene" in scene.flags
     assert "no_valid_depth" not in scene.flags
 
@@ -110,7 +111,7 @@ def test_voxel_downsample_keeps_instances_apart():
 def test_semantic_scene_from_rendered_labels():
     v = Render()
     cls, _ = DecodeLabels(v.label)
-    scene = BuildSemanticScene(cls, v.depth, v.K, v.X_WC, PointParams())
+    scene = BuildSemanticScene(cls, v.depth, v.K, v.X_WC, PerceptionConfig())
     s = v.scenario.plant_scene
     assert not scene.flags
     for name in ("branch", "leaf", "fruit"):
@@ -186,7 +187,7 @@ def test_semantic_scene_carries_background_rays_in_world():
     depth[2:5, 2:6] = 0.5
     X = np.eye(4)
     X[:3, 3] = [1.0, 2.0, 3.0]
-    p = PointParams(outlier_neighbors=3, dbscan_min_points=1, background_stride=1,
+    p = PerceptionConfig(outlier_neighbors=3, dbscan_min_points=1, background_stride=1,
                     no_return_margin_px=0.0)
     scene = BuildSemanticScene(cm, depth, K, X, p)
     assert len(scene.background_points_W) == 48 - 12
@@ -213,7 +214,7 @@ def test_flying_pixels_between_two_surfaces_are_flagged_smooth_ones_are_not():
 def test_robot_self_filter_drops_points_on_the_robot_only():
     from lmap_drake.perception.points import RemovePointsNear
     from lmap_drake.planning.robot_model import RobotModel
-    from lmap_drake.scenario import RobotConfig
+    from lmap_drake.station.config import RobotConfig
     from lmap_drake.types import SemanticScene
     robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
     q = np.array(RobotConfig().initial_q)

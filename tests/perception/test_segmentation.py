@@ -8,7 +8,7 @@ from lmap_drake.perception.segmentation import (BoxNms, ClassIou, ColorDepthPara
                                                 ComposeMasks, DepthEdges, LabelSegmenter,
                                                 MakeSegmenter, MissingWeightsError,
                                                 SegmenterError, TruthClassMap)
-from lmap_drake.scenario import PerceptionConfig
+from lmap_drake.perception.config import PerceptionConfig
 from perception_scenes import BELOW_CAMERA, FruitColor, Render
 
 

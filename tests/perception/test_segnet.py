@@ -11,7 +11,8 @@ from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.segmentation import ClassIou, MakeSegmenter, TruthClassMap
 from lmap_drake.perception.segnet import (NUM_INPUTS, LoadSegNet, SegNet, SegNetInputs,
                                           SegNetWeightsError, SmoothedNormals)
-from lmap_drake.scenario import LoadScenario, PerceptionConfig
+from lmap_drake.perception.config import PerceptionConfig
+from lmap_drake.scenario import LoadScenario
 
 K = Intrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
 

@@ -5,7 +5,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.planning.collision import NearBox, RobotCollisionReason, UnionSdf
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.scenario import RobotConfig
+from lmap_drake.station.config import RobotConfig
 
 
 def _Sphere(center, radius):

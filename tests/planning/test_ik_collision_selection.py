@@ -7,7 +7,7 @@ from lmap_drake.deformation.action import Action
 from lmap_drake.planning.collision import LeafCollisionReason, RobotCollisionReason
 from lmap_drake.planning.lmap import Candidate, SelectAction
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.scenario import RobotConfig
+from lmap_drake.station.config import RobotConfig
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ def test_an_approach_is_checked_from_the_grasp_outward_and_stops_at_the_first_bl
     import pytest
     from lmap_drake.planning.motion import ApproachBlocked, PlanApproach
     from lmap_drake.planning.robot_model import RobotModel
-    from lmap_drake.scenario import RobotConfig
+    from lmap_drake.station.config import RobotConfig
     robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
     q0 = np.array(RobotConfig().initial_q)
     X = robot.TcpPose(q0)
@@ -75,7 +75,7 @@ def test_an_approach_near_a_wrist_singularity_keeps_the_tcp_on_its_line_as_execu
     timed trajectory within the path tolerance."""
     from lmap_drake.planning.motion import PATH_TOLERANCE, PlanApproach, TimeJointPath
     from lmap_drake.planning.robot_model import RobotModel
-    from lmap_drake.scenario import RobotConfig
+    from lmap_drake.station.config import RobotConfig
     robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
     q0 = np.array(RobotConfig().initial_q)
     for wrist2 in (0.03, -0.02):
@@ -103,7 +103,7 @@ def test_a_step_through_a_fast_wrist_turn_is_straightened_by_continuation():
     keep it, and the end still solves the step's pose."""
     from lmap_drake.planning.motion import PATH_TOLERANCE, PathDeviation, StraightenStep
     from lmap_drake.planning.robot_model import RobotModel
-    from lmap_drake.scenario import RobotConfig
+    from lmap_drake.station.config import RobotConfig
     robot = RobotModel(RobotConfig().X_WB.GetDeterministicValue())
     q_a = np.array(RobotConfig().initial_q)
     q_a[4] = 0.02

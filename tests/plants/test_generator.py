@@ -6,7 +6,7 @@ import pytest
 from lmap_drake.plants.generator import (BranchPointsAtHeights, GeneratePlant, MeshSignedDistance,
                                          SaveGroundTruth)
 from lmap_drake.plants.suite import PaperSuite, RandomSuite
-from lmap_drake.scenario import PlantSceneConfig
+from lmap_drake.plants.config import PlantSceneConfig
 
 P_WC = np.array([0.5, -0.6, 0.47])
 

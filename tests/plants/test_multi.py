@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
+from lmap_drake.plants.config import MultiFruitConfig, PlantSceneConfig
 from lmap_drake.plants.generator import (OCCLUSION_TOLERANCE, MeshSignedDistance,
                                          PlantGenerationError)
 from lmap_drake.plants.multi import MultiConfigError, SaveMultiGroundTruth
 from lmap_drake.plants.multi_generator import GenerateMultiPlant
 from lmap_drake.plants.multi_geometry import BranchClearance, FruitView, LeafLeafGap
-from lmap_drake.scenario import (LoadScenario, MultiFruitConfig, PlantSceneConfig,
-                                 ScenarioError)
+from lmap_drake.scenario import LoadScenario, ScenarioError
 
 P_WC = np.array([0.5, -0.6, 0.47])
 

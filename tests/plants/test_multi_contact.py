@@ -15,7 +15,7 @@ from lmap_drake.plants.generator import MeshSignedDistance
 from lmap_drake.plants.leaf import ExtrudeToTets, LeafShape, OrientTets, TriangulateLeaf
 from lmap_drake.plants.pepper import MakePepper, PepperShapeOf
 from lmap_drake.plants.scene import AddFemLeaf, _ObjMesh
-from lmap_drake.scenario import FruitConfig, LeafConfig
+from lmap_drake.plants.config import FruitConfig, LeafConfig
 
 THICKNESS = 0.002
 

@@ -142,7 +142,7 @@ def test_the_twin_gripper_reports_a_held_leaf_as_an_object():
     the simulated fingers close past the request (the leaf hangs from them).
     The hardware controller pulls only on OBJ 2."""
     from lmap_drake.plants.twin import TwinGripper
-    from lmap_drake.scenario import HardwareConfig
+    from lmap_drake.station.hardware_config import HardwareConfig
     g = TwinGripper(HardwareConfig().gripper, 0.085)
     g.Set({"ACT": 1, "GTO": 1})
     assert g.Get("OBJ") == 3

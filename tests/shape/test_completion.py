@@ -6,12 +6,11 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from lmap_drake.scenario import ShapeConfig
+from lmap_drake.shape.config import ShapeConfig, SscConfig
 from lmap_drake.shape.benchmark import MakeSyntheticCase
 from lmap_drake.shape.completion import CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints
-from lmap_drake.shape.ssc import SscParams
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +33,7 @@ def test_background_rays_keep_the_estimate_inside_the_silhouette(decoder):
     plain = FreeSpacePoints(cam, observed, sem.fruit_points_W, 0.003)
     silhouette = all_free[cKDTree(plain).query(all_free)[0] > 0.006]
     assert len(silhouette) > 1000
-    P = SscParams(iterations=100)
+    P = SscConfig(iterations=100)
 
     def inside(scene):
         est = CompleteScene(scene, dec, mean, P, "ssc").fruit
@@ -63,7 +62,7 @@ def test_complete_plant_merges_fragments_of_one_fruit(decoder):
     pts = np.vstack([f, other])
     ids = np.r_[frag, np.full(len(other), 2)]
     plant = CompletePlant(dc.replace(sem, fruit_points_W=pts, fruit_instance=ids), dec, mean,
-                          SscParams(iterations=100), "ssc")
+                          SscConfig(iterations=100), "ssc")
     assert len(plant.fruits) == 2, plant.fruit_ids
     assert sorted(len(np.flatnonzero(plant.semantic.fruit_instance == i))
                   for i in plant.fruit_ids) == sorted([len(f), len(other)])
@@ -81,7 +80,7 @@ def test_complete_plant_with_a_focus_completes_only_the_fruit_there(decoder):
     pts = np.vstack([f, f + [0.15, 0.0, 0.0]])
     ids = np.r_[np.zeros(len(f), int), np.ones(len(f), int)]
     sem2 = dc.replace(sem, fruit_points_W=pts, fruit_instance=ids)
-    P = SscParams(iterations=30)
+    P = SscConfig(iterations=30)
     near_second = f.mean(axis=0) + [0.15, 0.0, 0.01]
     focused = CompletePlant(sem2, dec, mean, P, "ssc", focus_W=near_second)
     assert focused.fruit_ids == [1]
@@ -101,7 +100,7 @@ def test_complete_plant_gives_the_same_estimates_in_one_thread_or_two(decoder):
     pts = np.vstack([f, f[::2] + [0.15, 0.0, 0.0], f[::3] + [-0.15, 0.0, 0.02]])
     ids = np.r_[np.zeros(len(f), int), np.ones(len(f[::2]), int), np.full(len(f[::3]), 2)]
     sem3 = dc.replace(sem, fruit_points_W=pts, fruit_instance=ids)
-    P = SscParams(iterations=40)
+    P = SscConfig(iterations=40)
     t1, t2 = {}, {}
     one = CompletePlant(sem3, dec, mean, P, "ssc", workers=1, timings=t1)
     two = CompletePlant(sem3, dec, mean, P, "ssc", workers=2, timings=t2)
@@ -125,7 +124,7 @@ def test_a_fruit_seen_again_unchanged_keeps_its_fit_and_a_changed_one_is_fitted_
     ids = np.r_[np.zeros(len(f), int), np.ones(len(f), int)]
     first = dc.replace(sem, fruit_points_W=pts, fruit_instance=ids,
                        leaf_points_W=np.zeros((0, 3)))
-    P = SscParams(iterations=20)
+    P = SscConfig(iterations=20)
     memo = FitMemo(tolerance=0.005)
     t0 = {}
     a = CompletePlant(first, dec, mean, P, "ssc", memo=memo, timings=t0)

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from lmap_drake.plants.pepper import MakePepper, PepperShape
-from lmap_drake.scenario import ShapeConfig
+from lmap_drake.shape.config import ShapeConfig
 from lmap_drake.shape.deepsdf import (DeepSDFDecoder, LoadDecoder, MissingWeightsError,
                                       ResolveWeightsPath, SaveDecoder)
 from lmap_drake.shape.metrics import MeshChamferCm

@@ -6,12 +6,12 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from lmap_drake.scenario import ShapeConfig
+from lmap_drake.shape.config import ReestimateConfig, ShapeConfig, SscConfig
 from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints
 from lmap_drake.shape.metrics import CenterErrorCm, MeshCentroid, MeshChamferCm
-from lmap_drake.shape.ssc import Adam, MakeFruitEstimate, OptimizeShape, SscParams
+from lmap_drake.shape.ssc import Adam, MakeFruitEstimate, OptimizeShape
 
 CAM = np.array([0.5, -0.6, 0.47])
 
@@ -44,7 +44,7 @@ def test_ssc_recovers_pose_and_shape_better_than_init(template):
     dec, mean, lat = template
     gt, R = _gt(dec, lat[3])
     obs = _visible_points(gt, keep_right_half=True)
-    P = SscParams(iterations=150)
+    P = SscConfig(iterations=150)
     est = OptimizeShape(dec, mean, obs, CAM, [], None, P)
     c = obs.mean(0)
     t0 = c + 0.01 * (c - CAM) / np.linalg.norm(c - CAM)
@@ -71,7 +71,7 @@ def test_negative_loss_pushes_surface_out_of_free_space(template):
     obs = _visible_points(gt, n=800)
     free = FreeSpacePoints(CAM, obs, obs, 0.003)
     assert len(free) > 300
-    P = SscParams(iterations=80)
+    P = SscConfig(iterations=80)
     init = dict(s=1.35)
     with_neg = OptimizeShape(dec, mean, obs, CAM, [(free, 1.0)], None, P, init=init)
     without = OptimizeShape(dec, mean, obs, CAM, [], None, dc.replace(P, w_neg=0.0), init=init)
@@ -102,15 +102,15 @@ def test_homa_ignores_scene_terms(template):
     dec, mean, lat = template
     gt, _ = _gt(dec, lat[1])
     obs = _visible_points(gt, n=600)
-    est = FitHoma(dec, mean, obs, CAM, SscParams(iterations=30))
+    est = FitHoma(dec, mean, obs, CAM, SscConfig(iterations=30))
     tr = [r for r in est.loss_trace if r["it"] >= 0]
     assert all(r["neg"] == 0 and r["ped"] == 0 for r in tr)
 
 
 def test_params_from_config_reestimate():
-    cfg = ShapeConfig()
-    p = SscParams.FromConfig(cfg)
-    q = SscParams.FromConfig(cfg, reestimate=True)
+    cfg = ShapeConfig().ssc
+    p = cfg
+    q = ReestimateConfig(cfg)
     assert (p.w_sur, p.w_neg, p.w_ped, p.w_reg) == (1.0, 2.0, 0.1, 1.0)
     assert p.w_neg_completed_branch == 0.1
     assert q.w_ped == cfg.reestimate_w_ped == 0.01
@@ -123,7 +123,7 @@ def test_params_from_config_reestimate():
     assert (p.w_rot, q.w_rot) == (0.0, 0.0)
     cfg.rotation_hold_steps, cfg.reestimate_rotation_hold_steps = 7, 3
     cfg.w_rot, cfg.reestimate_w_rot = 0.5, 0.2
-    p, q = SscParams.FromConfig(cfg), SscParams.FromConfig(cfg, reestimate=True)
+    p, q = cfg, ReestimateConfig(cfg)
     assert (p.rotation_hold_steps, q.rotation_hold_steps, p.w_rot, q.w_rot) == (7, 3, 0.5, 0.2)
 
 
@@ -135,14 +135,14 @@ def test_the_rotation_is_held_still_for_the_first_steps_then_turns(template):
     gt, R = _gt(dec, lat[2], angle_deg=15.0)
     obs = _visible_points(gt, n=800)
     est = OptimizeShape(dec, mean, obs, CAM, [], None,
-                        SscParams(iterations=60, rotation_hold_steps=20, w_ped=0.0))
+                        SscConfig(iterations=60, rotation_hold_steps=20, w_ped=0.0))
     tr = [r for r in est.loss_trace if r["it"] >= 0]
     axes = np.array([r["axis"] for r in tr])
     assert np.allclose(axes[:21], [0, 0, 1], atol=1e-6)      # pose of steps 0-20 (R before each step)
     assert abs(tr[20]["s"] - tr[0]["s"]) > 1e-4              # ... while the scale moved
     tilt = lambda a: np.degrees(np.arccos(np.clip(a @ R[:, 2], -1, 1)))   # noqa: E731
     assert tilt(axes[-1]) < tilt(axes[0]) - 0.5                # then it turned toward the truth
-    homa = FitHoma(dec, mean, obs, CAM, SscParams(iterations=5, rotation_hold_steps=20))
+    homa = FitHoma(dec, mean, obs, CAM, SscConfig(iterations=5, rotation_hold_steps=20))
     assert not np.allclose(homa.loss_trace[4]["axis"], [0, 0, 1], atol=1e-6)
 
 
@@ -194,7 +194,7 @@ def test_visible_curved_peduncle_does_not_inflate_the_fruit(template):
     # Without the base gate (``peduncle_base_distance`` 0), so the visible
     # upper stalk does reach the term.
     est = OptimizeShape(dec, mean, obs, CAM, [(stalk, 1.0)], stalk,
-                        SscParams(peduncle_base_distance=0.0))
+                        SscConfig(peduncle_base_distance=0.0))
     tr = [r for r in est.loss_trace if r["it"] >= 0]
     assert sum(r["ped"] > 0 for r in tr) > 100        # the peduncle term was active
     s_est = float(np.cbrt(abs(np.linalg.det(est.X_WO[:3, :3]))))
@@ -216,7 +216,7 @@ def test_initial_pose_from_observation(template):
     c = np.array([0.5, -0.03, 0.33])
     away = (c - CAM) / np.linalg.norm(c - CAM)
     small = c + rng.normal(scale=0.004, size=(200, 3))
-    on = SscParams(init_from_observation=True)
+    on = SscConfig(init_from_observation=True)
     s0, t0 = InitialPose(dec, mean, small, CAM, on)
     assert s0 == 1.0
     np.testing.assert_allclose((t0 - small.mean(0)) @ away, 0.8 * st["radius"], rtol=1e-6)
@@ -226,7 +226,7 @@ def test_initial_pose_from_observation(template):
     assert 1.45 < s1 < 1.75        # spread 1.5 x extent plus the noise
     s2, _ = InitialPose(dec, mean, wide, CAM, dc.replace(on, init_scale_bounds=[0.5, 1.2]))
     assert s2 == 1.2
-    s3, t3 = InitialPose(dec, mean, wide, CAM, SscParams())
+    s3, t3 = InitialPose(dec, mean, wide, CAM, SscConfig())
     small = wide
     assert s3 == 1.0
     np.testing.assert_allclose(t3, small.mean(0) + 0.01 * (small.mean(0) - CAM) /
@@ -245,13 +245,13 @@ def test_the_variety_volume_sets_the_start_and_the_fitted_size(template):
     assert PriorScale(dec, mean, 0.0) == 1.0
     assert PriorScale(dec, mean, v_template / 8) == pytest.approx(0.5)
     pts = np.array([0.5, -0.03, 0.33]) + np.random.default_rng(0).normal(scale=0.004, size=(50, 3))
-    s0, _ = InitialPose(dec, mean, pts, CAM, SscParams(fruit_volume_cm3=60.0))
+    s0, _ = InitialPose(dec, mean, pts, CAM, SscConfig(fruit_volume_cm3=60.0))
     assert s0 ** 3 * v_template == pytest.approx(60.0, rel=1e-6)
     gt, _ = _gt(dec, lat[3], s=0.7)                 # a small pepper
     v_true = abs(MeshVolume(gt.vertices_W, gt.faces)) * 1e6
     obs = _visible_points(gt, n=400)
     obs = obs[obs[:, 2] < np.quantile(obs[:, 2], 0.3)]     # its lower part only
-    P = SscParams(iterations=150)
+    P = SscConfig(iterations=150)
     fits = {v: OptimizeShape(dec, mean, obs, CAM, [], None,
                              dc.replace(P, fruit_volume_cm3=v)) for v in (0.0, v_true)}
     err = {v: abs(abs(MeshVolume(f.vertices_W, f.faces)) * 1e6 - v_true) for v, f in fits.items()}
@@ -280,7 +280,7 @@ def test_peduncle_base_gate_uses_only_the_stalk_where_it_meets_the_fruit(templat
     term active; a stalk whose base is hidden leaves it (almost) idle, so
     the curved, visible part cannot tilt the fruit."""
     dec, mean, lat = template
-    P = SscParams(peduncle_base_distance=0.01)
+    P = SscConfig(peduncle_base_distance=0.01)
     ped = {}
     for hide in (False, True):
         gt, axis, obs, stalk = _stalk_case(dec, lat, hide)
@@ -302,7 +302,7 @@ def test_rotation_prior_keeps_the_axis_near_the_start(template):
     turn = {}
     for w_rot in (0.0, 3.0):
         est = OptimizeShape(dec, mean, obs, CAM, [(stalk, 1.0)], None,
-                            SscParams(w_rot=w_rot, w_ped=0.0))
+                            SscConfig(w_rot=w_rot, w_ped=0.0))
         turn[w_rot] = np.degrees(np.arccos(np.clip(est.peduncle_axis_W[2], -1, 1)))
     assert turn[3.0] < turn[0.0], turn
     assert turn[3.0] < 8.0, turn

@@ -5,7 +5,8 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
-from lmap_drake.scenario import CameraNoiseConfig, LoadScenario
+from lmap_drake.scenario import LoadScenario
+from lmap_drake.station.config import CameraNoiseConfig
 from lmap_drake.station.camera_noise import (CameraProfile, IncidenceDeg, NoisyColor,
                                              NoisyDepth, ThinMask)
 

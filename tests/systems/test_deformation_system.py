@@ -4,7 +4,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from lmap_drake.deformation import DeformationError, MakeActions, PredictDeformations
 from lmap_drake.deformation.synthetic import OvateLeaf
-from lmap_drake.scenario import DeformationConfig
+from lmap_drake.deformation.config import DeformationConfig
 from lmap_drake.systems.deformation import DeformationPrediction
 from lmap_drake.types import BranchEstimate, SceneEstimate, SemanticScene
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 from pydrake.common.value import AbstractValue
 
-from lmap_drake.scenario import ShapeConfig
+from lmap_drake.shape.config import ShapeConfig, SscConfig
 from lmap_drake.shape.benchmark import MakeSyntheticCase
 from lmap_drake.shape.deepsdf import MissingWeightsError
 from lmap_drake.systems.shape_completion import ShapeCompletion
@@ -15,7 +15,7 @@ from lmap_drake.types import SceneEstimate, SemanticScene
 def test_system_outputs_scene_estimate():
     torch.set_num_threads(1)
     case = MakeSyntheticCase(2, occluded=True)
-    sys = ShapeCompletion(dc.replace(ShapeConfig(), iterations=60))
+    sys = ShapeCompletion(ShapeConfig(ssc=SscConfig(iterations=60)))
     ctx = sys.CreateDefaultContext()
     sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(case.semantic))
     est = sys.GetOutputPort("scene_estimate").Eval(ctx)
@@ -59,7 +59,7 @@ def test_a_view_segmented_again_is_not_completed_again(monkeypatch):
     monkeypatch.setattr(module, "CompletePlant",
                         lambda *a, **k: calls.append(1) or real(*a, **k))
     sem = MakeSyntheticCase(2, occluded=True).semantic
-    sys = ShapeCompletion(dc.replace(ShapeConfig(), iterations=20))
+    sys = ShapeCompletion(ShapeConfig(ssc=SscConfig(iterations=20)))
     ctx = sys.CreateDefaultContext()
     port = sys.GetOutputPort("plant_estimate")
     sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(sem))
@@ -85,7 +85,7 @@ def test_the_smallest_fruit_instance_completed_is_the_configured_one():
                        fruit_instance=np.zeros(25, np.int64))
     counts = {}
     for n in (20, 30):
-        sys = ShapeCompletion(dc.replace(ShapeConfig(), iterations=5, min_fruit_points=n))
+        sys = ShapeCompletion(ShapeConfig(ssc=SscConfig(iterations=5), min_fruit_points=n))
         ctx = sys.CreateDefaultContext()
         sys.GetInputPort("semantic_scene").FixValue(ctx, AbstractValue.Make(small))
         counts[n] = len(sys.GetOutputPort("plant_estimate").Eval(ctx).fruits)

@@ -1,0 +1,122 @@
+"""Value checks shared by every section's validation (``Validate*Config``
+beside each config dataclass): rules per key, enumerations, finiteness.
+
+Rules: ">0", ">=0", ">=1", "(lo,hi)" / "[lo,hi]" (open / closed ends),
+"finite"; "Nx<rule>" = a list of N values each obeying <rule>, "+x<rule>" =
+a non-empty list. Failures raise ``ConfigError(key, detail)``; the scenario
+loader adds where the key was set.
+
+Floor module: imports only numpy, pydrake and ``lmap_drake.errors``.
+"""
+from __future__ import annotations
+
+import dataclasses as dc
+import re
+import typing
+
+import numpy as np
+from pydrake.common.schema import Transform
+
+from lmap_drake.errors import ConfigError
+
+
+def Join(path: str, key: str) -> str:
+    """``path.key`` (``key`` alone when ``path`` is empty)."""
+    return f"{path}.{key}" if path else key
+
+
+def Need(cond, key: str, detail: str) -> None:
+    """Raises ``ConfigError(key, detail)`` unless ``cond``."""
+    if not cond:
+        raise ConfigError(key, detail)
+
+
+def GetPath(obj, path: str):
+    """``obj.a.b`` for ``path`` ``"a.b"``."""
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def IsNumber(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def RuleError(v, rule: str) -> str:
+    """'' if the scalar ``v`` obeys ``rule``, else what is wrong."""
+    if not IsNumber(v):
+        return f"must be a number, got {v!r}"
+    if not np.isfinite(v):
+        return f"must be finite, got {v}"
+    if rule == "finite":
+        return ""
+    if rule.startswith(">="):
+        lo = float(rule[2:])
+        return "" if v >= lo else f"must be >= {rule[2:]}, got {v}"
+    if rule.startswith(">"):
+        lo = float(rule[1:])
+        return "" if v > lo else f"must be > {rule[1:]}, got {v}"
+    lo_s, hi_s = rule[1:-1].split(",")
+    lo, hi = float(lo_s), float(hi_s)
+    ok = (v > lo if rule[0] == "(" else v >= lo) and (v < hi if rule[-1] == ")" else v <= hi)
+    return "" if ok else f"must be in {rule}, got {v}"
+
+
+def FiniteTransform(X) -> bool:
+    try:
+        if not X.IsDeterministic():
+            return True
+        return bool(np.all(np.isfinite(X.GetDeterministicValue().GetAsMatrix4())))
+    except Exception:  # noqa: BLE001 - Drake refuses a non-finite rotation
+        return False
+
+
+def CheckFinite(obj, path: str = "") -> None:
+    """Every number (and pose) of the dataclass ``obj``, nested ones
+    included, is finite (NaN passes comparisons)."""
+    for f in dc.fields(obj):
+        v = getattr(obj, f.name)
+        p = Join(path, f.name)
+        if dc.is_dataclass(v):
+            CheckFinite(v, p)
+        elif IsNumber(v) and not np.isfinite(v):
+            raise ConfigError(p, f"must be finite, got {v}")
+        elif isinstance(v, (list, tuple)):
+            for i, x in enumerate(v):
+                if IsNumber(x) and not np.isfinite(x):
+                    raise ConfigError(p, f"must be finite, got {list(v)} (item {i})")
+        elif isinstance(v, Transform) and not FiniteTransform(v):
+            raise ConfigError(p, "must be a finite pose (translation and rotation)")
+
+
+def CheckRules(cfg, path: str, rules: typing.Mapping[str, str],
+               enums: typing.Mapping[str, tuple] = {}) -> None:
+    """``CheckFinite``, then each key of ``rules`` (relative to ``cfg``,
+    dotted) against its rule, then each key of ``enums`` against its
+    choices; key paths in errors start with ``path``."""
+    CheckFinite(cfg, path)
+    for key, rule in rules.items():
+        v = GetPath(cfg, key)
+        full = Join(path, key)
+        m = re.fullmatch(r"(\d+|\+)x(.*)", rule)
+        if m:
+            n, item = m.groups()
+            if not isinstance(v, (list, tuple)):
+                raise ConfigError(full, f"must be a list, got {v!r}")
+            if n == "+":
+                Need(len(v) >= 1, full, f"needs at least one value, got {list(v)}")
+            else:
+                Need(len(v) == int(n), full, f"needs {n} values, got {len(v)}: {list(v)}")
+            for x in v:
+                err = RuleError(x, item)
+                if err:
+                    raise ConfigError(
+                        full, f"values {err.replace('must', 'must each')} in {list(v)}")
+        else:
+            err = RuleError(v, rule)
+            if err:
+                raise ConfigError(full, err)
+    for key, choices in enums.items():
+        v = GetPath(cfg, key)
+        Need(v in choices, Join(path, key),
+             f"'{v}' unknown; choose one of {', '.join(choices)}")

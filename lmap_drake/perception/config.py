@@ -1,0 +1,99 @@
+"""Configuration of perception (segmentation, point clouds, view fusion,
+free space): the ``perception`` section of the scenario. Lengths in metres."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
+
+import dataclasses as dc
+
+from lmap_drake.config_checks import CheckRules
+
+
+@dc.dataclass
+class PerceptionConfig:
+    """Segmentation and point-cloud parameters (paper Sec. III-A-1). See
+    ``lmap_drake/perception/``. Lengths in metres."""
+    # segnet (the default: trained RGB-D network, no labels) | color_depth
+    # (classical colour + depth) | label (the simulator's labels: an oracle
+    # for ablations) | grounded_sam (local GroundingDINO + SAM files)
+    segmenter: str = "segnet"
+    # segnet: weights (relative to the repository root; made by
+    # scripts/train_segnet.py) and torch device.
+    segnet_weights: str = "models/segnet/segnet.pt"
+    segnet_device: str = "cpu"
+    depth_cut: float = 1.5
+    dbscan_eps: float = 0.008
+    dbscan_min_points: int = 15
+    voxel_size: float = 0.003
+    # Statistical outlier removal (open3d): neighbours and std-dev ratio.
+    outlier_neighbors: int = 20
+    outlier_std_ratio: float = 2.0
+    # color_depth: structures narrower than this are branch candidates; green
+    # curved regions may be reported as (green) fruit.
+    branch_max_width: float = 0.035
+    detect_green_fruit: bool = True
+    # grounded_sam: local files only (GroundingDINO config .py and checkpoint,
+    # SAM checkpoint), never downloaded; SAM model type; torch device.
+    grounded_sam_config: str = ""
+    grounded_sam_checkpoint: str = ""
+    sam_checkpoint: str = ""
+    sam_model_type: str = "vit_h"
+    grounded_sam_device: str = "cpu"
+    box_threshold: float = 0.25
+    text_threshold: float = 0.25
+    nms_threshold: float = 0.8
+    # view fusion: a new instance joins an earlier one within this distance.
+    fusion_match_distance: float = 0.008
+    # Free space from background pixels (every ``background_stride``-th
+    # pixel per row and column): their rays passed the plant. A +inf depth
+    # (no return) is taken as nothing within ``no_return_free_range`` m
+    # (0 = such pixels carve nothing). Right for the simulated camera; on
+    # hardware set it to 0: the RealSense client also maps dropouts (dark or
+    # glancing surfaces, too close) to +inf, and those would carve the fruit.
+    background_stride: int = 2
+    no_return_free_range: float = 2.0
+    # ... but only where no pixel with a return lies within this many pixels:
+    # a narrower no-return patch is a dropout (glancing rim, thin part,
+    # speckle) next to a surface, not open space. The simulated camera's
+    # dropouts (camera_noise) all lie within 2.83 px of a return (60k
+    # dropout pixels in the 26 scenes of the three suites; fruit 1.4 px,
+    # leaf and branch 2.0); at 6 px the guard also withheld the 8 mm of free
+    # space beside every silhouette, and fits bulged sideways into it.
+    no_return_margin_px: float = 3.0
+    # Flying pixels (depth between a nearer and a farther neighbour, each
+    # more than this apart, m; 0 = keep all) are dropped before
+    # de-projection: they float in the gap between a leaf and the fruit.
+    flying_pixel_jump: float = 0.005
+    # Robot self-filter: plant points within this distance (m) of the robot's
+    # collision surfaces at the view's joints are dropped (a gripper pixel
+    # mislabelled leaf, fruit or branch is not plant; 0 = keep all).
+    robot_filter_distance: float = 0.01
+
+
+
+_RULES = {
+    "depth_cut": ">0",
+    "dbscan_eps": ">0",
+    "dbscan_min_points": ">=1",
+    "voxel_size": ">0",
+    "outlier_neighbors": ">=1",
+    "outlier_std_ratio": ">0",
+    "branch_max_width": ">0",
+    "box_threshold": "[0,1]",
+    "text_threshold": "[0,1]",
+    "nms_threshold": "[0,1]",
+    "fusion_match_distance": ">=0",
+    "robot_filter_distance": ">=0",
+    "background_stride": ">=1",
+    "no_return_free_range": ">=0",
+    "no_return_margin_px": ">=0",
+    "flying_pixel_jump": ">=0",
+}
+_ENUMS = {
+    "segmenter": ("segnet", "color_depth", "label", "grounded_sam"),  # segmentation.SEGMENTERS
+    "sam_model_type": ("vit_h", "vit_l", "vit_b"),
+}
+
+
+def ValidatePerceptionConfig(cfg: PerceptionConfig, path: str = "perception") -> None:
+    """Raises ``ConfigError`` (key path, what is wrong) on a bad value."""
+    CheckRules(cfg, path, _RULES, _ENUMS)

@@ -1,0 +1,377 @@
+"""Configuration of the plant world: the procedural plant (branch, pepper,
+FEM leaf), the multi-fruit plant, the rigid placeholder, the scripted pull
+and the ground-truth outcome thresholds. The ``plant_scene`` section of the
+scenario. World frame W, metres."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.geometry import Rgba
+
+from lmap_drake.config_checks import CheckRules, Need
+from lmap_drake.errors import ConfigError
+from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
+from lmap_drake.plants.generator import PlantGenerationError
+from lmap_drake.plants.multi import ValidateMultiConfig
+from lmap_drake.plants.pepper import PepperShapeOf
+
+
+@dc.dataclass
+class BranchConfig:
+    """Rigid branch: a vertical cylinder, optionally bowed sideways (m)."""
+    radius: float = 0.006
+    length: float = 0.5
+    bend: float = 0.0
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.33, 0.45, 0.2, 1.0))
+
+
+@dc.dataclass
+class LeafConfig:
+    """FEM leaf: blade outline (m), mesh resolution and material.
+
+    Material defaults: E = 10 MPa (leaf lamina is reported at 5-20 MPa),
+    Poisson 0.3. The simulated blade is 2 mm thick (two 1 mm tet layers) for
+    well-shaped tets, so its ``mass_density`` is an effective 100 kg/m^3,
+    which gives a real lamina's ~0.2 kg/m^2. Damping: stiffness-proportional
+    ``stiffness_damping`` (s) and mass-proportional ``mass_damping`` (1/s).
+    ``clearance``: blade in front of the fruit's front (m); the blade leaves
+    the branch ``attach_above_fruit`` above the fruit top and bends down with
+    ``bend_radius``."""
+    length: float = 0.13
+    width: float = 0.075
+    shape: str = "ovate"
+    petiole_length: float = 0.04
+    petiole_width: float = 0.006
+    thickness: float = 0.002
+    target_tets: int = 1000
+    element_size: float = 0.0  # 0 = derived from target_tets
+    youngs_modulus: float = 10.0e6
+    poissons_ratio: float = 0.3
+    mass_density: float = 100.0
+    stiffness_damping: float = 0.01
+    mass_damping: float = 1.0
+    clearance: float = 0.025
+    min_fruit_clearance: float = 0.004
+    attach_above_fruit: float = 0.012
+    bend_radius: float = 0.025
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.2, 0.55, 0.15, 1.0))
+
+
+@dc.dataclass
+class FruitConfig:
+    """Pepper shape (see ``lmap_drake.plants.pepper.PepperShape``), colour and
+    placement. ``height_on_branch``: fruit centre above the branch base (m);
+    ``tilt_deg``: peduncle axis tilt from vertical, about a horizontal axis at
+    ``tilt_azimuth_deg`` from the camera direction; ``lean_deg``: a further
+    tilt that turns the fruit top toward the branch (the fruit hangs from a
+    short peduncle at a stem node, its body pressed away from the stem). The
+    fruit sits as close to the branch as ``gap_to_branch`` (m, branch surface
+    to fruit surface) allows; the peduncle stalk runs from the fruit top to
+    the stem.
+
+    ``mesh_file`` (OBJ, PLY or STL; empty = the procedural pepper above)
+    puts a given pepper mesh in its place, placed the same way: the file's
+    +z is the fruit's peduncle axis, the peduncle leaves at the top, units
+    are metres times ``mesh_scale`` (0.001 for a file in millimetres); the
+    file's origin is ignored (the fruit is centred on its volume centroid).
+    ``peduncle_file`` (optional, same frame and units): the stalk, rendered
+    and labelled as branch, joined to the branch from its far end.
+    ``peduncle_point`` (optional, file frame and units): where the peduncle
+    leaves the fruit; default: nearest the peduncle mesh, else where the +z
+    axis through the centroid leaves the surface. The shape keys (``size``
+    ... ``lobe_phase_deg``, ``stripes``) are ignored for a file fruit. See
+    ``lmap_drake/plants/fruit_mesh.py`` for the checks and repairs.
+
+    Wider procedural family (defaults keep the old shapes and stalk):
+    ``dimple`` (relative stem-cavity depth, 0-0.45) whose centre is tilted
+    ``cavity_offset_deg`` off the axis toward ``cavity_phase_deg``;
+    ``bend`` (1/m) bends the body sideways toward ``bend_phase_deg``;
+    ``peduncle_curved: true`` makes the peduncle a curved tube of
+    ``peduncle_length`` whose end leaves the axis by ``peduncle_angle_deg``
+    toward ``peduncle_azimuth_deg`` (labelled branch, joined to the branch
+    from its end), instead of the straight stalk."""
+    variant: str = "blocky"
+    size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
+    lobes: int = 4
+    lobe_depth: float = 0.08
+    squareness: float = 2.4
+    shoulder: float = 0.12
+    taper: float = 0.06
+    cone: float = 0.0
+    lobe_phase_deg: float = 0.0
+    dimple: float = 0.0
+    cavity_offset_deg: float = 0.0
+    cavity_phase_deg: float = 0.0
+    bend: float = 0.0
+    bend_phase_deg: float = 0.0
+    peduncle_curved: bool = False
+    peduncle_angle_deg: float = 0.0
+    peduncle_azimuth_deg: float = 0.0
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
+    stripe_color: Rgba = dc.field(default_factory=lambda: Rgba(0.55, 0.02, 0.02, 1.0))
+    stripes: int = 0
+    height_on_branch: float = 0.22
+    gap_to_branch: float = 0.004
+    tilt_deg: float = 10.0
+    tilt_azimuth_deg: float = 30.0
+    lean_deg: float = 0.0
+    peduncle_length: float = 0.015
+    peduncle_radius: float = 0.004
+    mesh_file: str = ""
+    peduncle_file: str = ""
+    mesh_scale: float = 1.0
+    peduncle_point: list[float] = dc.field(default_factory=list)
+
+
+@dc.dataclass
+class ScriptedPullConfig:
+    """A grasp-and-pull given by hand (what ``lmap-drake run`` executes until
+    the planner chooses actions). The grasp sits ``grasp_from_tip`` (m) from
+    the blade tip along the midrib, ``grasp_v`` (m) to the side of it; the
+    gripper approaches along the midrib from beyond the tip with its pads
+    ``pregrasp_opening`` (m) apart, closing across the blade. The pull moves
+    the TCP ``distance`` (m) along ``direction_W`` in ``duration`` (s), then
+    holds for ``hold`` (s)."""
+    enabled: bool = True
+    grasp_from_tip: float = 0.015
+    grasp_v: float = 0.0
+    pregrasp_distance: float = 0.05
+    pregrasp_opening: float = 0.02
+    direction_W: list[float] = dc.field(default_factory=lambda: [-0.57, 0.0, 0.82])
+    distance: float = 0.06
+    duration: float = 2.0
+    hold: float = 0.5
+
+
+@dc.dataclass
+class OutcomeConfig:
+    """Thresholds of the ground-truth outcome measures (simulator only).
+
+    ``leaf_damage``: the ``strain_percentile`` of per-tet max principal
+    stretch, leaving out tets that touch a constraint, exceeds
+    ``tear_stretch``. ``plant_hazard``: the petiole's axial force estimate
+    E * A * (stretch - 1), with the median stretch of the ring of petiole
+    tets next to the branch attachment, exceeds ``petiole_max_force`` (N;
+    15 N is a 12.5 % petiole strain at the default E and cross-section). ``fruit_collision``: a leaf vertex or
+    robot geometry comes within ``-fruit_penetration`` of the fruit surface
+    (i.e. penetrates it by more than that, m) or touches it with more than
+    ``fruit_contact_force`` (N)."""
+    tear_stretch: float = 1.10
+    strain_percentile: float = 95.0
+    petiole_max_force: float = 15.0
+    fruit_penetration: float = 0.001
+    fruit_contact_force: float = 0.05
+    sample_period: float = 0.05
+
+
+@dc.dataclass
+class MultiFruitConfig:
+    """One fruit of a ``kind: multi`` plant. It hangs from its own side
+    shoot that leaves the main stem ``height`` (m, above the branch base) on
+    the ``side`` (+1 / -1: +/- the lateral direction seen from camera0) and
+    reaches just past the fruit (``shoot_extra`` m beyond the peduncle,
+    rising ``shoot_rise_deg``). ``num_leaves`` (0-2) leaves sit on that
+    shoot and are swung to hide ``occlusion`` of the fruit from camera0
+    (counting every leaf of the plant; ignored with 0 leaves). ``fruit``:
+    shape and colour as ``plant_scene.fruit`` (its ``tilt_deg``,
+    ``tilt_azimuth_deg``, ``peduncle_*`` and ``mesh_file`` / ``mesh_scale``
+    / ``peduncle_file`` / ``peduncle_point`` (a pepper mesh from a file, as
+    for ``kind: procedural``) are used; ``height_on_branch``,
+    ``gap_to_branch`` and ``lean_deg`` are not)."""
+    height: float = 0.25
+    side: float = 1.0
+    occlusion: float = 0.7
+    num_leaves: int = 1
+    shoot_extra: float = 0.01
+    shoot_rise_deg: float = 20.0
+    fruit: FruitConfig = dc.field(default_factory=FruitConfig)
+
+
+def _DefaultMultiFruits() -> list:
+    def one(height, side, occlusion, leaves, color, size):
+        f = MultiFruitConfig(height=height, side=side, occlusion=occlusion, num_leaves=leaves)
+        f.fruit.color = Rgba(*color, 1.0)
+        f.fruit.stripe_color = Rgba(*[0.7 * c for c in color], 1.0)
+        f.fruit.size = list(size)
+        return f
+    return [one(0.13, 1.0, 0.8, 2, (0.75, 0.05, 0.05), (0.07, 0.07, 0.08)),
+            one(0.24, -1.0, 0.6, 1, (0.95, 0.75, 0.05), (0.065, 0.065, 0.075)),
+            one(0.35, 1.0, 0.0, 0, (0.95, 0.45, 0.05), (0.06, 0.06, 0.07))]
+
+
+@dc.dataclass
+class MultiPlantConfig:
+    """``plant_scene.kind: multi``: a main stem (``plant_scene.branch``,
+    base ``plant_scene.p_W_branch_base``) with one side shoot per fruit in
+    ``fruits`` (2-4) and ``num_leaves`` (2-6) FEM leaves shaped by
+    ``plant_scene.leaf``: the fruits' ``num_leaves`` first, the rest on the
+    stem above the top fruit, swung outward by ``free_leaf_swing_deg``.
+    Leaves keep ``leaf_gap`` (m) from each other, from every fruit
+    (``plant_scene.leaf.min_fruit_clearance``) and from the stem and the
+    other shoots at rest. ``leaf_leaf_contact: true`` turns on Drake's
+    deformable-deformable contact between leaves; off by default: with these
+    thin two-layer leaves it does not keep a leaf from passing through
+    another and costs 10-40x per step while in contact (measured with drake
+    1.51.1, see tests/plants/test_multi_contact.py). World frame, metres."""
+    fruits: list[MultiFruitConfig] = dc.field(default_factory=_DefaultMultiFruits)
+    num_leaves: int = 4
+    shoot_radius: float = 0.004
+    leaf_gap: float = 0.003
+    free_leaf_swing_deg: float = 55.0
+    leaf_leaf_contact: bool = False
+
+
+@dc.dataclass
+class PlantSceneConfig:
+    """The plant in front of the robot. ``kind: procedural`` builds the
+    branch, pepper and FEM leaf from the sub-configs, with the leaf swung so
+    that it hides ``occlusion`` of the fruit from camera0; ``kind:
+    placeholder`` is a cheap rigid scene (branch cylinder, leaf plate,
+    pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
+    on side shoots and several FEM leaves (``multi``,
+    ``lmap_drake/plants/multi.py``). World frame, metres.
+
+    ``sleep_distance`` / ``sleep_speed``: a leaf at rest (every vertex
+    slower than ``sleep_speed``, m/s), not held and farther than
+    ``sleep_distance`` (m) from the robot's collision surfaces is frozen
+    (Drake's ``DeformableModel.Disable``: its FEM is not computed) and woken
+    as soon as the robot comes within that distance or it is grasped, as a
+    physics engine puts bodies to sleep (``PlantWorldSim``; 0 = every leaf
+    always simulated). Leaf-leaf contact (``multi.leaf_leaf_contact``)
+    keeps every leaf awake. The check runs every 10 ms step, on robot
+    surface samples 1 cm apart (4 mm on the gripper): 3 cm covers the
+    samples' gaps and the robot's largest move in a step (at most 1.2 cm measured
+    in the multi-fruit suite); on ``three_fruits_default`` 3 cm gave the
+    same outcome as 8 cm (petiole force equal to 10 digits) in 178 s
+    instead of 222 s.
+
+    ``fem_threads``: threads for the leaves' FEM (Drake's
+    ``DeformableModel`` parallelism; 0 = one per CPU, or the
+    ``LMAP_DRAKE_THREADS`` an evaluation worker is given). The result does
+    not depend on it (leaf vertices after 0.5 s of four awake leaves are
+    bit-equal on 1 and 2 threads); 2 threads cut a step with four awake
+    leaves from 49-50 to 38-40 ms on this 2-core machine."""
+    kind: str = "placeholder"
+    name: str = ""
+    p_W_branch_base: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
+    occlusion: float = 0.85
+    fruit_side: float = -1.0
+    branch: BranchConfig = dc.field(default_factory=BranchConfig)
+    leaf: LeafConfig = dc.field(default_factory=LeafConfig)
+    fruit: FruitConfig = dc.field(default_factory=FruitConfig)
+    pull: ScriptedPullConfig = dc.field(default_factory=ScriptedPullConfig)
+    outcome: OutcomeConfig = dc.field(default_factory=OutcomeConfig)
+    multi: MultiPlantConfig = dc.field(default_factory=MultiPlantConfig)
+    sleep_distance: float = 0.03
+    sleep_speed: float = 0.002
+    fem_threads: int = 0
+    # placeholder-only fields
+    branch_length: float = 0.5
+    branch_radius: float = 0.006
+    fruit_center_W: list[float] = dc.field(default_factory=lambda: [0.5, -0.045, 0.33])
+    fruit_size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
+    fruit_lobes: int = 4
+    fruit_color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
+    leaf_center_W: list[float] = dc.field(default_factory=lambda: [0.5, -0.1, 0.355])
+    leaf_size: list[float] = dc.field(default_factory=lambda: [0.10, 0.002, 0.065])
+    leaf_color: Rgba = dc.field(default_factory=lambda: Rgba(0.2, 0.55, 0.15, 1.0))
+    branch_color: Rgba = dc.field(default_factory=lambda: Rgba(0.35, 0.5, 0.2, 1.0))
+
+
+
+_RULES = {
+    "p_W_branch_base": "3xfinite",
+    "occlusion": "(0,1)",
+    "branch.radius": ">0",
+    "branch.length": ">0",
+    "leaf.length": "[0.06,0.16]",
+    "leaf.width": ">0",
+    "leaf.petiole_length": ">0",
+    "leaf.petiole_width": ">0",
+    "leaf.thickness": ">0",
+    "leaf.target_tets": "[100,20000]",
+    "leaf.element_size": ">=0",
+    "leaf.youngs_modulus": ">0",
+    "leaf.poissons_ratio": "[0,0.5)",
+    "leaf.mass_density": ">0",
+    "leaf.stiffness_damping": ">=0",
+    "leaf.mass_damping": ">=0",
+    "leaf.clearance": ">=0",
+    "leaf.min_fruit_clearance": ">=0",
+    "leaf.attach_above_fruit": ">=0",
+    "leaf.bend_radius": ">0",
+    "fruit.size": "3x>0",
+    "fruit.lobes": ">=0",
+    "fruit.stripes": ">=0",
+    "fruit.height_on_branch": ">0",
+    "fruit.gap_to_branch": ">=0",
+    "fruit.peduncle_length": ">0",
+    "fruit.peduncle_radius": ">0",
+    "fruit.mesh_scale": ">0",
+    "pull.pregrasp_distance": ">0",
+    "pull.pregrasp_opening": "(0,0.085]",
+    "pull.direction_W": "3xfinite",
+    "pull.distance": ">0",
+    "pull.duration": ">0",
+    "pull.hold": ">=0",
+    "outcome.tear_stretch": ">0",
+    "outcome.strain_percentile": "(0,100]",
+    "outcome.petiole_max_force": ">0",
+    "outcome.fruit_penetration": ">=0",
+    "outcome.fruit_contact_force": ">=0",
+    "outcome.sample_period": ">0",
+    "sleep_distance": ">=0",
+    "sleep_speed": ">=0",
+    "fem_threads": ">=0",
+    "branch_length": ">0",
+    "branch_radius": ">0",
+    "fruit_center_W": "3xfinite",
+    "fruit_size": "3x>0",
+    "fruit_lobes": ">=0",
+    "leaf_center_W": "3xfinite",
+    "leaf_size": "3x>0",
+}
+_ENUMS = {
+    "kind": ("placeholder", "procedural", "multi"),
+    "leaf.shape": ("ovate", "elliptic"),
+    "fruit.variant": ("blocky", "elongated", "conical"),  # plants.pepper.VARIANTS
+}
+
+
+def ValidatePlantSceneConfig(ps: PlantSceneConfig, path: str = "plant_scene") -> None:
+    """Value rules, then the plant's consistency: the fruit below the branch
+    top, a valid pepper shape, a loadable fruit mesh, a multi-fruit layout
+    that fits (``plants.multi.ValidateMultiConfig``). Raises
+    ``ConfigError`` (key path, what is wrong)."""
+    CheckRules(ps, path, _RULES, _ENUMS)
+    Need(ps.fruit.height_on_branch < ps.branch.length, f"{path}.fruit.height_on_branch",
+         f"{ps.fruit.height_on_branch} m puts the fruit above the branch top "
+         f"({path}.branch.length {ps.branch.length} m)")
+    Need(abs(ps.branch.bend) < ps.branch.length, f"{path}.branch.bend",
+         f"must be smaller than the branch length, got {ps.branch.bend}")
+    Need(float(np.linalg.norm(ps.pull.direction_W)) > 1e-9, f"{path}.pull.direction_W",
+         "must not be zero")
+    fr = ps.fruit
+    try:
+        PepperShapeOf(fr).validate()
+    except ValueError as err:
+        raise ConfigError(f"{path}.fruit", f"is not a valid pepper shape: {err}") from None
+    Need(len(fr.peduncle_point) in (0, 3), f"{path}.fruit.peduncle_point",
+         f"must be empty or [x, y, z], got {list(fr.peduncle_point)}")
+    Need(not fr.peduncle_file or fr.mesh_file, f"{path}.fruit.peduncle_file",
+         f"needs {path}.fruit.mesh_file (the procedural pepper has its own stalk)")
+    if fr.mesh_file and ps.kind == "procedural":
+        try:
+            LoadFruitMeshOf(fr)
+        except FruitMeshError as err:
+            raise ConfigError(err.key, err.detail) from None
+    Need(not fr.mesh_file or ps.kind == "procedural", f"{path}.fruit.mesh_file",
+         f"needs {path}.kind: procedural (a multi-fruit plant takes a file per fruit: "
+         f"{path}.multi.fruits[i].fruit.mesh_file)")
+    if ps.kind == "multi":
+        try:
+            ValidateMultiConfig(ps)
+        except PlantGenerationError as err:
+            raise ConfigError(err.key, err.detail) from None

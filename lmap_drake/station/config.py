@@ -1,0 +1,192 @@
+"""Configuration of the station: the robot (UR5 + Robotiq 2F-85), the
+simulated cameras (``DefaultCameraConfig``, the L515-like intrinsics) and
+their sensor model (``CameraNoiseConfig``); the hardware's own settings are
+in ``lmap_drake.station.hardware_config``. Sections ``robot``, ``cameras``
+and ``camera_noise`` of the scenario. Frames: ``W`` world, ``B`` robot
+base, ``P`` a camera's parent frame."""
+# (no ``from __future__ import annotations``: Drake's ``yaml_load_typed``
+# reads the field types)
+
+import dataclasses as dc
+import typing
+
+import numpy as np
+from pydrake.common.schema import Rotation, Transform
+from pydrake.geometry import Rgba
+from pydrake.math import RollPitchYaw
+from pydrake.systems.sensors import CameraConfig
+
+from lmap_drake.config_checks import CheckRules, FiniteTransform, Join, Need
+
+
+def _transform(xyz, rpy_deg, base_frame: str | None = None) -> Transform:
+    t = Transform()
+    t.base_frame = base_frame
+    t.translation = np.asarray(xyz, dtype=float)
+    t.rotation = Rotation(RollPitchYaw(np.deg2rad(rpy_deg)))
+    return t
+
+
+# L515-like colour intrinsics: the 1024x768 depth intrinsics measured on an
+# L515 (fx 730.8, fy 731.1, cx 528.6, cy 408.2) scaled by 0.625 to 640x480.
+L515_640x480 = dict(width=640, height=480, fx=456.75, fy=456.94, cx=330.38, cy=255.13)
+
+
+def DefaultCameraConfig() -> CameraConfig:
+    """Eye-to-hand RGB-D camera facing the plant from -y, tilted 15 deg down."""
+    c = CameraConfig()
+    c.name = "camera0"
+    c.width = L515_640x480["width"]
+    c.height = L515_640x480["height"]
+    c.focal = CameraConfig.FocalLength(x=L515_640x480["fx"], y=L515_640x480["fy"])
+    c.center_x = L515_640x480["cx"]
+    c.center_y = L515_640x480["cy"]
+    c.clipping_near = 0.01
+    c.clipping_far = 10.0
+    c.z_near = 0.25  # L515 minimum range
+    c.z_far = 9.0
+    c.X_PB = _transform([0.5, -0.6, 0.47], [-105.0, 0.0, 0.0], "world")
+    c.renderer_name = "vtk"
+    c.renderer_class = "RenderEngineVtk"
+    c.background = Rgba(0.85, 0.87, 0.9, 1.0)
+    c.rgb = True
+    c.depth = True
+    c.label = True
+    c.fps = 10.0
+    return c
+
+
+@dc.dataclass
+class RobotConfig:
+    """UR5 + Robotiq 2F-85 placement, initial state and the simulated joint
+    servo (Drake's implicit PD on the plant plus gravity compensation)."""
+    X_WB: Transform = dc.field(
+        default_factory=lambda: _transform([0.0, 0.0, 0.0], [0.0, 0.0, 180.0]))
+    initial_q: list[float] = dc.field(
+        default_factory=lambda: [-1.3941, -0.552, 1.9769, 0.1742, -1.4152, -0.1795])
+    initial_gripper_width: float = 0.085
+    kp: list[float] = dc.field(default_factory=lambda: [8000., 8000., 4000., 600., 600., 300.])
+    kd: list[float] = dc.field(default_factory=lambda: [400., 400., 200., 30., 30., 12.])
+    gripper_kp: float = 4000.0
+    gripper_kd: float = 40.0
+    gravity_compensation: bool = True
+
+
+
+@dc.dataclass
+class CameraNoiseConfig:
+    """The simulated camera's sensor model (``lmap_drake/station/camera_noise.py``),
+    applied to camera0's colour and depth images; labels are untouched.
+    ``enabled: false`` gives the renderer's perfect images.
+
+    Defaults (an L515 / D4xx-like sensor at the plant's 0.4-0.9 m):
+
+    - ``depth_sigma_0 + depth_sigma_z2 z^2`` (m): 1.5 mm at 0.5 m, 2.6 mm at
+      0.8 m, 4.0 mm at 1 m; Intel quotes <= 2.5 mm precision (1 sigma) at
+      1 m for the L515 and an RMS error of ~1 mm at 0.5 m growing with z^2 for
+      the D415 (2 % at 2 m). ``correlated_fraction`` of the variance-weighted
+      noise is smooth over ``correlated_length_px`` (the low-frequency
+      "wobble" of time-of-flight and stereo depth).
+    - grazing incidence (deg): returns fade out between ``grazing_start_deg``
+      and ``grazing_full_deg`` between the ray and the surface normal (dark,
+      glancing leaf rims and fruit silhouettes are where an L515 loses depth).
+    - ``thin_width_px``: surfaces narrower than this many pixels (a petiole,
+      a peduncle, far twigs) lose ``thin_dropout`` of their returns.
+    - ``mixed_pixel_fraction`` of the pixels at a depth jump larger than
+      ``edge_jump`` (m) become flying pixels between the two surfaces (or
+      no return when the far side is empty).
+    - ``speckle_dropout``: scattered missing returns anywhere.
+    - ``depth_unit``: quantisation, 0.25 mm (the L515's depth unit; D4xx 1 mm).
+    - colour: per-scene ``exposure_variation`` (+-15 % gain),
+      ``white_balance_variation`` (+-5 % per channel) and
+      ``illumination_gradient`` (+-12 % across the image), then per-pixel
+      noise sqrt(read_noise^2 + shot_noise^2 I) on the 0-255 scale (about
+      2-3 levels, a consumer CMOS in good light).
+
+    ``seed_offset`` is added to the scenario's ``random_seed`` for the
+    noise."""
+    enabled: bool = True
+    depth_sigma_0: float = 0.001
+    depth_sigma_z2: float = 0.002
+    correlated_fraction: float = 0.5
+    correlated_length_px: float = 6.0
+    grazing_start_deg: float = 72.0
+    grazing_full_deg: float = 86.0
+    thin_width_px: float = 3.0
+    thin_dropout: float = 0.5
+    edge_jump: float = 0.01
+    mixed_pixel_fraction: float = 0.3
+    speckle_dropout: float = 0.002
+    depth_unit: float = 0.00025
+    exposure_variation: float = 0.15
+    white_balance_variation: float = 0.05
+    illumination_gradient: float = 0.12
+    read_noise: float = 1.5
+    shot_noise: float = 0.15
+    seed_offset: int = 0
+
+
+
+_ROBOT_RULES = {
+    "initial_q": "6xfinite",
+    "kp": "6x>=0",
+    "kd": "6x>=0",
+    "initial_gripper_width": "[0,0.085]",
+    "gripper_kp": ">=0",
+    "gripper_kd": ">=0",
+}
+_CAMERA_NOISE_RULES = {
+    "depth_sigma_0": ">=0",
+    "depth_sigma_z2": ">=0",
+    "correlated_fraction": "[0,1]",
+    "correlated_length_px": ">=0",
+    "grazing_start_deg": "[0,90]",
+    "grazing_full_deg": "[0,90]",
+    "thin_width_px": ">=0",
+    "thin_dropout": "[0,1]",
+    "edge_jump": ">0",
+    "mixed_pixel_fraction": "[0,1]",
+    "speckle_dropout": "[0,1]",
+    "depth_unit": ">=0",
+    "exposure_variation": "[0,1)",
+    "white_balance_variation": "[0,1)",
+    "illumination_gradient": "[0,1)",
+    "read_noise": ">=0",
+    "shot_noise": ">=0",
+}
+
+
+def ValidateRobotConfig(cfg: RobotConfig, path: str = "robot") -> None:
+    """Raises ``ConfigError`` (key path, what is wrong) on a bad value."""
+    CheckRules(cfg, path, _ROBOT_RULES)
+    Need(FiniteTransform(cfg.X_WB), Join(path, "X_WB"), "must be a finite pose")
+
+
+def ValidateCameraNoiseConfig(cfg: CameraNoiseConfig, path: str = "camera_noise") -> None:
+    """Raises ``ConfigError`` (key path, what is wrong) on a bad value."""
+    CheckRules(cfg, path, _CAMERA_NOISE_RULES)
+    Need(cfg.grazing_start_deg <= cfg.grazing_full_deg, Join(path, "grazing_start_deg"),
+         f"must be <= grazing_full_deg ({cfg.grazing_full_deg}), got {cfg.grazing_start_deg}")
+
+
+def ValidateCameras(cameras: typing.Mapping[str, CameraConfig], path: str = "cameras") -> None:
+    """The simulated cameras: ``camera0`` (the pipeline's) present, each
+    named as its key, with colour and depth, sane intrinsics and a finite
+    pose. Raises ``ConfigError``."""
+    Need("camera0" in cameras, path, "must contain 'camera0' (the pipeline's camera)")
+    for name, cam in cameras.items():
+        p = f"{path}.{name}"
+        Need(cam.name == name, f"{p}.name", f"must equal its key '{name}', got '{cam.name}'")
+        Need(cam.depth and cam.rgb, p, "needs rgb and depth enabled")
+        Need(cam.width >= 1 and cam.height >= 1, p,
+             f"width and height must be >= 1, got {cam.width} x {cam.height}")
+        Need(np.isfinite(cam.fps) and cam.fps > 0, f"{p}.fps", f"must be > 0, got {cam.fps}")
+        Need(0 < cam.clipping_near < cam.clipping_far, p,
+             f"needs 0 < clipping_near < clipping_far, got {cam.clipping_near}, "
+             f"{cam.clipping_far}")
+        Need(0 < cam.z_near < cam.z_far, p,
+             f"needs 0 < z_near < z_far, got {cam.z_near}, {cam.z_far}")
+        fx, fy = cam.focal_x(), cam.focal_y()
+        Need(np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0, f"{p}.focal",
+             f"must be > 0, got {fx}, {fy}")
+        Need(FiniteTransform(cam.X_PB), f"{p}.X_PB", "must be a finite pose")
