@@ -221,7 +221,7 @@ def EvaluateScenario(scenario, args, with_corr: bool, log) -> dict:
 
     from lmap_drake.deformation import Action, PredictDeformations
     from lmap_drake.perception.observe import SemanticSceneFromImages
-    from lmap_drake.planning.lmap import AttachLeaf
+    from lmap_drake.planning.attachment import AttachLeaf
     from lmap_drake.plants.leaf import BoundaryTriangles
     from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
 

@@ -18,7 +18,7 @@ diagrams/suite.yaml):
    ``scripts/eval_deformation_vs_fem.py``.
 3. From that grasp: pulls along the 6 axial and 8 diagonal directions that
    pass the branch-angle rule, by ``--pull_distances``, and arcs about the
-   estimated hinge (``planning.lmap.EstimateHinge``) around
+   estimated hinge (``planning.attachment.EstimateHinge``) around
    ``--num_axes`` axes by ``--arc_angles``, and twists about the
    hinge-grasp line by +-``--twist_angles``. All are predicted in one
    ``PredictDeformations`` call; each is executed on its own fork of the
@@ -74,9 +74,9 @@ def PlannerEnergy(a, p, hinge, weight: float, torsion_ratio: float | None = None
     """The ARAP energy per leaf node and the planner's predicted energy per
     node (ARAP plus the petiole term on the equivalent turn: bending, and a
     twist's torsion by ``planner.petiole_torsion_ratio``)."""
-    from lmap_drake.planning.lmap import (EquivalentTurnDeg, HingeRotationDeg,
-                                          PetioleBendingEnergy)
-    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.energy import (EquivalentTurnDeg, HingeRotationDeg,
+                                            PetioleBendingEnergy)
+    from lmap_drake.planning.config import PlannerConfig
     ratio = PlannerConfig().petiole_torsion_ratio if torsion_ratio is None else torsion_ratio
     e = p.energy / max(1, int((p.node_kind == 0).sum()))
     deg = EquivalentTurnDeg(HingeRotationDeg(hinge, a.p_WG, a.p_WG + a.dp_W),
@@ -128,7 +128,7 @@ def _ExecuteThen(grasped, action, hinge, attach, twist_deg: list[float], arc_deg
     ``turn_band`` (lo, hi), only continuations whose equivalent turn lies in
     (lo, hi] are executed."""
     from lmap_drake.deformation.action import HingeAxes, MakeArcActions, MakeTwistActions
-    from lmap_drake.planning.lmap import EquivalentTurnDeg, HingeRotationDeg
+    from lmap_drake.planning.energy import EquivalentTurnDeg, HingeRotationDeg
     world = grasped.Fork()
     s_arc = _Advance(world, action, speed, hold)
     first = _Measures(world, s_arc)
@@ -175,7 +175,7 @@ def EvaluateScenario(scenario, args, log) -> dict:
     from lmap_drake.perception.observe import SemanticSceneFromImages
     from lmap_drake.planning.candidates import DirectionsForGrasp
     from lmap_drake.planning.hazard import HazardMeasures
-    from lmap_drake.planning.lmap import AttachLeaf, EstimateHinge
+    from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge
     from lmap_drake.planning.motion import MotionError
     from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
 
@@ -264,7 +264,9 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     from lmap_drake.planning.collision import LeafCollisionReason
     from lmap_drake.planning.hazard import HazardMeasures, TetherElongation
     from lmap_drake.planning.motion import MotionError
-    from lmap_drake.planning.lmap import AttachLeaf, PlanningContext, _GraspActions
+    from lmap_drake.planning.attachment import AttachLeaf
+    from lmap_drake.planning.candidates import GraspActions
+    from lmap_drake.planning.context import PlanningContext
     from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
     from lmap_drake.plants.simworld import PlantWorldSim
     from lmap_drake.shape.completion import CompletePlant
@@ -334,7 +336,7 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
         study = dc.replace(scenario.planner, action_families=list(args.families),
                            distances=list(args.pull_distances), num_arc_axes=args.num_axes,
                            twist_angles_deg=list(args.twist_angles))
-        actions = _GraspActions(ctx, study, SimpleNamespace(p_WG=p_WG, R_WG=R_WG, grasp_id=0),
+        actions = GraspActions(ctx, study, SimpleNamespace(p_WG=p_WG, R_WG=R_WG, grasp_id=0),
                                 hinge, np.deg2rad(args.arc_angles),
                                 dirs_all[:scenario.planner.num_directions])
         attached, _ = AttachLeaf(ctx.scene, scenario.deformation)
@@ -495,7 +497,7 @@ def main(argv=None) -> int:
                    help="with --repredict (default: the planner's)")
     a = p.parse_args(argv)
     if a.repredict:
-        from lmap_drake.scenario import PlannerConfig
+        from lmap_drake.planning.config import PlannerConfig
         w = (PlannerConfig().hinge_bending_weight if a.hinge_bending_weight is None
              else a.hinge_bending_weight)
         print(json.dumps(Repredict(a.out, a.deformation_text, w)["pooled"], indent=1))

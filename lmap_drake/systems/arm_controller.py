@@ -83,7 +83,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from lmap_drake.planning.lmap import PlanResult
+from lmap_drake.planning.result import PlanResult
 from lmap_drake.planning.motion import MotionError, PlanActionPath, PlanApproach, TimeJointPath
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
