@@ -1,6 +1,8 @@
 """The planner's configuration (the scenario's ``planner:`` section) and its
-validation. Units: metres, seconds, degrees where a name says ``_deg``."""
-from __future__ import annotations
+validation. Units: metres, seconds, degrees where a name says ``_deg``.
+
+(No ``from __future__ import annotations`` here: Drake's ``yaml_load_typed``
+reads the fields' types.)"""
 
 import dataclasses as dc
 import re
