@@ -14,7 +14,7 @@ from lmap_drake.planning.approach import IkAndRobotChecks
 from lmap_drake.planning.candidates import GraspCandidates
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext
-from lmap_drake.planning.result import PlanResult
+from lmap_drake.planning.result import Candidate, PlanResult
 
 
 def _BaselineCandidates(ctx: PlanningContext, cfg: PlannerConfig, distance: float,
@@ -57,6 +57,26 @@ def PlanBaseline(ctx: PlanningContext, cfg: PlannerConfig, method: str, distance
         raise ValueError(f"unknown baseline {method!r}")
     dirs = np.array([[0.0, 0.0, 1.0]]) if method == "upward" else PullDirections()
     cands = _BaselineCandidates(ctx, cfg, distance, dirs)
+    safe = _AwayFromPlantPoints(ctx, cfg, cands)
+    if not safe:
+        return PlanResult("no_feasible_action", method, candidates=[c for _, c in cands],
+                          message="every action comes near visible plant points")
+    if len(ctx.branch_obs_W):
+        far = lambda g: cKDTree(ctx.branch_obs_W).query(g.p_WG)[0]
+    else:
+        far = lambda g: 0.0
+    best_grasp = max({id(g): g for g, _ in safe}.values(), key=far)
+    mine = [c for g, c in safe if g is best_grasp]
+    chosen = mine[0] if method == "upward" else _LeastOverlap(ctx, mine)
+    return PlanResult("ok", method, chosen=chosen, candidates=[c for _, c in cands],
+                      timings={"total_s": time.perf_counter() - t0})
+
+
+def _AwayFromPlantPoints(ctx: PlanningContext, cfg: PlannerConfig, cands: list[tuple]
+                         ) -> list[tuple]:
+    """The (grasp, Candidate) pairs whose pulled robot keeps
+    ``planner.collision_margin`` from the visible fruit and branch points;
+    the others get their reason."""
     plant_pts = np.vstack([ctx.scene.semantic.fruit_points_W, ctx.branch_obs_W])
     tree = cKDTree(plant_pts) if len(plant_pts) else None
     safe = []
@@ -67,27 +87,18 @@ def PlanBaseline(ctx: PlanningContext, cfg: PlannerConfig, method: str, distance
             c.reason = "robot near visible plant points"
             continue
         safe.append((g, c))
-    if not safe:
-        return PlanResult("no_feasible_action", method, candidates=[c for _, c in cands],
-                          message="every action comes near visible plant points")
-    if len(ctx.branch_obs_W):
-        far = lambda g: cKDTree(ctx.branch_obs_W).query(g.p_WG)[0]
-    else:
-        far = lambda g: 0.0
-    best_grasp = max({id(g): g for g, _ in safe}.values(), key=far)
-    mine = [c for g, c in safe if g is best_grasp]
-    if method == "upward":
-        chosen = mine[0]
-    else:
-        vis_cam = np.linalg.inv(np.asarray(ctx.X_WC, float))
-        f = 300.0
+    return safe
 
-        def pixels(p):
-            p_C = p @ vis_cam[:3, :3].T + vis_cam[:3, 3]
-            uv = np.round(f * p_C[:, :2] / np.maximum(p_C[:, 2:3], 1e-3)).astype(int)
-            return set(map(tuple, uv))
-        leaf_pix = pixels(ctx.leaf_W)
-        chosen = min(mine, key=lambda c: len(pixels(ctx.robot.SurfacePoints(c.q_pulled))
-                                             & leaf_pix))
-    return PlanResult("ok", method, chosen=chosen, candidates=[c for _, c in cands],
-                      timings={"total_s": time.perf_counter() - t0})
+
+def _LeastOverlap(ctx: PlanningContext, cands: list[Candidate]) -> Candidate:
+    """Min-Overlap: the candidate whose pulled robot, projected into the
+    camera, overlaps the projected observed leaf least (in pixels)."""
+    vis_cam = np.linalg.inv(np.asarray(ctx.X_WC, float))
+    f = 300.0
+
+    def pixels(p):
+        p_C = p @ vis_cam[:3, :3].T + vis_cam[:3, 3]
+        uv = np.round(f * p_C[:, :2] / np.maximum(p_C[:, 2:3], 1e-3)).astype(int)
+        return set(map(tuple, uv))
+    leaf_pix = pixels(ctx.leaf_W)
+    return min(cands, key=lambda c: len(pixels(ctx.robot.SurfacePoints(c.q_pulled)) & leaf_pix))

@@ -205,11 +205,12 @@ def GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all
     return actions
 
 
-def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
-                       progress=None) -> CandidateSet:
-    """Paper Sec. III-C-1 (generation and collision checking) plus the
-    initial and maximum visibility. Never raises on a bad scene."""
-    progress = progress or (lambda m: None)
+def _InitialVisibility(ctx: PlanningContext, cfg: PlannerConfig) -> CandidateSet:
+    """Stage 1's start: the fruit estimate's visibility model and what of it
+    is seen now (with ``ctx.seen_before_W``), in a set without candidates
+    (status 'ok'), or an early status: no usable fruit estimate, nothing of
+    it in view, 'no_action_needed' (already ``early_stop_fraction``
+    visible), no leaf points to grasp."""
     timings = {"generation_collision_s": 0.0, "visibility_s": 0.0}
     if ctx.scene.fruit is None:
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
@@ -237,6 +238,16 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
         return out
     if len(ctx.leaf_W) < 10:
         out.status, out.message = "no_feasible_action", "no leaf points to grasp"
+    return out
+
+
+def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
+                       progress=None) -> CandidateSet:
+    """Paper Sec. III-C-1 (generation and collision checking) plus the
+    initial and maximum visibility. Never raises on a bad scene."""
+    progress = progress or (lambda m: None)
+    out = _InitialVisibility(ctx, cfg)
+    if out.status != "ok":
         return out
     t0 = time.perf_counter()
     try:
@@ -259,7 +270,7 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
         out.candidates += cands
     if len({c.action.grasp_id for c in out.candidates if c.feasible}) < cfg.min_usable_grasps:
         _SecondChanceGrasps(ctx, cfg, out, failed, grasps, pivot, angles, all_dirs)
-    timings["generation_collision_s"] += time.perf_counter() - t0
+    out.timings["generation_collision_s"] += time.perf_counter() - t0
     out.scene, msg = AttachLeaf(ctx.scene, dcfg)
     out.message = msg
     progress(f"{len(out.candidates)} candidates from {len(grasps)} grasps, "
