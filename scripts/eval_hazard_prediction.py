@@ -337,8 +337,8 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
                            distances=list(args.pull_distances), num_arc_axes=args.num_axes,
                            twist_angles_deg=list(args.twist_angles))
         actions = GraspActions(ctx, study, SimpleNamespace(p_WG=p_WG, R_WG=R_WG, grasp_id=0),
-                                hinge, np.deg2rad(args.arc_angles),
-                                dirs_all[:scenario.planner.num_directions])
+                               hinge, np.deg2rad(args.arc_angles),
+                               dirs_all[:scenario.planner.num_directions])
         attached, _ = AttachLeaf(ctx.scene, scenario.deformation)
         leaf_in = np.vstack([ctx.leaf_W, attached.leaf_attachment_W])
         preds = PredictDeformations(leaf_in, ctx.branch_all_W, actions, scenario.deformation,

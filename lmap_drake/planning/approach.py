@@ -143,7 +143,7 @@ def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
 
 
 def IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
-                      actions: list[Action]) -> list[Candidate]:
+                     actions: list[Action]) -> list[Candidate]:
     """The approach (IK chain via, ready, pre-grasp, grasp; see
     ``planning.motion.PlanApproach``) with robot checks along it, then IK for
     each pulled pose (warm-started along each direction's distances) and

@@ -94,7 +94,7 @@ def AttachLeaf(scene: SceneEstimate, dcfg: DeformationConfig) -> tuple[SceneEsti
 
 
 def HangsFromBranch(blade_W: np.ndarray, petiole_W: np.ndarray, branch_W: np.ndarray,
-                     dcfg: DeformationConfig) -> bool:
+                    dcfg: DeformationConfig) -> bool:
     """Whether the deformation graph of blade + petiole (W, m) ties the
     blade's largest component to a fixed (branch) node."""
     try:

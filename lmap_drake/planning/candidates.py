@@ -185,7 +185,7 @@ def PullDistances(cfg: PlannerConfig, p_WG: np.ndarray, hinge_W: np.ndarray | No
 
 
 def GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all_dirs
-                  ) -> list[Action]:
+                 ) -> list[Action]:
     """Every configured motion (pulls, arcs, twists) from grasp ``g``."""
     actions = []
     if "pull" in cfg.action_families:
@@ -320,7 +320,7 @@ def _FirstApproach(ctx: PlanningContext, cfg: PlannerConfig, g, actions: list[Ac
     approach passes, or None when none does."""
     for R, label in zip(rotations, labels):
         cands = IkAndRobotChecks(ctx, Grasp(g.p_WG, R, g.grasp_id), cfg,
-                                  [dc.replace(a, R_WG=R) for a in actions])
+                                 [dc.replace(a, R_WG=R) for a in actions])
         if any(c.approach is not None for c in cands):
             for c in cands:
                 c.orientation = label
@@ -329,7 +329,7 @@ def _FirstApproach(ctx: PlanningContext, cfg: PlannerConfig, g, actions: list[Ac
 
 
 def DeeperGrasps(ctx: PlanningContext, cfg: PlannerConfig, out: CandidateSet,
-                  pivot, angles, all_dirs) -> None:
+                 pivot, angles, all_dirs) -> None:
     """While fewer than ``planner.min_usable_grasps`` grasps give a feasible
     action, the grasp set again at each of ``planner.deeper_grasp_insets``
     (m inside the leaf's outline instead of ``grasp_inset``): on a crowded

@@ -19,8 +19,8 @@ from lmap_drake.planning.result import Candidate
 
 
 def RobotPoseReason(robot, q: np.ndarray, half_open: float, points_W: np.ndarray,
-                     ctx: PlanningContext, cfg: PlannerConfig, self_margin: float = 0.0
-                     ) -> str:
+                    ctx: PlanningContext, cfg: PlannerConfig, self_margin: float = 0.0
+                    ) -> str:
     """'' if the robot at ``q`` (surface samples ``points_W``, an array or
     per geometry) is clear of itself (arm against gripper or arm; distant
     links by ``self_margin``) and keeps the margin from the fruit and the
@@ -71,7 +71,7 @@ def OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
 
 
 def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate],
-                  q_grasp: np.ndarray) -> list[Candidate]:
+                 q_grasp: np.ndarray) -> list[Candidate]:
     """IK for each action's end pose (and an arc's midway pose), warm-started
     along each direction's distances from ``q_grasp`` (the joints holding
     the grasp), and robot-vs-fruit/branch checks there (gripper closed), and
