@@ -86,7 +86,7 @@ class SceneEstimate:
     """What shape completion hands to the planner. ``leaf_attachment_W``
     (K, 3): points that tie the observed leaf to the branch where its
     petiole was not seen (a virtual petiole; see
-    ``lmap_drake.planning.lmap.AttachLeaf``), part of the leaf for the
+    ``lmap_drake.planning.attachment.AttachLeaf``), part of the leaf for the
     deformation model."""
     semantic: SemanticScene
     branch: BranchEstimate | None = None

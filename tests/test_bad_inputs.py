@@ -434,8 +434,10 @@ def test_visibility_of_a_camera_looking_away_is_bounded():
 
 
 def test_empty_candidate_set_has_a_reason():
-    from lmap_drake.planning.lmap import CandidateSet, PlanningContext, SelectFromPredictions
-    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.context import PlanningContext
+    from lmap_drake.planning.result import CandidateSet
+    from lmap_drake.planning.selection import SelectFromPredictions
+    from lmap_drake.planning.config import PlannerConfig
     from lmap_drake.types import SceneEstimate, SemanticScene
     scene = SceneEstimate(semantic=SemanticScene())
     ctx = PlanningContext(scene, np.eye(4), None, np.zeros(6))
@@ -460,7 +462,7 @@ def test_a_leaf_the_deformation_model_cannot_hang_gives_no_feasible_action(scena
     from pydrake.systems.framework import DiagramBuilder
 
     from lmap_drake.deformation.action import Action
-    from lmap_drake.planning.lmap import Candidate, CandidateSet
+    from lmap_drake.planning.result import Candidate, CandidateSet
     from lmap_drake.systems.deformation import DeformationPrediction
     from lmap_drake.systems.planning import ActionCandidates, ActionSelection
     from lmap_drake.types import SceneEstimate, SemanticScene

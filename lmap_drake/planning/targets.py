@@ -11,7 +11,10 @@ from __future__ import annotations
 import dataclasses as dc
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from lmap_drake.planning.context import FruitSurfaceSamples, PlanningContext
+from lmap_drake.planning.lmap import PlanLmap
 from lmap_drake.planning.visibility import VisibilityModel
 from lmap_drake.types import FruitEstimate, PlantEstimate, SceneEstimate
 
@@ -36,7 +39,6 @@ def OccludingLeaves(fruit: FruitEstimate, plant: PlantEstimate, X_WC: np.ndarray
     a leaf's ``gain`` only surface no view has shown
     (``VisibilityModel.Observed``), and the result carries them as
     ``seen_before_W`` for ``PlanTarget``."""
-    from lmap_drake.planning.lmap import FruitSurfaceSamples
     sem = plant.semantic
     vis = VisibilityModel(X_WC, FruitSurfaceSamples(fruit), voxel, image_tan)
     n_max = int(vis.max_seen.sum())
@@ -101,7 +103,6 @@ def SeparateMovedLeaves(semantic, moved_leaf_points_W: list, radius: float = 0.0
     such points (the moved blade segmented in pieces) is the moved leaf too.
     Returns (the ``SemanticScene``, with such instances split; the moved
     leaves' instance ids)."""
-    from scipy.spatial import cKDTree
     leaf_W = np.asarray(semantic.leaf_points_W, float).reshape(-1, 3)
     ids = np.asarray(semantic.leaf_instance).copy()
     if len(ids) != len(leaf_W) or not np.any(ids >= 0):
@@ -215,7 +216,6 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
     ``TargetScene`` (the rest of the plant as obstacles and occluders);
     ``ChooseLeafPlan`` picks the leaf. ``occluders``: fruit ``k``'s
     ``OccludingLeaves``, when already computed (``FruitOrder``)."""
-    from lmap_drake.planning.lmap import PlanLmap, PlanningContext
     occ = occluders or OccludingLeaves(plant.fruits[k], plant, X_WC, cfg.visibility_voxel,
                                        image_tan)
     out = TargetPlan(k, plant.fruit_ids[k], occ["visible"], occ["leaves"])

@@ -69,7 +69,7 @@ from tqdm import tqdm
 from lmap_drake.deformation import Action, PredictDeformations
 from lmap_drake.paths import REPO_ROOT
 from lmap_drake.perception.observe import SemanticSceneFromImages
-from lmap_drake.planning.lmap import AttachLeaf
+from lmap_drake.planning.attachment import AttachLeaf
 from lmap_drake.planning.motion import MotionError
 from lmap_drake.plants.leaf import BoundaryTriangles, TetVolumes
 from lmap_drake.plants.simworld import (ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim,

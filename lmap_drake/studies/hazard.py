@@ -17,7 +17,7 @@ diagrams/suite.yaml):
    ``scripts/eval_deformation_vs_fem.py``.
 3. From that grasp: pulls along the 6 axial and 8 diagonal directions that
    pass the branch-angle rule, by ``--pull_distances``, and arcs about the
-   estimated hinge (``planning.lmap.EstimateHinge``) around
+   estimated hinge (``planning.attachment.EstimateHinge``) around
    ``--num_axes`` axes by ``--arc_angles``, and twists about the
    hinge-grasp line by +-``--twist_angles``. All are predicted in one
    ``PredictDeformations`` call; each is executed on its own fork of the
@@ -63,17 +63,20 @@ from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions, Ma
                                            PullDirections)
 from lmap_drake.deformation.predict import PredictDeformations, UnmodelledGrasp
 from lmap_drake.paths import REPO_ROOT
+from lmap_drake.deformation.config import DeformationConfig
 from lmap_drake.perception.observe import SemanticSceneFromImages
 from lmap_drake.planning.candidates import DirectionsForGrasp
 from lmap_drake.planning.collision import LeafCollisionReason
 from lmap_drake.planning.hazard import HazardMeasures, TetherElongation
-from lmap_drake.planning.lmap import (AttachLeaf, EquivalentTurnDeg, EstimateHinge, GraspActions,
-                                      HingeRotationDeg, PetioleBendingEnergy, PlanningContext)
+from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge
+from lmap_drake.planning.candidates import GraspActions
+from lmap_drake.planning.context import PlanningContext
+from lmap_drake.planning.energy import EquivalentTurnDeg, HingeRotationDeg, PetioleBendingEnergy
 from lmap_drake.planning.motion import MotionError, PlanActionPath, TimeJointPath
 from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
 from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
-from lmap_drake.deformation.config import DeformationConfig
-from lmap_drake.scenario import LoadScenario, PlannerConfig
+from lmap_drake.planning.config import PlannerConfig
+from lmap_drake.scenario import LoadScenario
 from lmap_drake.shape.completion import CompletePlant
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.studies.deformation_vs_fem import LeafMeshWorkaround, Spearman

@@ -41,7 +41,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
-from lmap_drake.planning.lmap import PlanResult
+from lmap_drake.planning.result import PlanResult
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
 from lmap_drake.systems.arm_sequence import ArmSequence

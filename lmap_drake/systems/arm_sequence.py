@@ -46,7 +46,7 @@ from typing import Protocol
 
 import numpy as np
 
-from lmap_drake.planning.lmap import PlanResult
+from lmap_drake.planning.result import PlanResult
 from lmap_drake.planning.motion import MotionError
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.systems.arm_motion import ArmMotions, Refused

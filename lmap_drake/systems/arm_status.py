@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from lmap_drake.planning.lmap import PlanResult
+from lmap_drake.planning.result import PlanResult
 from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
 from lmap_drake.types import SceneEstimate
 

@@ -1,5 +1,5 @@
 """The LMAP planner as Drake LeafSystems (thin shells around
-``lmap_drake.planning.lmap``), wired as in the paper's data flow:
+``lmap_drake.planning``), wired as in the paper's data flow:
 
     ShapeCompletion -> ActionCandidates -> DeformationPrediction -> ActionSelection
 
@@ -28,7 +28,7 @@ candidates and ActionSelection runs the baseline at the largest of
            leaf from the newest view), ``ur5.position`` (6, rad; the joints
            at the newest view, holding the leaf).
   output:  ``plan`` (abstract PlanResult): a further motion from the held
-           grasp (``planning.lmap.PlanContinuation``), or why there is none.
+           grasp (``planning.continuation.PlanContinuation``), or why there is none.
 
 ``PlantPlanning`` (several fruits, ``planner.targets: all``)
   inputs:  ``plant_estimate`` (abstract PlantEstimate of the newest view),
@@ -64,9 +64,12 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from lmap_drake.deformation.action import DeformationError
-from lmap_drake.planning.lmap import (CandidateSet, GenerateCandidates, HeldGrasp,
-                                      PlanBaseline, PlanContinuation, PlanningContext,
-                                      PlanResult, SelectFromPredictions)
+from lmap_drake.planning.baselines import PlanBaseline
+from lmap_drake.planning.candidates import GenerateCandidates
+from lmap_drake.planning.context import PlanningContext
+from lmap_drake.planning.continuation import HeldGrasp, PlanContinuation
+from lmap_drake.planning.result import CandidateSet, PlanResult
+from lmap_drake.planning.selection import SelectFromPredictions
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
 from lmap_drake.shape.completion import MERGE_DISTANCE, FruitsOverlap, PointsOnFruit
@@ -178,7 +181,7 @@ class ActionSelection(LeafSystem):
         except DeformationError as err:
             # The leaf as seen cannot be modelled (no grasp hangs from a
             # branch node, ...): no action can be judged safe, as in the
-            # multi-fruit path (planning.lmap._PredictLive).
+            # multi-fruit path (planning.lmap.PredictLive).
             output.set_value(PlanResult("no_feasible_action", cfg.method, candidates=list(
                 cset.candidates), message=f"deformation model: {err}"))
             return

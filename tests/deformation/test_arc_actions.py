@@ -8,7 +8,8 @@ from lmap_drake.deformation.action import (ARC_DIRECTION_BASE, Action, AxisAngle
 from lmap_drake.deformation.predict import HandleDisplacements, PredictDeformations
 from lmap_drake.deformation.synthetic import OvateLeaf
 from lmap_drake.planning.hazard import HazardMeasures
-from lmap_drake.planning.lmap import EstimateHinge, HingeRotationDeg, PetioleBendingEnergy
+from lmap_drake.planning.attachment import EstimateHinge
+from lmap_drake.planning.energy import HingeRotationDeg, PetioleBendingEnergy
 from tests.deformation.leaf_fixtures import TEST_CONFIG
 
 # Gripper at the leaf tip: approach along +x (toward the branch), pads
@@ -128,7 +129,7 @@ def test_a_speck_labelled_leaf_near_the_branch_does_not_take_the_petiole():
     """Petiole unseen, and a few points labelled leaf near the branch away
     from the blade: the virtual petiole and the hinge go to the blade."""
     from lmap_drake.deformation.graph import MainLeafComponent
-    from lmap_drake.planning.lmap import AttachLeaf
+    from lmap_drake.planning.attachment import AttachLeaf
     from lmap_drake.deformation.config import DeformationConfig
     from lmap_drake.types import SceneEstimate, SemanticScene
     leaf, branch = OvateLeaf()
@@ -159,7 +160,7 @@ def test_a_blade_hung_by_a_virtual_petiole_is_tied_to_the_branch_in_the_graph():
     from scipy.sparse.csgraph import connected_components
 
     from lmap_drake.deformation.graph import BuildLeafGraph
-    from lmap_drake.planning.lmap import AttachLeaf
+    from lmap_drake.planning.attachment import AttachLeaf
     from lmap_drake.deformation.config import DeformationConfig
     from lmap_drake.types import SceneEstimate, SemanticScene
     leaf, branch = OvateLeaf()
@@ -191,7 +192,7 @@ def test_a_virtual_petiole_whose_chain_of_centroids_breaks_is_thickened():
     petiole's voxel centroids lie beyond the edge radius of each other and
     the blade hung from nothing): AttachLeaf checks the graph and thickens
     the petiole, so every blade hangs from the branch."""
-    from lmap_drake.planning.lmap import AttachLeaf, _HangsFromBranch
+    from lmap_drake.planning.attachment import AttachLeaf, HangsFromBranch
     from lmap_drake.deformation.config import DeformationConfig
     from lmap_drake.types import SceneEstimate, SemanticScene
     leaf, branch = OvateLeaf()
@@ -207,7 +208,7 @@ def test_a_virtual_petiole_whose_chain_of_centroids_breaks_is_thickened():
         scene = SceneEstimate(semantic=SemanticScene(leaf_points_W=blade, branch_points_W=br))
         attached, msg = AttachLeaf(scene, cfg)
         assert "virtual petiole" in msg
-        assert _HangsFromBranch(blade, np.reshape(attached.leaf_attachment_W, (-1, 3)), br, cfg)
+        assert HangsFromBranch(blade, np.reshape(attached.leaf_attachment_W, (-1, 3)), br, cfg)
 
 
 def test_twist_turns_the_blade_about_the_attachment_grasp_line():
@@ -240,8 +241,9 @@ def test_twist_turns_the_blade_about_the_attachment_grasp_line():
 
 
 def test_equivalent_turn_counts_twist_by_the_torsion_ratio():
-    from lmap_drake.planning.lmap import EquivalentTurnDeg, HeldGrasp
-    from lmap_drake.planning.lmap import Candidate, PlanResult
+    from lmap_drake.planning.continuation import HeldGrasp
+    from lmap_drake.planning.energy import EquivalentTurnDeg
+    from lmap_drake.planning.result import Candidate, PlanResult
     assert EquivalentTurnDeg(45.0, 0.0, 0.25) == 45.0
     assert np.isclose(EquivalentTurnDeg(0.0, np.deg2rad(60), 0.25), 30.0)
     assert np.isclose(EquivalentTurnDeg(45.0, np.deg2rad(60), 0.25), np.hypot(45, 30))
@@ -260,8 +262,9 @@ def test_motions_in_turn_compound_their_energy():
     """Two motions loading the leaf: the bound (sqrt E1 + sqrt E2)^2, never
     below their sum; equal to it when either is zero; the held state chains
     it over the executed motions."""
-    from lmap_drake.planning.lmap import (Candidate, CompoundEnergyPerNode, HeldGrasp,
-                                          PlanResult)
+    from lmap_drake.planning.continuation import HeldGrasp
+    from lmap_drake.planning.energy import CompoundEnergyPerNode
+    from lmap_drake.planning.result import Candidate, PlanResult
     close = (lambda a, b: np.isclose(a, b, rtol=1e-9, atol=0.0))
     assert close(CompoundEnergyPerNode(0.0, 3e-7), 3e-7)
     assert close(CompoundEnergyPerNode(1e-7, 4e-7), 9e-7)

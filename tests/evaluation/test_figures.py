@@ -34,7 +34,7 @@ def test_each_target_gets_its_prediction_beside_the_view_taken_while_held(tmp_pa
     from lmap_drake.deformation.action import Action
     from lmap_drake.evaluation.figures import SaveTargetPlanFigures
     from lmap_drake.perception.points import Intrinsics, ProjectPoints
-    from lmap_drake.planning.lmap import Candidate
+    from lmap_drake.planning.result import Candidate
     from lmap_drake.scenario import LoadDefaultScenario
     scenario = LoadDefaultScenario()
     cam = scenario.cameras["camera0"]

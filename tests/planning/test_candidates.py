@@ -68,8 +68,8 @@ def test_narrow_opening_follows_the_leafs_local_thickness():
     each pad; it is never wider than the configured opening nor below 1.5 cm."""
     from types import SimpleNamespace
 
-    from lmap_drake.planning.lmap import NarrowOpening
-    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.approach import NarrowOpening
+    from lmap_drake.planning.config import PlannerConfig
     rng = np.random.default_rng(0)
     leaf = np.c_[rng.uniform(-0.05, 0.05, (4000, 2)), np.zeros(4000)]   # the plane z = 0
     grasp = SimpleNamespace(p_WG=np.zeros(3), R_WG=np.eye(3)[:, [0, 2, 1]])  # closes along z
@@ -84,14 +84,14 @@ def test_narrow_opening_follows_the_leafs_local_thickness():
 
 
 def test_grasp_alternatives_keep_the_pads_across_the_leaf():
-    from lmap_drake.planning.lmap import (APPROACH_TILTS_DEG, GraspAlternatives,
-                                          _AlternativeLabels)
+    from lmap_drake.planning.candidates import (APPROACH_TILTS_DEG, AlternativeLabels,
+                                                GraspAlternatives)
     # pads close along y = the leaf normal (W y); approach z along W +x
     R = np.column_stack([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
     alts = GraspAlternatives(R)
-    assert len(alts) == 2 * len(APPROACH_TILTS_DEG) - 1 == len(_AlternativeLabels())
+    assert len(alts) == 2 * len(APPROACH_TILTS_DEG) - 1 == len(AlternativeLabels())
     assert max(APPROACH_TILTS_DEG) < 90.0
-    for A, (tilt, turned) in zip(alts, _AlternativeLabels()):
+    for A, (tilt, turned) in zip(alts, AlternativeLabels()):
         assert np.allclose(A.T @ A, np.eye(3)) and np.isclose(np.linalg.det(A), 1.0)
         assert np.isclose(abs(A[:, 1] @ R[:, 1]), 1.0)         # closing axis: the leaf normal
         assert abs(A[:, 2] @ R[:, 1]) < 1e-12                  # approach in the blade plane

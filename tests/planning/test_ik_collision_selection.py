@@ -5,7 +5,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.deformation.action import Action
 from lmap_drake.planning.collision import LeafCollisionReason, RobotCollisionReason
-from lmap_drake.planning.lmap import Candidate, SelectAction
+from lmap_drake.planning.result import Candidate
+from lmap_drake.planning.selection import SelectAction
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.station.config import RobotConfig
 
@@ -158,14 +159,14 @@ def test_planner_rejects_a_self_colliding_pose(robot):
     """A pose whose joints fold the wrist into the forearm is refused with
     the pair named, even far from the fruit and the branch."""
     from types import SimpleNamespace
-    from lmap_drake.planning.lmap import _RobotPoseReason
-    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.robot_checks import RobotPoseReason
+    from lmap_drake.planning.config import PlannerConfig
     ctx = SimpleNamespace(fruit_sdf=None, branch_distance=None, fruit_box=None, branch_box=None)
     home = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
     folded = np.array([0.0, -1.57, 1.57, 0.5, 3.0, 0.0])
     cfg = PlannerConfig()
-    assert _RobotPoseReason(robot, home, 0.0, robot.SurfacePoints(home), ctx, cfg) == ""
-    why = _RobotPoseReason(robot, folded, 0.0, robot.SurfacePoints(folded), ctx, cfg)
+    assert RobotPoseReason(robot, home, 0.0, robot.SurfacePoints(home), ctx, cfg) == ""
+    why = RobotPoseReason(robot, folded, 0.0, robot.SurfacePoints(folded), ctx, cfg)
     assert why.startswith("robot self-collision") and "forearm" in why
 
 
@@ -187,9 +188,9 @@ def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
     ready pose has no IK (a failure of the staging, not of the grasp); the
     planner then tries the next of ``ready_distances`` and keeps the grasp."""
     from types import SimpleNamespace
-    from lmap_drake.planning.lmap import _IkAndRobotChecks
+    from lmap_drake.planning.approach import IkAndRobotChecks
     from lmap_drake.planning.motion import MotionError, PlanApproach
-    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.config import PlannerConfig
     R = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])    # approaching from above
     p = RobotConfig().X_WB.GetDeterministicValue().translation() + [0.50, 0.0, 0.30]
     q0 = np.array(RobotConfig().initial_q)
@@ -202,7 +203,7 @@ def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
                           fruit_sdf=None, branch_distance=None, fruit_box=None, branch_box=None)
     grasp = SimpleNamespace(p_WG=p, R_WG=R, grasp_id=0)
     pull = Action(p, R, dp_W=np.array([0.0, 0.0, 0.02]), grasp_id=0, direction_id=0)
-    far = _IkAndRobotChecks(ctx, grasp, PlannerConfig(ready_distances=[0.08]), [pull])
+    far = IkAndRobotChecks(ctx, grasp, PlannerConfig(ready_distances=[0.08]), [pull])
     # (each pose is checked as it is solved, from the grasp outward: the
     # forearm meets the gripper on the way to that ready pose before its IK
     # fails; either is a failure of the staging)
@@ -210,7 +211,7 @@ def test_a_ready_pose_beyond_reach_is_brought_closer(robot):
             or far[0].reason.endswith("on the way to the pre-grasp")), far[0].reason
     assert far[0].approach is None
     assert PlannerConfig().ready_distances == [0.08, 0.02]      # the fallback is the default
-    (c,) = _IkAndRobotChecks(ctx, grasp, PlannerConfig(), [pull])
+    (c,) = IkAndRobotChecks(ctx, grasp, PlannerConfig(), [pull])
     assert c.approach is not None and not c.reason.startswith("IK failed"), c.reason
     assert c.Row()["ready_distance"] == 0.02
     X_ready = robot.TcpPose(c.approach.to_ready[-1])
@@ -223,7 +224,7 @@ def test_a_free_joint_move_is_checked_every_centimetre(robot):
     """The joint move to the via pose (and the retreat's last move back) is
     checked at poses no robot point moves more than ``FREE_MOVE_STEP``
     between; eight even samples let the wrist skip many centimetres."""
-    from lmap_drake.planning.lmap import FREE_MOVE_STEP, FreeMoveFractions
+    from lmap_drake.planning.approach import FREE_MOVE_STEP, FreeMoveFractions
     q0 = np.array(RobotConfig().initial_q)
     q1 = q0 + np.array([0.8, -0.5, 0.6, 0.4, 0.9, 1.2])
 
@@ -246,8 +247,8 @@ def test_the_chosen_action_is_checked_along_the_path_the_controller_will_execute
     path the controller runs: a fruit crossed halfway along a straight pull
     refuses it."""
     from types import SimpleNamespace
-    from lmap_drake.planning.lmap import _ActionPathReason
-    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.robot_checks import ActionPathReason
+    from lmap_drake.planning.config import PlannerConfig
     R = np.array([[0.0, 0, 1], [0, -1, 0], [1, 0, 0]])
     p = np.array([0.40, -0.07, 0.31])
     r0 = robot.Ik(RigidTransform(RotationMatrix(R), p), np.array(RobotConfig().initial_q),
@@ -265,7 +266,7 @@ def test_the_chosen_action_is_checked_along_the_path_the_controller_will_execute
         return SimpleNamespace(robot=robot, fruit_sdf=sdf, fruit_box=box, branch_distance=None,
                                branch_box=None, other_leaves_W=none)
     cfg = PlannerConfig()
-    assert _ActionPathReason(ctx_with(None), cfg, c) == ""
+    assert ActionPathReason(ctx_with(None), cfg, c) == ""
     # a small fruit 4 cm behind the TCP (in the gripper's body) halfway up a
     # 16 cm pull
     center = p + [-0.04, 0.0, 0.08]
@@ -273,7 +274,7 @@ def test_the_chosen_action_is_checked_along_the_path_the_controller_will_execute
         assert RobotCollisionReason(robot.SurfacePointsByBody(q, 0.0),
                                     ctx_with(center).fruit_sdf, None, cfg.collision_margin,
                                     body_fruit_margin=cfg.robot_fruit_margin) == ""
-    why = _ActionPathReason(ctx_with(center), cfg, c)
+    why = ActionPathReason(ctx_with(center), cfg, c)
     assert why.startswith("robot-") and why.endswith("along the executed pull"), why
 
 
@@ -287,9 +288,10 @@ def test_deeper_grasps_are_tried_only_while_too_few_grasps_pass(robot):
     from scipy.spatial import ConvexHull
     from lmap_drake.deformation.synthetic import OvateLeaf
     from lmap_drake.planning.candidates import GraspCandidates, LeafPca
-    from lmap_drake.planning.lmap import (DEEPER_GRASP_IDS, CandidateSet, EstimateHinge,
-                                          _DeeperGrasps)
-    from lmap_drake.scenario import PlannerConfig
+    from lmap_drake.planning.attachment import EstimateHinge
+    from lmap_drake.planning.candidates import DEEPER_GRASP_IDS, DeeperGrasps
+    from lmap_drake.planning.result import CandidateSet
+    from lmap_drake.planning.config import PlannerConfig
     from lmap_drake.planning.candidates import PullDirections
     leaf, branch = OvateLeaf()
     # the blade hanging in front of the robot, the camera 60 cm in front of it
@@ -305,7 +307,7 @@ def test_deeper_grasps_are_tried_only_while_too_few_grasps_pass(robot):
     cfg = PlannerConfig(action_families=["twist"], deeper_grasp_insets=[0.02, 0.03])
     pivot = EstimateHinge(leaf_W, branch_W)
     out = CandidateSet("ok", None)
-    _DeeperGrasps(ctx, cfg, out, pivot, np.zeros(0), PullDirections())
+    DeeperGrasps(ctx, cfg, out, pivot, np.zeros(0), PullDirections())
     ids = {c.action.grasp_id for c in out.candidates}
     assert ids and all(DEEPER_GRASP_IDS <= i < 2 * DEEPER_GRASP_IDS for i in ids)
     assert len({c.action.grasp_id for c in out.candidates if c.feasible}) >= 3
@@ -322,5 +324,5 @@ def test_deeper_grasps_are_tried_only_while_too_few_grasps_pass(robot):
     assert (np.median(list(deep.values()))
             > np.median([inside(g.p_WG) for g in rim]) + 0.007)      # ~1 cm deeper
     enough = CandidateSet("ok", None, candidates=list(out.candidates))
-    _DeeperGrasps(ctx, cfg, enough, pivot, np.zeros(0), PullDirections())
+    DeeperGrasps(ctx, cfg, enough, pivot, np.zeros(0), PullDirections())
     assert len(enough.candidates) == len(out.candidates)

@@ -4,7 +4,8 @@ import numpy as np
 import trimesh
 
 from lmap_drake.deformation.action import Action
-from lmap_drake.planning.lmap import Candidate, PlanningContext, PlanResult
+from lmap_drake.planning.context import PlanningContext
+from lmap_drake.planning.result import Candidate, PlanResult
 from lmap_drake.planning.targets import (ChooseLeafPlan, OccludingLeaves, OrderTargets,
                                          TargetScene)
 from lmap_drake.types import FruitEstimate, PlantEstimate, SemanticScene

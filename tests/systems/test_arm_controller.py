@@ -9,7 +9,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from lmap_drake.planning.lmap import PlanContinuation
+from lmap_drake.planning.continuation import PlanContinuation
 from lmap_drake.scenario import Scenario
 from lmap_drake.systems.arm_controller import ArmController, ControllerOptions
 from lmap_drake.types import SemanticScene

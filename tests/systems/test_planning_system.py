@@ -185,8 +185,8 @@ def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment(monkeypatch):
     count in the score's normalisation (the same choice among the rest as
     without the cap); turns about the hinge are not capped. Each grasp also
     gets a pull of its own cap when that falls between two distances."""
-    from lmap_drake.planning import lmap
-    from lmap_drake.planning.lmap import PULL_LEVER_REFERENCE
+    from lmap_drake.planning import candidates
+    from lmap_drake.planning.energy import PULL_LEVER_REFERENCE
     distances = [0.02, 0.04, 0.08]
     with_cap = _plan(_scene(), planner={"distances": distances, "max_pull_distance": 0.03})
     extra = [c for c in with_cap.candidates if c.action.family == "pull"
@@ -198,7 +198,7 @@ def test_a_straight_pull_is_capped_by_its_lever_to_the_attachment(monkeypatch):
         assert cap - 0.001 <= c.action.distance <= cap       # the cap, floored to the mm
         assert "max_pull_distance" not in c.reason
     # The veto alone, on the same candidates as the free planner's:
-    monkeypatch.setattr(lmap, "PullDistances", lambda cfg, p, h: sorted(cfg.distances))
+    monkeypatch.setattr(candidates, "PullDistances", lambda cfg, p, h: sorted(cfg.distances))
     capped = _plan(_scene(), planner={"distances": distances, "max_pull_distance": 0.03})
     free = _plan(_scene(), planner={"distances": distances})
     n_capped = 0
@@ -230,7 +230,7 @@ def test_an_arc_is_capped_by_its_lever_to_the_attachment():
     (a short lever needs a larger force for the same turn of the petiole);
     the capped arcs carry the reason and keep their scores (a veto, as for
     pulls); pulls and twists are not capped by it."""
-    from lmap_drake.planning.lmap import ARC_REFERENCE_DEG
+    from lmap_drake.planning.energy import ARC_REFERENCE_DEG
     free = _plan(_scene())
     arcs = [c for c in free.candidates if c.action.family == "arc" and c.score == c.score]
     levers = [np.linalg.norm(c.action.p_WG - free.hinge_W) for c in arcs]
@@ -301,7 +301,7 @@ def test_the_leaf_may_not_be_swung_into_a_branch():
     robot checks, and with them the batch the deformation is solved in)."""
     import dataclasses as dc
 
-    from lmap_drake.planning.lmap import SelectFromPredictions
+    from lmap_drake.planning.selection import SelectFromPredictions
     s = Scenario()
     s.planner.num_grasps, s.planner.distances = 6, [0.04, 0.08]
     s.planner.max_pull_distance, s.planner.max_energy_per_node = 0.0, 0.0
@@ -370,7 +370,8 @@ def _HeldContext(first, s):
     its joints; the scenario ``s``; the HeldGrasp after it)."""
     import dataclasses as dc
 
-    from lmap_drake.planning.lmap import HeldGrasp, PlanningContext
+    from lmap_drake.planning.context import PlanningContext
+    from lmap_drake.planning.continuation import HeldGrasp
     from lmap_drake.planning.robot_model import RobotModel
     scene = _scene()
     moved = dc.replace(scene.semantic, leaf_points_W=first.chosen.deformed_leaf_W)
@@ -388,7 +389,7 @@ def test_no_continuation_turns_the_leaf_past_the_largest_arc():
     through."""
     import dataclasses as dc
 
-    from lmap_drake.planning.lmap import PlanContinuation
+    from lmap_drake.planning.continuation import PlanContinuation
     s = Scenario()
     assert max(s.planner.arc_angles_deg) == s.planner.max_replan_turn_deg == 45.0
     assert s.planner.max_hinge_deg == 50.0
@@ -423,7 +424,8 @@ def test_continuation_from_the_held_leaf():
     and a leaf already out of the way needs nothing more."""
     import dataclasses as dc
 
-    from lmap_drake.planning.lmap import PlanContinuation, PlanningContext
+    from lmap_drake.planning.context import PlanningContext
+    from lmap_drake.planning.continuation import PlanContinuation
     first, ctx, s, held = HeldAfterShortPull()
     a = first.chosen.action
     assert np.allclose(held.p_WG, a.p_WG + a.dp_W) and held.motions == 1

@@ -285,7 +285,7 @@ def test_a_second_reveal_needs_a_leaf_not_moved_and_a_fruit_not_yet_shown():
     """Fruit A hides behind leaves 0 and 1, and leaf 0 was moved: leaf 1 is
     its next leaf, unless a view with leaf 0 held already showed 95 % of
     it, or the fruit may be revealed once only."""
-    from lmap_drake.planning.lmap import PlanResult
+    from lmap_drake.planning.result import PlanResult
     from lmap_drake.planning.targets import FruitOrder
     from lmap_drake.scenario import Scenario
     from lmap_drake.systems.planning import _PlantAfterMoves, _SecondReveals

@@ -1,6 +1,6 @@
-"""lmap_drake/planning/lmap.py: pure helpers (the stages themselves are
+"""lmap_drake/planning/selection.py: pure helpers (the stages themselves are
 tested through test_ik_collision_selection.py and the episodes)."""
-from lmap_drake.planning.lmap import GroupReasons
+from lmap_drake.planning.selection import GroupReasons
 
 
 def test_reasons_are_grouped_by_wording_with_their_numbers_as_ranges():

@@ -1,0 +1,173 @@
+"""The approach to a grasp: via point -> ready pose -> pre-grasp -> grasp
+(``motion.PlanApproach``) with the robot checked along it (``_ApproachChecks``),
+the ready pose moved closer when the arm cannot reach it, the pads opened
+narrower when the open pads would hit the fruit; then the IK and robot
+checks of each action from the grasp (``IkAndRobotChecks``). World frame W,
+metres."""
+from __future__ import annotations
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+
+from lmap_drake.deformation.action import Action
+from lmap_drake.planning.config import PlannerConfig
+from lmap_drake.planning.context import PlanningContext
+from lmap_drake.planning.motion import ApproachBlocked, ApproachPlan, MotionError, PlanApproach
+from lmap_drake.planning.result import Candidate, DistanceId
+from lmap_drake.planning.robot_checks import MotionChecks, RobotPoseReason, TouchesLeaf
+from lmap_drake.planning.robot_model import SELF_MARGIN
+
+
+class _ApproachChecks:
+    """Robot checks along an approach with the pads ``half_open`` (m) apart:
+    fruit, branch and every observed leaf keep the margin from the robot
+    (in the final approach the leaf must therefore pass between the open
+    pads), and links three or more joints apart keep ``SELF_MARGIN`` (the
+    approach's joint moves are fast and sampled). ``Pose(segment, q)`` is
+    ``PlanApproach``'s check: "grasp" poses are the final approach, the
+    others lie on the way to the pre-grasp; ``FreeMove`` samples the joint
+    move from the current joints to the via point. Results are kept by
+    joint vector and opening in ``memo`` (a ready pose closer to the
+    pre-grasp repeats the approach's first poses)."""
+
+    def __init__(self, ctx: PlanningContext, cfg: PlannerConfig, half_open: float,
+                 memo: dict | None = None):
+        self.ctx, self.cfg, self.half_open = ctx, cfg, float(half_open)
+        self.memo = {} if memo is None else memo
+
+    def _Reason(self, q: np.ndarray) -> str:
+        """'' or the robot's reason at ``q`` without where: '...', or
+        'robot-leaf'."""
+        key = (np.asarray(q, float).tobytes(), self.half_open)
+        if key in self.memo:
+            return self.memo[key]
+        robot, cfg = self.ctx.robot, self.cfg
+        pts = robot.SurfacePointsByBody(q, self.half_open)
+        why = RobotPoseReason(robot, q, self.half_open, pts, self.ctx, cfg, SELF_MARGIN)
+        if not why and TouchesLeaf(self.ctx, cfg.collision_margin, pts):
+            why = "robot-leaf"
+        self.memo[key] = why
+        return why
+
+    def Pose(self, segment: str, q: np.ndarray) -> str:
+        why = self._Reason(q)
+        if not why:
+            return ""
+        if segment == "grasp":
+            return why + (" during the approach (leaf not between the pads)"
+                          if why == "robot-leaf" else " during the approach")
+        return why + " on the way to the pre-grasp"
+
+    def FreeMove(self, via: np.ndarray) -> str:
+        q0 = self.ctx.q_current
+        fractions = FreeMoveFractions(self.ctx.robot, q0, via, self.half_open)
+        for f in fractions[::-1]:      # (the via point itself is checked)
+            why = self.Pose("staging", q0 + f * (via - q0))
+            if why:
+                return why
+        return ""
+
+
+FREE_MOVE_STEP = 0.01    # m: the largest move of the robot between two checked poses
+
+
+def FreeMoveFractions(robot, q0: np.ndarray, q1: np.ndarray, half_open: float,
+                      step: float = FREE_MOVE_STEP, max_samples: int = 400) -> np.ndarray:
+    """Fractions in (0, 1) of the joint move q0 -> q1 at which to check the
+    robot so that no point of its geometries' boxes moves more than
+    ``step`` (m) between two consecutive checks (a rigid motion moves a
+    box's points at most as far as its farthest corner; the joint line is
+    refined until the corners keep the step). Eight evenly spaced samples
+    let the wrist skip 10 cm past a neighbouring leaf on a long move (the
+    retreat's last move brushed one at 1.3 m/s in ``three_fruits_default``)."""
+    q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+    n = 8
+    while True:
+        f = np.linspace(0.0, 1.0, n)
+        C = np.stack([robot.SurfacePointsByBody(q0 + x * (q1 - q0), half_open).corners
+                      for x in f])
+        moved = float(np.linalg.norm(np.diff(C, axis=0), axis=-1).max())
+        if moved <= step or n >= max_samples:
+            return f[1:-1]
+        n = min(max_samples, int(np.ceil((n - 1) * moved / step)) + 1)
+
+
+def NarrowOpening(leaf_W: np.ndarray, grasp, cfg: PlannerConfig) -> float:
+    """The smallest pre-grasp opening (m) for ``grasp`` that keeps the
+    collision margin plus 3 mm from the observed leaf on both pads: twice
+    the leaf's local half-thickness along the closing direction (95th
+    percentile of the leaf points within 1.5 cm of the grasp point, which
+    includes the sensor noise) plus margins; never wider than
+    ``pregrasp_opening``, never below 1.5 cm."""
+    y = grasp.R_WG[:, 1]
+    near = leaf_W[np.linalg.norm(leaf_W - grasp.p_WG, axis=1) < 0.015]
+    half = float(np.percentile(np.abs((near - grasp.p_WG) @ y), 95)) if len(near) >= 5 else 0.005
+    opening = 2.0 * (half + cfg.collision_margin + 0.003)
+    return float(np.clip(opening, 0.015, cfg.pregrasp_opening))
+
+
+def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
+              memo: dict | None = None):
+    """The approach to ``grasp`` with its ready pose ``ready`` (m) behind the
+    pre-grasp (an ``ApproachPlan``), or why there is none: the configured
+    opening first; if the open pads hit the fruit close behind the leaf (or
+    the leaf), the narrowest opening that still lets the observed leaf pass
+    between them. ``memo`` (a dict, one per grasp orientation) keeps IK
+    solutions and pose checks for the next ready distance."""
+    why = ""
+    memo = memo if memo is not None else {}
+    for opening in dict.fromkeys([cfg.pregrasp_opening,
+                                  NarrowOpening(ctx.leaf_W, grasp, cfg)]):
+        # each pose is checked as soon as it is solved, from the grasp
+        # outward: a blocked approach stops before the rest of its IK
+        checks = (_ApproachChecks(ctx, cfg, 0.5 * opening, memo.setdefault("checks", {}))
+                  if np.isfinite(cfg.collision_margin) else None)
+        try:
+            approach = PlanApproach(ctx.robot,
+                                    RigidTransform(RotationMatrix(grasp.R_WG), grasp.p_WG),
+                                    ctx.q_current,
+                                    grasp.R_WG[:, 1], cfg.pregrasp_distance, opening,
+                                    ready_extra=ready,
+                                    check=None if checks is None else checks.Pose,
+                                    memo=memo.setdefault("ik", {}))
+            why = "" if checks is None else checks.FreeMove(approach.via)
+        except MotionError as err:
+            return f"IK failed ({'staging' if err.staging else 'approach'}): {err}"
+        except ApproachBlocked as err:
+            why = str(err)
+        if not why:
+            return approach
+        if not why.startswith(("robot-fruit", "robot-leaf")):
+            break
+    return why
+
+
+def IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
+                     actions: list[Action]) -> list[Candidate]:
+    """The approach (IK chain via, ready, pre-grasp, grasp; see
+    ``planning.motion.PlanApproach``) with robot checks along it, then IK for
+    each pulled pose (warm-started along each direction's distances) and
+    robot-vs-fruit/branch checks there."""
+    cands = [Candidate(a, DistanceId(a, cfg)) for a in actions]
+    # If the arm cannot reach the ready pose or hits something on the way
+    # to the pre-grasp, a ready pose closer to the pre-grasp
+    # (``ready_distances``): on the far side of a plant the default one
+    # can lie beyond the arm's reach.
+    why = ""
+    memo: dict = {}
+    for ready in cfg.ready_distances:
+        got = _Approach(ctx, cfg, grasp, ready, memo)
+        if isinstance(got, ApproachPlan):
+            approach, why = got, ""
+            break
+        why = got
+        if not why.startswith("IK failed (staging)") and "on the way to the pre-grasp" not in why:
+            break
+    if why:
+        for c in cands:
+            c.reason = why
+        return cands
+    for c in cands:
+        c.approach = approach
+        c.q_pregrasp, c.q_grasp = approach.to_pregrasp[-1], approach.to_grasp[-1]
+    return MotionChecks(ctx, cfg, cands, approach.to_grasp[-1])
