@@ -31,6 +31,10 @@ class WeightsError(InputError, FileNotFoundError):
     """A weights file is missing or unreadable; the message names it."""
 
 
+class HardwareStationUnavailable(RuntimeError):
+    """Raised when the hardware station is requested but not available."""
+
+
 def OneLine(err: BaseException) -> str:
     """``err`` as one line: its message (or its type when empty)."""
     text = " ".join(str(err).split())

@@ -23,7 +23,8 @@ from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.perception.observe import SemanticSceneFromImages
 from lmap_drake.planning.lmap import PlanLmap, PlanningContext
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.plants.simworld import OracleSceneEstimate, PlantWorldSim
+from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.scripted import OracleSceneEstimate
 from lmap_drake.scenario import LoadScenario
 
 

@@ -166,7 +166,7 @@ def LeafMeshWorkaround(scenario, max_tries: int = 6) -> tuple[object, str]:
     import copy
 
     from lmap_drake.plants.leaf import TetVolumes
-    from lmap_drake.plants.world import GetPlantModel
+    from lmap_drake.plants.plant_station import GetPlantModel
 
     def worst(s):
         m = GetPlantModel(s)
@@ -189,7 +189,7 @@ def LeafMeshWorkaround(scenario, max_tries: int = 6) -> tuple[object, str]:
 
 def _PullAndMeasure(grasped, direction, distance, speed, hold, tets, corr) -> dict:
     """Forks ``grasped``, pulls, returns the FEM state and measures."""
-    from lmap_drake.plants.simworld import Pull
+    from lmap_drake.plants.scripted import Pull
     world = grasped.Fork()
     n0 = len(world.samples)
     p0 = world.X_WT().translation()
@@ -223,7 +223,8 @@ def EvaluateScenario(scenario, args, with_corr: bool, log) -> dict:
     from lmap_drake.perception.observe import SemanticSceneFromImages
     from lmap_drake.planning.lmap import AttachLeaf
     from lmap_drake.plants.leaf import BoundaryTriangles
-    from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
+    from lmap_drake.plants.plant_sim import PlantWorldSim
+    from lmap_drake.plants.scripted import ApproachAndGrasp, OracleSceneEstimate
 
     timing = {}
     t0 = time.perf_counter()

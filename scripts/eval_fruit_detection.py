@@ -107,7 +107,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     from lmap_drake.perception.observe import SemanticSceneFromImages
-    from lmap_drake.plants.world import GetPlantModel, RenderStill
+    from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
     from lmap_drake.scenario import LoadScenario
 
     plants = {}

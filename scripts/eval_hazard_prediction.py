@@ -177,7 +177,8 @@ def EvaluateScenario(scenario, args, log) -> dict:
     from lmap_drake.planning.hazard import HazardMeasures
     from lmap_drake.planning.lmap import AttachLeaf, EstimateHinge
     from lmap_drake.planning.motion import MotionError
-    from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
+    from lmap_drake.plants.plant_sim import PlantWorldSim
+    from lmap_drake.plants.scripted import ApproachAndGrasp, OracleSceneEstimate
 
     scenario, mesh_note = LeafMeshWorkaround(scenario)
     world = PlantWorldSim(scenario, progress=lambda m: None)
@@ -266,7 +267,7 @@ def EvaluateMultiScenario(scenario, args, log) -> dict:
     from lmap_drake.planning.motion import MotionError
     from lmap_drake.planning.lmap import AttachLeaf, PlanningContext, _GraspActions
     from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
-    from lmap_drake.plants.simworld import PlantWorldSim
+    from lmap_drake.plants.plant_sim import PlantWorldSim
     from lmap_drake.shape.completion import CompletePlant
     from lmap_drake.shape.deepsdf import LoadDecoder
     from lmap_drake.shape.ssc import SscParams

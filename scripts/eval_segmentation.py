@@ -89,7 +89,7 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
     from lmap_drake.perception.segmentation import (ClassIou, FruitInstanceTruth, MakeSegmenter,
                                                     TruthClassMap)
     from lmap_drake.scenario import LoadScenario
-    from lmap_drake.plants.world import RenderStill
+    from lmap_drake.plants.plant_station import RenderStill
     names = names or _scenario_names(scenario_file)
     from tqdm import tqdm
     results = {b: {"scenarios": {}} for b in backends}

@@ -54,7 +54,7 @@ def _ArmNearLeaf(s, rng) -> list[float]:
     from pydrake.math import RigidTransform, RotationMatrix
 
     from lmap_drake.planning.robot_model import RobotModel
-    from lmap_drake.plants.world import GetPlantModel
+    from lmap_drake.plants.plant_station import GetPlantModel
     model = GetPlantModel(s)
     leaf = (model.leaves[rng.integers(len(model.leaves))].rest_W if hasattr(model, "leaves")
             else model.leaf_rest_W)      # a multi-fruit plant: one of its leaves
@@ -86,7 +86,7 @@ def HeldLeaf(s, rng, kind: str | None = None, twist_deg: float | None = None,
     from lmap_drake.planning.candidates import GraspCandidates
     from lmap_drake.planning.robot_model import RobotModel
     from lmap_drake.plants.leaf import TurnHeldLeaf
-    from lmap_drake.plants.world import GetPlantModel
+    from lmap_drake.plants.plant_station import GetPlantModel
     model = GetPlantModel(s)
     if hasattr(model, "leaves"):
         j = int(rng.integers(len(model.leaves)))
@@ -227,7 +227,7 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
     from lmap_drake.perception.points import Intrinsics
     from lmap_drake.perception.segmentation import TruthClassMap
     from lmap_drake.perception.segnet import CropBox, SegNetInputs
-    from lmap_drake.plants.world import RenderStill
+    from lmap_drake.plants.plant_station import RenderStill
 
     s, kind, held = RandomRenderScenario(seed, arm_near_leaf, multi, held_leaf)
     rgb, depth, label = RenderStill(s, leaf_positions=held)
