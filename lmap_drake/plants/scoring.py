@@ -1,5 +1,5 @@
 """Ground-truth scoring of an episode on the simulated plant world: the
-outcome flags, visibilities and shape errors that ``episode.SimWorld``
+outcome flags, visibilities and shape errors that ``episode.sim_world.SimWorld``
 writes into ``episode.json`` (``outcome``, ``release_outcome``,
 ``shape_initial`` / ``shape_final``, and for several fruits ``fruits``,
 ``targets``, ``phantom_targets``). Never from the planner's model: from the
