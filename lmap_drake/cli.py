@@ -127,7 +127,7 @@ def cmd_twin(args) -> int:
     import threading
 
     from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
-    from lmap_drake.plants.twin import Twin, TwinOptions, TwinRunOverrides, WriteTwinCalibration
+    from lmap_drake.twin.twin import Twin, TwinOptions, TwinRunOverrides, WriteTwinCalibration
     from lmap_drake.scenario import LoadScenario
 
     scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,

@@ -9,7 +9,7 @@ and the same planning stages on recorded views (``MakeReplayDiagram``).
 
 Heavy, reusable objects (the DeepSDF decoder, the planner's robot model) live
 in ``EpisodeResources`` and are shared across rebuilds (the simulated grasp
-rebuilds the Diagram, see ``lmap_drake.plants.simworld``).
+rebuilds the Diagram, see ``lmap_drake.plants.plant_sim``).
 """
 from __future__ import annotations
 

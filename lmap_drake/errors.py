@@ -40,6 +40,10 @@ class ConfigError(InputError, ValueError):
         self.key, self.detail = key, detail
 
 
+class HardwareStationUnavailable(RuntimeError):
+    """Raised when the hardware station is requested but not available."""
+
+
 def OneLine(err: BaseException) -> str:
     """``err`` as one line: its message (or its type when empty)."""
     text = " ".join(str(err).split())

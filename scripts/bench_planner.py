@@ -24,7 +24,8 @@ from lmap_drake.perception.observe import SemanticSceneFromImages
 from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.lmap import PlanLmap
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.plants.simworld import OracleSceneEstimate, PlantWorldSim
+from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.scripted import OracleSceneEstimate
 from lmap_drake.scenario import LoadScenario
 
 

@@ -17,7 +17,8 @@ import time
 import numpy as np
 
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE
-from lmap_drake.plants.simworld import ApproachAndGrasp, PlantWorldSim, Pull
+from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.scripted import ApproachAndGrasp, Pull
 from lmap_drake.scenario import LoadScenario
 
 

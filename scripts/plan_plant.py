@@ -24,7 +24,7 @@ import numpy as np
 
 from lmap_drake.perception.observe import SemanticSceneFromImages
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.plants.simworld import PlantWorldSim
+from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.scenario import LoadScenario
 
 

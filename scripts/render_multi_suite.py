@@ -40,7 +40,7 @@ def RenderScenePng(scenario, path, rgb=None, label=None) -> None:
     (``rgb``/``label`` given, or rendered with ``RenderStill``)."""
     from PIL import Image
     if rgb is None:
-        from lmap_drake.plants.world import RenderStill
+        from lmap_drake.plants.plant_station import RenderStill
         rgb, _, label = RenderStill(scenario)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(np.concatenate([np.asarray(rgb)[..., :3], LabelColors(label)], 1)).save(path)
@@ -63,7 +63,7 @@ def MeasureScene(scenario, push: bool, out_png=None, push_speed: float = 1.5) ->
     """Settles the scene 0.3 s, renders it, measures leaf interpenetration;
     with ``push`` flicks each leaf (its free vertices at ``push_speed`` m/s)
     toward its nearest neighbour leaf and measures over 0.3 s."""
-    from lmap_drake.plants.simworld import PlantWorldSim
+    from lmap_drake.plants.plant_sim import PlantWorldSim
     t0 = time.time()
     w = PlantWorldSim(scenario)
     build = time.time() - t0

@@ -181,7 +181,7 @@ def test_dry_run_refuses_a_bad_calibration_before_anything_moves(tmp_path, scena
     another camera or a non-finite X_WC is bad input, refused before the
     episode is built; the fake arm got no command."""
     from lmap_drake.episode import RunLmapEpisode
-    from lmap_drake.station.hardware.fakes import FakeRobotiqServer, MakeFakeHardwareClients
+    from fakes.hardware import FakeRobotiqServer, MakeFakeHardwareClients
     f = tmp_path / "calib.yaml"
     f.write_text(calibration)
     scenario.hardware.camera.calibration_file = str(f)

@@ -24,7 +24,7 @@ def test_meshcat_note_on_the_deformable_leaf_is_dropped_other_drake_messages_pas
     user; another Drake warning does."""
     from pydrake.geometry import Meshcat
     from pydrake.systems.analysis import Simulator
-    from lmap_drake.plants.world import MakePlantStation
+    from lmap_drake.plants.plant_station import MakePlantStation
     from lmap_drake.scenario import LoadDefaultScenario
     with caplog.at_level(logging.WARNING):
         station = MakePlantStation(LoadDefaultScenario(), Meshcat())

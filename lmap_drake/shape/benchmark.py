@@ -259,7 +259,7 @@ def MakeSuiteCase(suite_file, scenario_name: str, occluded: bool = True,
     X_WC = np.asarray(cam.X_PB.GetDeterministicValue().GetAsMatrix4(), float)
     K = dict(width=cam.width, height=cam.height, fx=cam.focal_x(), fy=cam.focal_y(),
              cx=cam.principal_point()[0], cy=cam.principal_point()[1])
-    from lmap_drake.plants.world import GetPlantModel
+    from lmap_drake.plants.plant_station import GetPlantModel
     model = GetPlantModel(sc)        # cached: the two conditions share one plant
     branch = []
     bp = model.branch_points_W

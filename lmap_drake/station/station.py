@@ -44,10 +44,6 @@ STATION_PORTS = {
 }
 
 
-class HardwareStationUnavailable(RuntimeError):
-    """Raised when the hardware station is requested but not available."""
-
-
 class GravityCompensation(LeafSystem):
     """Feed-forward torques that cancel gravity on the UR5, as its own servo
     does. Inputs ``ur5_state`` (12: q rad, v rad/s) and ``gripper_state`` (4:
@@ -199,7 +195,7 @@ def MakeStation(scenario: Scenario, meshcat: Meshcat | None = None,
     this module's docstring. The simulated station contains systems named
     ``plant`` and ``scene_graph``; it holds the UR5 and the 2F-85, and
     ``add_world(plant, scene_graph)``, when given, adds the rest of the world
-    before the plant is finalized (the plant world: ``lmap_drake.plants.world``).
+    before the plant is finalized (the plant world: ``lmap_drake.plants.plant_station``).
     The station itself never imports the plant world."""
     if hardware:
         # Real UR5 + 2F-85 + L515 (lmap_drake/station/hardware/station.py); raises

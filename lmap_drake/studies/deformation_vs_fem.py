@@ -72,9 +72,9 @@ from lmap_drake.perception.observe import SemanticSceneFromImages
 from lmap_drake.planning.attachment import AttachLeaf
 from lmap_drake.planning.motion import MotionError
 from lmap_drake.plants.leaf import BoundaryTriangles, TetVolumes
-from lmap_drake.plants.simworld import (ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim,
-                                        Pull)
-from lmap_drake.plants.world import GetPlantModel
+from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.scripted import ApproachAndGrasp, OracleSceneEstimate, Pull
+from lmap_drake.plants.plant_station import GetPlantModel
 from lmap_drake.scenario import LoadScenario, RawYaml
 
 DEFAULT_CORR = ["small_leaf_thin_branch_round_red_heavy",

@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from lmap_drake.errors import InputError
 from lmap_drake.perception.observe import SemanticSceneFromImages
-from lmap_drake.plants.world import GetPlantModel, RenderStill
+from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
 from lmap_drake.scenario import LoadScenario
 from lmap_drake.shape.benchmark import SuiteScenarioNames
 

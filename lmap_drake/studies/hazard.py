@@ -74,7 +74,8 @@ from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.energy import EquivalentTurnDeg, HingeRotationDeg, PetioleBendingEnergy
 from lmap_drake.planning.motion import MotionError, PlanActionPath, TimeJointPath
 from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
-from lmap_drake.plants.simworld import ApproachAndGrasp, OracleSceneEstimate, PlantWorldSim
+from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.scripted import ApproachAndGrasp, OracleSceneEstimate
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.scenario import LoadScenario
 from lmap_drake.shape.completion import CompletePlant

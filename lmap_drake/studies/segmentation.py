@@ -45,7 +45,7 @@ from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.segmentation import (ClassIou, FruitInstanceTruth, MakeSegmenter,
                                                 RgbToHsv, TruthClassMap)
 from lmap_drake.plants.suite import RandomSuite, SuiteYaml
-from lmap_drake.plants.world import RenderStill
+from lmap_drake.plants.plant_station import RenderStill
 from lmap_drake.scenario import LoadScenario, RawYaml
 from lmap_drake.station.camera_noise import CameraProfile
 

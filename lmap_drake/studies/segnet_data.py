@@ -48,7 +48,7 @@ from lmap_drake.planning.candidates import GraspCandidates
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.plants.leaf import TurnHeldLeaf
 from lmap_drake.plants.suite import RandomMultiSuite, RandomSuite
-from lmap_drake.plants.world import GetPlantModel, RenderStill
+from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
 from lmap_drake.scenario import Scenario
 
 FRUIT_KINDS = ("red", "orange", "yellow", "green")

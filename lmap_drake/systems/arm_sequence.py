@@ -32,7 +32,7 @@ seen, IK fails, a trajectory is refused, or a stage raises (``stage_error:
 <stage>: ...``, ``failed_stage``); it skips the manipulation (``done``,
 ``no_action_needed``) when the fruit is already visible enough. In
 simulation the grasp is made by the episode runner (it rebuilds the station
-with the leaf fixed between the pads, see ``lmap_drake.plants.simworld``),
+with the leaf fixed between the pads, see ``lmap_drake.plants.plant_sim``),
 which then acknowledges it; on hardware the gripper closes until it stalls
 on the leaf and the controller continues alone. A hardware gripper that
 reaches the end of its ramp (or 2 s) without reporting an object holds

@@ -7,7 +7,7 @@ import numpy as np
 
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.plants.world import MakePlantStation
+from lmap_drake.plants.plant_station import MakePlantStation
 
 # 320x240 camera, closer and to the side so the fruit shows beside the leaf.
 SMALL_CAMERA = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "

@@ -23,7 +23,7 @@ FACING_LEAF = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
 
 def test_deprojection_of_rendered_plane_within_2mm():
     from lmap_drake.scenario import LoadScenario
-    from lmap_drake.plants.world import MakePlantStation
+    from lmap_drake.plants.plant_station import MakePlantStation
     s = LoadScenario(scenario_text=[FACING_LEAF, IDEAL])
     station = MakePlantStation(s)
     ctx = station.CreateDefaultContext()

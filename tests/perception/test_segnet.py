@@ -60,7 +60,7 @@ def test_shipped_weights_are_small_and_say_how_they_were_made():
 
 
 def _render(text):
-    from lmap_drake.plants.world import RenderStill
+    from lmap_drake.plants.plant_station import RenderStill
     s = LoadScenario(scenario_text=text)
     return s, RenderStill(s)
 
@@ -105,7 +105,7 @@ def test_segnet_sees_a_leaf_the_gripper_holds_turned(kind, twist, arc):
     and 16 % leaf, 52 % and 16 % fruit; in recorded episodes a re-plan from
     the held leaf then found no leaf at the grasp.)"""
     from lmap_drake.labels import DecodeLabels
-    from lmap_drake.plants.world import RenderStill
+    from lmap_drake.plants.plant_station import RenderStill
     from lmap_drake.studies.segnet_data import HeldLeaf
     s = LoadScenario(filename=REPO_ROOT / "diagrams" / "default.yaml")
     held = HeldLeaf(s, np.random.default_rng(0), kind=kind, twist_deg=twist,

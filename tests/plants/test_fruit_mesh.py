@@ -65,7 +65,7 @@ def test_file_fruit_ground_truth_comes_from_the_mesh(tmp_path):
 
 def test_file_fruit_renders_with_fruit_and_branch_labels(tmp_path):
     from lmap_drake.labels import BRANCH, FRUIT
-    from lmap_drake.plants.world import GetPlantModel, RenderStill
+    from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
     f, p, _ = _pepper(tmp_path, "sculpted", seed=2, ext="stl")
     sc = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_text=[
         _text(f, p), "{plant_scene: {occlusion: 0.5}, camera_noise: {enabled: false}}"])

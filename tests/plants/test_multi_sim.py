@@ -6,7 +6,7 @@ import pytest
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
 from lmap_drake.plants.multi_geometry import LeafLeafPenetration
-from lmap_drake.plants.simworld import PlantWorldSim
+from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.scenario import LoadScenario
 
 
@@ -96,7 +96,7 @@ def test_visibility_over_several_views_is_the_union_of_their_fruit_pixels(world)
 def test_fem_threads_do_not_change_the_leaves():
     """Two FEM threads give the leaves bit for bit what one gives (every
     leaf awake, 0.2 s of settling)."""
-    from lmap_drake.plants.simworld import SetFemThreads
+    from lmap_drake.plants.plant_sim import SetFemThreads
     out = []
     for n in (1, 2):
         scenario = LoadScenario(scenario_text="{plant_scene: {kind: multi, sleep_distance: 0.0, "

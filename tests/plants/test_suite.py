@@ -6,7 +6,7 @@ import yaml
 from lmap_drake.labels import FRUIT, LEAF, DecodeLabels
 from lmap_drake.paths import DIAGRAMS_DIR
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.plants.world import MakePlantStation
+from lmap_drake.plants.plant_station import MakePlantStation
 
 SUITE = DIAGRAMS_DIR / "suite.yaml"
 NAMES = list(yaml.safe_load(SUITE.read_text()))

@@ -106,8 +106,8 @@ def test_colour_noise_is_mild_and_lighting_is_fixed_per_scene():
 
 
 def test_station_applies_the_model_and_enabled_false_gives_the_renderer_images():
-    from lmap_drake.plants.world import MakePlantStation
-    from lmap_drake.plants.world import RenderStill
+    from lmap_drake.plants.plant_station import MakePlantStation
+    from lmap_drake.plants.plant_station import RenderStill
 
     def render(text):
         s = LoadScenario(scenario_text=text)
@@ -138,7 +138,7 @@ def test_every_dropout_lies_within_perception_no_return_margin_of_a_return():
     wider (it also withholds the free space beside every silhouette)."""
     from scipy import ndimage
 
-    from lmap_drake.plants.world import RenderStill
+    from lmap_drake.plants.plant_station import RenderStill
     s = LoadScenario()
     _, clean_d, _ = RenderStill(LoadScenario(scenario_text="{camera_noise: {enabled: false}}"))
     _, noisy_d, _ = RenderStill(s)

@@ -1,6 +1,6 @@
 """The hardware station built on FAKE clients (fake ur_rtde interfaces, a
 FakeRobotiqServer on localhost speaking the URCap protocol, a fake
-pyrealsense2 module; see lmap_drake.station.hardware.fakes). Nothing here
+pyrealsense2 module; see tests/fakes/hardware.py). Nothing here
 talks to a robot: these tests check the Drake wiring, the port contract,
 the safety paths, not the devices. The whole hardware episode on these
 fakes (plan-only, confirmation, aborts) is tested in tests/test_episode_hardware.py."""
@@ -19,7 +19,7 @@ from lmap_drake.cli import main
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.scenario import LoadScenario
 from lmap_drake.station import STATION_PORTS, MakeStation
-from lmap_drake.station.hardware.fakes import FakeRobotiqServer, MakeFakeHardwareClients
+from fakes.hardware import FakeRobotiqServer, MakeFakeHardwareClients
 from lmap_drake.station.hardware.safety import (HardwareAbort, JointLimitRefusal,
                                                 VelocityLimitRefusal)
 from lmap_drake.station.hardware.station import (HardwareCamera, MakeHardwareStation,
@@ -27,7 +27,7 @@ from lmap_drake.station.hardware.station import (HardwareCamera, MakeHardwareSta
 from lmap_drake.station.hardware.robotiq_client import GripperCommandRefusal
 from lmap_drake.station.hardware_config import (CalibrationError, CalibrationX_WC,
                                                 LoadCameraCalibration)
-from lmap_drake.station.station import HardwareStationUnavailable
+from lmap_drake.errors import HardwareStationUnavailable
 
 CALIB = "diagrams/calibration_example.yaml"
 

@@ -1,15 +1,15 @@
 """RealSenseClient with a FAKE pyrealsense2 module (FakePyrealsense2 from
-lmap_drake.station.hardware.fakes: the module names the client uses, a
+tests/fakes/hardware.py: the module names the client uses, a
 synthetic scene, no camera)."""
 import sys
 
 import numpy as np
 import pytest
 
-from lmap_drake.station.hardware.fakes import FakePyrealsense2
+from fakes.hardware import FakePyrealsense2
 from lmap_drake.station.hardware.realsense_client import ConnectRealSense
 from lmap_drake.station.hardware_config import RealSenseConfig
-from lmap_drake.station.station import HardwareStationUnavailable
+from lmap_drake.errors import HardwareStationUnavailable
 
 
 def test_missing_pyrealsense2_gives_install_hint(monkeypatch):

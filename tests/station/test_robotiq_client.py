@@ -6,11 +6,11 @@ import time
 
 import pytest
 
-from lmap_drake.station.hardware.fakes import FakeRobotiqServer
+from fakes.hardware import FakeRobotiqServer
 from lmap_drake.station.hardware.robotiq_client import (GripperCommandRefusal, OpeningToPos,
                                                         PosToOpening, RobotiqClient, RobotiqError)
 from lmap_drake.station.hardware_config import GripperConfig
-from lmap_drake.station.station import HardwareStationUnavailable
+from lmap_drake.errors import HardwareStationUnavailable
 
 
 @pytest.fixture

@@ -12,9 +12,9 @@ from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.planning.ik import SolveTcpIk
 from lmap_drake.scenario import LoadScenario
 from lmap_drake.station import STATION_PORTS, MakeStation
-from lmap_drake.plants.world import MakePlantStation
+from lmap_drake.plants.plant_station import MakePlantStation
 from lmap_drake.station.robot import MakeControllerPlant
-from lmap_drake.station.station import HardwareStationUnavailable
+from lmap_drake.errors import HardwareStationUnavailable
 
 
 def _port_names(diagram):
@@ -146,7 +146,7 @@ def test_meshcat_publishes_on_the_plant_step_grid():
     episode with Meshcat differed from the same episode without it."""
     from pydrake.geometry import Meshcat
     from pydrake.systems.framework import EventStatus
-    from lmap_drake.plants.simworld import PlantWorldSim
+    from lmap_drake.plants.plant_sim import PlantWorldSim
     s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
     world = PlantWorldSim(s, meshcat=Meshcat())
     times = []

@@ -1,5 +1,5 @@
 """UrClient over FAKE ur_rtde interfaces (FakeRTDEControlInterface /
-FakeRTDEReceiveInterface from lmap_drake.station.hardware.fakes: same method
+FakeRTDEReceiveInterface from tests/fakes/hardware.py: same method
 names and argument orders as ur_rtde; no robot is involved)."""
 import sys
 import time
@@ -7,12 +7,12 @@ import time
 import numpy as np
 import pytest
 
-from lmap_drake.station.hardware.fakes import MakeFakeUrClient
+from fakes.hardware import MakeFakeUrClient
 from lmap_drake.station.hardware.safety import (HardwareAbort, JointLimitRefusal,
                                                 VelocityLimitRefusal, WorkspaceRefusal)
 from lmap_drake.station.hardware.ur_client import ConnectUr
 from lmap_drake.station.hardware_config import UrConfig
-from lmap_drake.station.station import HardwareStationUnavailable
+from lmap_drake.errors import HardwareStationUnavailable
 
 Q0 = np.array([2.0, -1.9, 1.9, -1.571, -1.571, 0.0])
 

@@ -8,7 +8,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from lmap_drake.perception.segmentation import SegmenterError
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.plants.world import MakePlantStation
+from lmap_drake.plants.plant_station import MakePlantStation
 from lmap_drake.systems.perception import Perception
 
 SMALL = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.sensors import CameraInfo
 
+from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.station.hardware.safety import HardwareAbort
 from lmap_drake.station.hardware_config import RealSenseConfig
 
@@ -32,7 +33,6 @@ def ImportPyrealsense2():
     try:
         import pyrealsense2 as rs
     except ImportError as err:
-        from lmap_drake.station.station import HardwareStationUnavailable
         raise HardwareStationUnavailable(
             f"the hardware station needs pyrealsense2==2.54.2.5684 (the last release that "
             f"supports the L515), which is not installed ({err}); install the hardware "
@@ -53,7 +53,6 @@ def ConnectRealSense(config: RealSenseConfig, rs=None) -> "RealSenseClient":
     try:
         profile = pipeline.start(cfg)
     except Exception as err:  # pyrealsense2 raises RuntimeError
-        from lmap_drake.station.station import HardwareStationUnavailable
         which = f"serial {config.serial}" if config.serial else "any serial"
         raise HardwareStationUnavailable(
             f"hardware station: could not start the RealSense camera ({which}, colour "

@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.station.hardware.safety import HardwareAbort, SafetyRefusal
 from lmap_drake.station.hardware_config import GripperConfig
 from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
@@ -82,7 +83,6 @@ class RobotiqClient:
         try:
             sock = socket.create_connection((host, config.port), timeout=config.timeout)
         except OSError as err:
-            from lmap_drake.station.station import HardwareStationUnavailable
             raise HardwareStationUnavailable(
                 f"hardware station: could not connect to the Robotiq gripper socket at "
                 f"{host}:{config.port} (is the Robotiq URCap installed and the gripper "

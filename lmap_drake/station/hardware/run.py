@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 from typing import Callable
 
+from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.scenario import Scenario, ScenarioWithCamera
 from lmap_drake.station.hardware.station import (CheckHardwareSetup, ConnectHardwareClients,
                                                  HardwareClients)
@@ -28,7 +29,6 @@ from lmap_drake.station.hardware_config import CalibrationError, CheckCalibratio
 
 
 def _Unavailable(msg: str) -> Exception:
-    from lmap_drake.station.station import HardwareStationUnavailable
     return HardwareStationUnavailable(msg)
 
 

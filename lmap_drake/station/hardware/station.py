@@ -27,10 +27,12 @@ import dataclasses as dc
 
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
+from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.hardware.realsense_client import ConnectRealSense, ImportPyrealsense2
 from lmap_drake.station.hardware.robotiq_client import RobotiqClient
 from lmap_drake.station.hardware.systems import RealSenseCamera, RobotiqDriver, Ur5Driver
+from lmap_drake.station.hardware.twin_camera_client import TwinCameraClient
 from lmap_drake.station.hardware.ur_client import ConnectUr, ImportUrRtde
 from lmap_drake.station.hardware_config import (CalibrationError, CalibrationX_WC,
                                                 CheckCalibrationSerial,
@@ -57,7 +59,6 @@ class HardwareClients:
 
 
 def _Unavailable(msg: str) -> Exception:
-    from lmap_drake.station.station import HardwareStationUnavailable
     return HardwareStationUnavailable(msg)
 
 
@@ -76,7 +77,6 @@ def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> H
         if config.gripper.activate and not read_only:
             gripper.Activate(timeout=10.0)
         if config.camera.twin_address:     # a digital twin's frames (lmap-drake twin)
-            from lmap_drake.station.hardware.twin_camera import TwinCameraClient
             camera = TwinCameraClient(config.camera.twin_address, config.camera.frame_timeout)
         else:
             camera = ConnectRealSense(config.camera)
@@ -91,8 +91,6 @@ def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
     connect ourselves), the hardware config and the calibration file.
     Returns (calibration, X_WC). Raises HardwareStationUnavailable, or
     CalibrationError (bad input)."""
-    from lmap_drake.station.station import HardwareStationUnavailable
-
     config = scenario.hardware
     if own_clients:  # a missing library is the first thing to report
         ImportUrRtde()
@@ -115,8 +113,6 @@ def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = No
     sent whatever its inputs say. Raises HardwareStationUnavailable when a
     library or a device is missing, CalibrationError (bad input) for a bad
     calibration file or one made for another camera."""
-    from lmap_drake.station.station import HardwareStationUnavailable
-
     config = scenario.hardware
     own_clients = clients is None
     calib, X_WC = CheckHardwareSetup(scenario, own_clients)

@@ -29,6 +29,7 @@ import time
 
 import numpy as np
 
+from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.station.hardware.safety import HardwareAbort, SafetyChecker, SafetyRefusal
 from lmap_drake.station.hardware_config import UrConfig
 
@@ -36,7 +37,6 @@ INSTALL_HINT = "pip install -e .[hardware]"
 
 
 def _Unavailable(msg: str) -> Exception:
-    from lmap_drake.station.station import HardwareStationUnavailable
     return HardwareStationUnavailable(msg)
 
 

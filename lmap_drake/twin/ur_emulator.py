@@ -13,7 +13,7 @@ Run the ur_rtde client in ANOTHER process: its bindings keep the GIL while
 they wait for the controller (constructors, moveJ, ...), so an emulator in
 the client's process never answers. ``EmulatorProcess`` starts one in a
 child process and drives its faults over stdin; ``python -m
-lmap_drake.station.hardware.ur_emulator`` serves until Ctrl-C.
+lmap_drake.twin.ur_emulator`` serves until Ctrl-C.
 
 Implemented:
 
@@ -1458,7 +1458,7 @@ class EmulatorProcess:
             fd, log_path = tempfile.mkstemp(prefix="ur_emulator_", suffix=".log")
             os.close(fd)
         self.log_path = log_path
-        cmd = [sys.executable, "-m", "lmap_drake.station.hardware.ur_emulator", "--host", host,
+        cmd = [sys.executable, "-m", "lmap_drake.twin.ur_emulator", "--host", host,
                "--latency", str(latency), "--control-stdin"]
         if cb3:
             cmd.append("--cb3")
@@ -1568,10 +1568,10 @@ class EmulatorProcess:
 
 # ------------------------------------------------------------------ CLI
 def main(argv=None) -> int:
-    """``python -m lmap_drake.station.hardware.ur_emulator``: serves until
+    """``python -m lmap_drake.twin.ur_emulator``: serves until
     Ctrl-C (or, with ``--control-stdin``, until stdin closes)."""
     p = argparse.ArgumentParser(
-        prog="python -m lmap_drake.station.hardware.ur_emulator",
+        prog="python -m lmap_drake.twin.ur_emulator",
         description="Loopback EMULATOR of a UR controller (dashboard, RTDE, script port) for "
                     "ur_rtde; not a robot. Connect with rtde_control.RTDEControlInterface(HOST) "
                     "and rtde_receive.RTDEReceiveInterface(HOST) from another process.")

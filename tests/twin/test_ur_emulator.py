@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from lmap_drake.station.hardware.safety import HardwareAbort
 from lmap_drake.station.hardware.ur_client import ConnectUr
-from lmap_drake.station.hardware.ur_emulator import (DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT,
+from lmap_drake.twin.ur_emulator import (DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT,
                                                      EmulatorProcess, InverseKinematics,
                                                      RotationToRotvec, TcpTransform,
                                                      UrEmulator)

@@ -5,7 +5,9 @@ import pytest
 
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.plants.outcome import Summarize
-from lmap_drake.plants.simworld import ApproachAndGrasp, LeafProximity, PlantWorldSim, Pull
+from lmap_drake.plants.leaf_sleep import LeafProximity
+from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.scripted import ApproachAndGrasp, Pull
 from lmap_drake.scenario import LoadScenario
 
 
@@ -116,7 +118,7 @@ def test_leaves_at_rest_far_from_the_robot_sleep_and_wake_when_it_comes():
     the pre-grasp pose leaves it asleep (``sleep_distance`` 3 cm), and
     moving in to grasp wakes it before anything touches it: it wakes
     where it was frozen."""
-    from lmap_drake.plants.simworld import TipGraspPose, _LeafNormal
+    from lmap_drake.plants.scripted import TipGraspPose, _LeafNormal
     from lmap_drake.planning.motion import PlanApproach
     scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
     world = PlantWorldSim(scenario)

@@ -1,8 +1,10 @@
-"""The plant world on the simulated station: the generated plant (cached per
-scenario), the closed leaf grasp, and ``MakePlantStation`` -- the simulated
-station (``lmap_drake.station.MakeStation``) with the scenario's plant added
-to its MultibodyPlant. The station itself knows nothing of plants: this
-module hands it an ``add_world(plant, scene_graph)`` callback."""
+"""The plant station: the generated plant (cached per scenario), the closed
+leaf grasp, and ``MakePlantStation`` -- the simulated station
+(``lmap_drake.station.MakeStation``) with the scenario's plant added to its
+MultibodyPlant. The station itself knows nothing of plants: this module
+hands it an ``add_world(plant, scene_graph)`` callback. Also camera0's
+renders of it: ``RenderStill`` (the arm held) and ``UnoccludedFruitPixels``
+(the fruit alone, the denominator of the visibility fraction)."""
 from __future__ import annotations
 
 import dataclasses as dc
@@ -141,3 +143,40 @@ def RenderStill(scenario: Scenario, settle: float = 0.0,
     def image(name):
         return np.array(station.GetOutputPort(f"camera0.{name}_image").Eval(ctx).data)
     return image("rgb"), image("depth")[..., 0], image("label")[..., 0]
+
+
+def UnoccludedFruitPixels(scenario: Scenario, fruit: int | None = None) -> int:
+    """camera0's fruit pixel count with the leaf and robot removed (fruit and
+    branch only): the denominator of the visibility fraction. ``kind:
+    multi``: the pixels of fruit instance ``fruit`` (None: all fruits)."""
+    from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.sensors import RgbdSensor
+
+    from lmap_drake.labels import FRUIT, DecodeLabels
+    from lmap_drake.plants.scene import AddMultiPlant, AddProceduralPlant
+
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
+    if scenario.plant_scene.kind == "multi":
+        AddMultiPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
+                      with_leaves=False)
+    else:
+        AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
+                           with_leaf=False)
+    plant.Finalize()
+    cam = scenario.cameras["camera0"]
+    sg.AddRenderer(cam.renderer_name, MakeRenderEngineVtk(RenderEngineVtkParams()))
+    color, depth = cam.MakeCameras()
+    sensor = builder.AddSystem(RgbdSensor(sg.world_frame_id(), cam.X_PB.GetDeterministicValue(),
+                                          color, depth))
+    builder.Connect(sg.get_query_output_port(), sensor.query_object_input_port())
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    label = sensor.label_image_output_port().Eval(sensor.GetMyContextFromRoot(ctx))
+    cls, inst = DecodeLabels(label.data)
+    mask = cls == FRUIT
+    if fruit is not None:
+        mask &= inst == fruit
+    return int(mask.sum())

@@ -1,4 +1,4 @@
-"""FAKE devices for tests and offline development. Nothing here talks to a
+"""FAKE devices for the tests (under tests/: not part of the product). Nothing here talks to a
 real robot, gripper or camera.
 
 - ``FakeRTDEControlInterface`` / ``FakeRTDEReceiveInterface``: the subset of
@@ -7,8 +7,9 @@ real robot, gripper or camera.
   the same names and argument orders. The fake arm tracks servoJ targets
   perfectly; flags simulate protective / emergency stops and a dropped link.
 - ``FakeRobotiqServer``: a TCP server on localhost that speaks the Robotiq
-  URCap ASCII protocol (``SET ... -> ack``, ``GET VAR -> VAR value``) with a
-  simple fake gripper behind it (activation delay, finite finger speed).
+  URCap ASCII protocol (``SET ... -> ack``, ``GET VAR -> VAR value``; the
+  twin's ``RobotiqSocketServer``) with a simple fake gripper behind it
+  (``FakeGripper``: activation delay, finite finger speed).
 - ``FakePyrealsense2``: a stand-in for the ``pyrealsense2`` module exposing
   the names ``ConnectRealSense`` uses (``pipeline``, ``config``, ``align``,
   ``stream``, ``format``, ``camera_info``); frames show a synthetic scene.
@@ -16,7 +17,6 @@ real robot, gripper or camera.
 from __future__ import annotations
 
 import dataclasses as dc
-import socketserver
 import threading
 import time
 import types
@@ -26,6 +26,7 @@ import numpy as np
 from lmap_drake.station.hardware.realsense_client import ConnectRealSense
 from lmap_drake.station.hardware.robotiq_client import RobotiqClient
 from lmap_drake.station.hardware.ur_client import UrClient
+from lmap_drake.twin.robotiq_server import RobotiqSocketServer
 
 
 # ---------------------------------------------------------------- UR (fake)
@@ -184,72 +185,16 @@ class FakeGripper:
             return self.regs.get(var)
 
 
-class _RobotiqHandler(socketserver.StreamRequestHandler):
-    def handle(self):
-        server = self.server
-        with server.clients_lock:
-            server.clients.append(self.request)
-        for raw in self.rfile:
-            line = raw.decode("ascii", errors="replace").strip()
-            server.received.append(line)
-            parts = line.split()
-            reply = "?"  # this fake's answer to malformed requests
-            if len(parts) >= 3 and parts[0] == "SET" and len(parts) % 2 == 1:
-                try:
-                    values = {parts[i]: int(parts[i + 1]) for i in range(1, len(parts), 2)}
-                    reply = "ack" if server.gripper.Set(values) else "?"
-                except ValueError:
-                    pass
-            elif len(parts) == 2 and parts[0] == "GET":
-                value = server.gripper.Get(parts[1])
-                if value is not None:
-                    reply = f"{parts[1]} {value}\n"
-            if server.silent:
-                continue
-            self.wfile.write(reply.encode("ascii"))
-
-
-class FakeRobotiqServer(socketserver.ThreadingTCPServer):
-    """FAKE Robotiq URCap socket server on ``host`` (default 127.0.0.1) and
-    ``port`` (default an ephemeral one); ``gripper`` is any register model
-    with ``Set(dict) -> bool`` and ``Get(name) -> int | None``.
-    ``received`` lists every request line; ``silent`` stops replies;
-    ``DropClients`` closes every connection (a lost link)."""
-    daemon_threads = True
-    allow_reuse_address = True
+class FakeRobotiqServer(RobotiqSocketServer):
+    """FAKE Robotiq URCap socket server: ``twin.robotiq_server.
+    RobotiqSocketServer`` over a ``FakeGripper`` unless ``gripper`` is given
+    (``received`` lists every request line; ``silent`` stops replies;
+    ``DropClients`` closes every connection, a lost link)."""
 
     def __init__(self, gripper: FakeGripper | None = None, host: str = "127.0.0.1",
                  port: int = 0):
-        super().__init__((host, port), _RobotiqHandler)
-        self.gripper = gripper or FakeGripper()
-        self.received: list[str] = []
-        self.silent = False
-        self.clients = []
-        self.clients_lock = threading.Lock()
-        self._thread = threading.Thread(target=self.serve_forever, kwargs={"poll_interval": 0.02},
-                                        daemon=True)
+        super().__init__(gripper or FakeGripper(), host, port)
 
-    @property
-    def port(self) -> int:
-        return self.server_address[1]
-
-    def __enter__(self):
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.shutdown()
-        self.server_close()
-
-    def DropClients(self) -> None:
-        import socket
-        with self.clients_lock:
-            for s in self.clients:
-                try:
-                    s.shutdown(socket.SHUT_RDWR)
-                    s.close()
-                except OSError:
-                    pass
 
 
 # ----------------------------------------------------- RealSense (fake)

@@ -1,7 +1,8 @@
-"""A camera over a local socket, for the digital twin (``lmap-drake twin``):
-NOT a RealSense. The twin process renders the simulated plant world and
-serves its frames; the hardware station's camera client reads them in place
-of a RealSense when ``hardware.camera.twin_address`` is set ("host:port").
+"""The hardware station's client of a camera over a local socket, for the
+digital twin (``lmap-drake twin``): NOT a RealSense. The twin process renders
+the simulated plant world and serves its frames
+(``lmap_drake.twin.camera_server``); this client reads them in place of a
+RealSense when ``hardware.camera.twin_address`` is set ("host:port").
 
 Protocol (TCP, one request per line, ASCII):
 
@@ -18,61 +19,12 @@ from __future__ import annotations
 
 import json
 import socket
-import socketserver
-import threading
 
 import numpy as np
 from pydrake.systems.sensors import CameraInfo
 
+from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.station.hardware.safety import HardwareAbort
-
-
-class _Handler(socketserver.StreamRequestHandler):
-    def handle(self):
-        server: TwinCameraServer = self.server
-        for raw in self.rfile:
-            line = raw.decode("ascii", errors="replace").strip()
-            try:
-                if line == "INFO":
-                    self.wfile.write((json.dumps(server.info) + "\n").encode())
-                elif line == "FRAME":
-                    t, rgba, depth = server.frame()
-                    h, w = depth.shape
-                    head = json.dumps({"width": w, "height": h, "t": float(t)}) + "\n"
-                    self.wfile.write(head.encode() + np.ascontiguousarray(rgba, np.uint8)
-                                     .tobytes() + np.ascontiguousarray(depth, "<f4").tobytes())
-                else:
-                    self.wfile.write(f"ERR unknown request {line[:40]!r}\n".encode())
-            except (BrokenPipeError, ConnectionResetError):
-                return
-            except Exception as err:  # noqa: BLE001 - reported to the client
-                self.wfile.write(f"ERR {type(err).__name__}: {err}\n".encode())
-
-
-class TwinCameraServer(socketserver.ThreadingTCPServer):
-    """Serves ``frame() -> (t, rgba HxWx4 uint8, depth HxW float32 m)`` and
-    ``info`` (a dict, see the module docstring) on ``host:port`` (port 0:
-    an ephemeral one, see ``port``)."""
-    daemon_threads = True
-    allow_reuse_address = True
-
-    def __init__(self, info: dict, frame, host: str = "127.0.0.1", port: int = 0):
-        super().__init__((host, port), _Handler)
-        self.info, self.frame = dict(info), frame
-        self._thread = threading.Thread(target=self.serve_forever,
-                                        kwargs={"poll_interval": 0.05}, daemon=True)
-
-    @property
-    def port(self) -> int:
-        return self.server_address[1]
-
-    def Start(self) -> "TwinCameraServer":
-        self._thread.start()
-        return self
-
-    def Close(self) -> None:
-        self.shutdown()
-        self.server_close()
 
 
 def ParseAddress(address: str) -> tuple[str, int]:
@@ -84,7 +36,7 @@ def ParseAddress(address: str) -> tuple[str, int]:
 
 class TwinCameraClient:
     """The RealSenseClient interface (``CameraInfo``, ``Capture``,
-    ``serial``, ``depth_scale``, ``Close``) over a TwinCameraServer."""
+    ``serial``, ``depth_scale``, ``Close``) over a twin camera server."""
 
     def __init__(self, address: str, timeout: float = 10.0):
         self.address = address
@@ -92,7 +44,6 @@ class TwinCameraClient:
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout)
         except OSError as err:
-            from lmap_drake.station.station import HardwareStationUnavailable
             raise HardwareStationUnavailable(
                 f"hardware station: no digital-twin camera at {address} ({err}); start the "
                 f"twin first (lmap-drake twin)") from err

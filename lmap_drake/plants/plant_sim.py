@@ -11,6 +11,10 @@ The constraint's reference placement is the rigid fit of those vertices'
 reference positions to their current ones, so the grasp does not jolt the
 leaf. ``Release()`` goes back to the station without it (built once and
 kept), carrying the state over the same way.
+
+The scripted motions on it (grasp poses, approach and grasp, pull, the
+scripted pull) are in ``plants.scripted``; the ground-truth scoring of an
+episode in ``plants.scoring``.
 """
 from __future__ import annotations
 
@@ -19,18 +23,19 @@ import dataclasses as dc
 from typing import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.analysis import Simulator
 from pydrake.trajectories import PiecewisePolynomial
 
 from lmap_drake.plants.generator import SIGN_RAYS, MeshSignedDistance
 from lmap_drake.plants.leaf import MaxPrincipalStretch, RestShapeInverse
+from lmap_drake.plants.leaf_sleep import LeafProximity
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
                                        StrainPercentile, VisibilityFraction)
+from lmap_drake.plants.plant_station import (GetPlantModel, LeafGrasp, MakePlantStation,
+                                             UnoccludedFruitPixels)
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
-from lmap_drake.plants.world import GetPlantModel, LeafGrasp, MakePlantStation
 
 
 def SetFemThreads(plant, threads: int = 0) -> int:
@@ -48,49 +53,6 @@ def SetFemThreads(plant, threads: int = 0) -> int:
     return n
 
 
-def BodyBoxes(bodies: list[np.ndarray]) -> np.ndarray:
-    """(B, 2, 3): each body's sample box (min, max); empty bodies get an
-    inverted box that meets nothing."""
-    out = np.empty((len(bodies), 2, 3))
-    out[:, 0], out[:, 1] = np.inf, -np.inf
-    for i, b in enumerate(bodies):
-        if len(b):
-            out[i] = b.min(axis=0), b.max(axis=0)
-    return out
-
-
-class LeafProximity:
-    """A leaf's vertices (N, 3, W, m) for the sleep test: is any robot
-    surface sample within a distance of them?"""
-
-    def __init__(self, V: np.ndarray):
-        self.V = np.asarray(V, float)
-        self.lo, self.hi = self.V.min(axis=0), self.V.max(axis=0)
-        self._tree = None
-
-    def Near(self, bodies, distance: float) -> bool:
-        """Whether a sample of ``bodies`` (the robot's surface samples, one
-        (M, 3) array per body, W; with a ``boxes`` (B, 2, 3) attribute of
-        min/max boxes, as ``RobotModel.SurfacePointsByBody`` gives, else
-        computed here) lies within ``distance`` (m) of a vertex. Exact: only
-        the bodies whose box meets the leaf's box grown by the distance, and
-        their samples inside it, go to the k-d tree."""
-        lo, hi = self.lo - distance, self.hi + distance
-        boxes = getattr(bodies, "boxes", None)
-        if boxes is None:
-            boxes = BodyBoxes(bodies)
-        hit = np.flatnonzero(np.all((boxes[:, 0] <= hi) & (boxes[:, 1] >= lo), axis=1))
-        if not len(hit):
-            return False
-        P = np.vstack([bodies[i] for i in hit])
-        P = P[np.all((P >= lo) & (P <= hi), axis=1)]
-        if not len(P):
-            return False
-        if self._tree is None:
-            self._tree = cKDTree(self.V)
-        return bool(np.any(self._tree.query(P, distance_upper_bound=distance)[0] < distance))
-
-
 def _Kabsch(P: np.ndarray, Q: np.ndarray) -> RigidTransform:
     """Rigid transform T minimising |T P - Q| (rows are points)."""
     cp, cq = P.mean(0), Q.mean(0)
@@ -99,43 +61,6 @@ def _Kabsch(P: np.ndarray, Q: np.ndarray) -> RigidTransform:
     D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
     R = Vt.T @ D @ U.T
     return RigidTransform(RotationMatrix(R), cq - R @ cp)
-
-
-def UnoccludedFruitPixels(scenario: Scenario, fruit: int | None = None) -> int:
-    """camera0's fruit pixel count with the leaf and robot removed (fruit and
-    branch only): the denominator of the visibility fraction. ``kind:
-    multi``: the pixels of fruit instance ``fruit`` (None: all fruits)."""
-    from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams
-    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.sensors import RgbdSensor
-
-    from lmap_drake.labels import FRUIT, DecodeLabels
-    from lmap_drake.plants.scene import AddMultiPlant, AddProceduralPlant
-
-    builder = DiagramBuilder()
-    plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-    if scenario.plant_scene.kind == "multi":
-        AddMultiPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
-                      with_leaves=False)
-    else:
-        AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
-                           with_leaf=False)
-    plant.Finalize()
-    cam = scenario.cameras["camera0"]
-    sg.AddRenderer(cam.renderer_name, MakeRenderEngineVtk(RenderEngineVtkParams()))
-    color, depth = cam.MakeCameras()
-    sensor = builder.AddSystem(RgbdSensor(sg.world_frame_id(), cam.X_PB.GetDeterministicValue(),
-                                          color, depth))
-    builder.Connect(sg.get_query_output_port(), sensor.query_object_input_port())
-    diagram = builder.Build()
-    ctx = diagram.CreateDefaultContext()
-    label = sensor.label_image_output_port().Eval(sensor.GetMyContextFromRoot(ctx))
-    cls, inst = DecodeLabels(label.data)
-    mask = cls == FRUIT
-    if fruit is not None:
-        mask &= inst == fruit
-    return int(mask.sum())
 
 
 @dc.dataclass
@@ -624,121 +549,3 @@ class PlantWorldSim:
         self._build(None, old_context)
         del old_simulator
         self.grasp_state = None
-
-
-def LeafPoint(world: PlantWorldSim, u: float, v: float, leaf: int = 0) -> tuple[int, np.ndarray]:
-    """Index and current position of the mid-surface vertex of leaf ``leaf``
-    nearest to leaf coordinates (u, v)."""
-    uv = world.leaf_refs[leaf].uv
-    n = len(uv) // 3
-    idx = int(np.argmin(np.linalg.norm(uv[n:2 * n] - [u, v], axis=1))) + n
-    return idx, world.LeafVertices(leaf)[idx]
-
-
-def _LeafNormal(world: PlantWorldSim, leaf: int) -> np.ndarray:
-    """Rest blade normal (toward the camera) of leaf ``leaf``."""
-    return world.model.leaves[leaf].normal_W if world.multi else world.model.leaf_normal_W
-
-
-def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float,
-                 leaf: int = 0) -> RigidTransform:
-    """``X_WT`` for a grasp ``from_tip`` (m) from the blade tip, ``v`` (m) to
-    the side of the midrib: pads closing across the blade (TCP y = current
-    blade normal), approaching within the blade plane along the direction
-    from the robot's shoulder to the grasp point (the natural reach)."""
-    length = world.scenario.plant_scene.leaf.length
-    u = length - from_tip
-    _, p = LeafPoint(world, u, v, leaf)
-    _, p_a = LeafPoint(world, u - 0.02, v, leaf)
-    _, p_b = LeafPoint(world, u - 0.01, v + 0.01, leaf)
-    n = np.cross(p_a - p, p_b - p)
-    n /= np.linalg.norm(n)
-    if n @ _LeafNormal(world, leaf) < 0:
-        n = -n
-    p_shoulder = world.X_WB.multiply(np.array([0.0, 0.0, 0.089159]))
-    z = p - p_shoulder
-    z -= (z @ n) * n
-    z /= np.linalg.norm(z)
-    x = np.cross(n, z)
-    return RigidTransform(RotationMatrix(np.c_[x, n, z]), p)
-
-
-def ApproachAndGrasp(world: PlantWorldSim, pull, leaf: int = 0) -> RigidTransform:
-    """Moves to the pre-grasp pose, approaches, closes on leaf ``leaf`` and
-    builds the grasp (``pull`` is a ``ScriptedPullConfig``). Returns the
-    grasp ``X_WT``."""
-    from lmap_drake.planning.motion import PlanApproach
-    X_WT_grasp = TipGraspPose(world, pull.grasp_from_tip, pull.grasp_v, leaf)
-    world.progress("planning the approach (IK)")
-    plan = PlanApproach(world.robot, X_WT_grasp, world.q_cmd, _LeafNormal(world, leaf),
-                        pull.pregrasp_distance, pull.pregrasp_opening)
-    world.progress("moving to the pre-grasp pose")
-    world.SetGripper(pull.pregrasp_opening, 0.0)
-    world.MoveJoints([plan.via], speed_fraction=0.8)
-    world.MoveJoints(plan.to_ready, speed_fraction=0.5)
-    world.MoveJoints(plan.to_pregrasp, speed_fraction=0.5)
-    world.progress("approaching")
-    world.MoveJoints(plan.to_grasp, speed_fraction=0.15)
-    world.progress("closing the gripper")
-    world.CloseOnLeaf()
-    world.Grasp()
-    return X_WT_grasp
-
-
-def Pull(world: PlantWorldSim, direction_W, distance: float, duration: float,
-         hold: float = 0.0) -> None:
-    """Moves the TCP in a straight line by ``distance`` (m) along
-    ``direction_W`` in ``duration`` (s), keeping its orientation, then holds."""
-    from lmap_drake.planning.motion import PlanPull, TimeJointPath
-    d = np.asarray(direction_W, float)
-    d /= np.linalg.norm(d)
-    q_path = PlanPull(world.robot, world.X_WT(), distance * d, world.q_cmd)
-    world.progress(f"pulling {distance * 100:.0f} cm")
-    traj = TimeJointPath(world.time, world.q_cmd, q_path, 0.5, 0.01, duration)
-    world.AdvanceTo(traj.end_time(), traj)
-    if hold > 0:
-        world.Hold(hold)
-
-
-def RunScriptedPull(world: PlantWorldSim, settle: float = 0.3) -> dict:
-    """Settle, observe, approach, grasp, pull and observe again with the
-    scenario's ``plant_scene.pull``. Returns images before/after, the grasp
-    and the outcome (``Outcome``)."""
-    from lmap_drake.plants.outcome import Summarize
-
-    cfg = world.scenario.plant_scene
-    pull = cfg.pull
-    world.progress("settling the plant")
-    world.Hold(settle)
-    before = world.Images()
-    vis0 = world.Visibility()
-    X_WT_grasp = ApproachAndGrasp(world, pull)
-    Pull(world, pull.direction_W, pull.distance, pull.duration, pull.hold)
-    after = world.Images()
-    vis1 = world.Visibility()
-    outcome = Summarize(world.samples, cfg.outcome, vis0, vis1)
-    return {"before": before, "after": after, "outcome": outcome, "X_WT_grasp": X_WT_grasp}
-
-
-def OracleSceneEstimate(world: PlantWorldSim, semantic):
-    """A ``SceneEstimate`` whose fruit and branch are the simulator's ground
-    truth (exact mesh, SDF, pose), around an observed ``semantic`` scene: for
-    planner tests and oracle ablations, never for the pipeline itself."""
-    import trimesh
-
-    from lmap_drake.types import BranchEstimate, FruitEstimate, SceneEstimate
-
-    m = world.model
-    fruit = m.fruit_mesh_W
-    est = FruitEstimate(vertices_W=np.asarray(fruit.vertices), faces=np.asarray(fruit.faces),
-                        X_WO=m.X_WO, latent=np.zeros(0), center_W=m.fruit_center_W,
-                        peduncle_axis_W=m.peduncle_axis_W,
-                        sdf_W=lambda p: MeshSignedDistance(fruit, p))
-    pts = m.branch_points_W
-    tubes = [trimesh.creation.cylinder(m.branch_radius, segment=pts[i:i + 2], sections=16)
-             for i in range(len(pts) - 1)]
-    tube = trimesh.util.concatenate(tubes)
-    samples, _ = trimesh.sample.sample_surface_even(tube, 3000, seed=0)
-    branch = BranchEstimate(vertices_W=np.asarray(tube.vertices), faces=np.asarray(tube.faces),
-                            samples_W=samples, axis_W=m.branch_axis_W)
-    return SceneEstimate(semantic=semantic, branch=branch, fruit=est)

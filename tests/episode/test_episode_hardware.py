@@ -16,7 +16,7 @@ from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.station.hardware.fakes import (FakeGripper, FakePyrealsense2, FakeRobotiqServer,
+from fakes.hardware import (FakeGripper, FakePyrealsense2, FakeRobotiqServer,
                                                MakeFakeHardwareClients)
 from lmap_drake.station.hardware.robotiq_client import OpeningToPos
 from lmap_drake.station.hardware.safety import TcpPositionInBase
@@ -34,7 +34,7 @@ LEAF_OPENING = 0.003      # where the fake fingers stall: the leaf between the p
 def cell():
     """(scenario, frames, resources): the render the fake camera serves and
     the shared decoder/robot model."""
-    from lmap_drake.plants.world import RenderStill
+    from lmap_drake.plants.plant_station import RenderStill
     s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults",
                      scenario_text=CELL)
     rgb, depth, _ = RenderStill(s)

@@ -17,7 +17,7 @@ pytest.importorskip("rtde_control", reason="the twin test needs ur_rtde (the tes
 
 from lmap_drake.episode import RunLmapEpisode, RunSimEpisode  # noqa: E402
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE  # noqa: E402
-from lmap_drake.plants.twin import TwinOptions, TwinRunOverrides  # noqa: E402
+from lmap_drake.twin.twin import TwinOptions, TwinRunOverrides  # noqa: E402
 from lmap_drake.scenario import LoadScenario  # noqa: E402
 
 PORTS = (29999, 30003, 30004, 63352, 50410)
@@ -141,8 +141,8 @@ def test_the_twin_gripper_reports_a_held_leaf_as_an_object():
     2 whenever the plant world holds the leaf between the pads, even when
     the simulated fingers close past the request (the leaf hangs from them).
     The hardware controller pulls only on OBJ 2."""
-    from lmap_drake.plants.twin import TwinGripper
     from lmap_drake.station.hardware_config import HardwareConfig
+    from lmap_drake.twin.twin import TwinGripper
     g = TwinGripper(HardwareConfig().gripper, 0.085)
     g.Set({"ACT": 1, "GTO": 1})
     assert g.Get("OBJ") == 3

@@ -6,14 +6,15 @@ world scores it.
 What the twin runs (the episode runs in another process: ur_rtde holds the
 GIL while it waits for its controller):
 
-- the UR controller EMULATOR (``station.hardware.ur_emulator``, in a child
+- the UR controller EMULATOR (``twin.ur_emulator``, in a child
   process so its 500 Hz loop never waits for the simulation) on ``host``
   (dashboard 29999, RTDE 30004, script 30003): the real ur_rtde client
   connects to it; its emulated joints drive the simulated UR5;
-- the Robotiq URCap socket (``gripper_port``) over a register model whose
-  fingers are the simulated 2F-85's (they stall on the FEM leaf);
-- camera frames rendered from the plant world (``station.hardware.
-  twin_camera``, ``camera_port``), with the scenario's camera model;
+- the Robotiq URCap socket (``twin.robotiq_server``, ``gripper_port``)
+  over a register model whose fingers are the simulated 2F-85's (they stall
+  on the FEM leaf);
+- camera frames rendered from the plant world (``twin.camera_server``,
+  ``camera_port``), with the scenario's camera model;
 - the grasp as in simulation: when the pads close on the leaf the station is
   rebuilt with the leaf fixed between them, and undone when they open.
 
@@ -36,7 +37,16 @@ from typing import Callable
 
 import numpy as np
 
+from lmap_drake.errors import InputError
+from lmap_drake.perception.points import Intrinsics
+from lmap_drake.plants.outcome import Summarize
+from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.scenario import Scenario
+from lmap_drake.station.hardware.robotiq_client import OpeningToPos, PosToOpening
+from lmap_drake.station.hardware_config import CameraCalibration
+from lmap_drake.twin.camera_server import TwinCameraServer
+from lmap_drake.twin.robotiq_server import RobotiqSocketServer
+from lmap_drake.twin.ur_emulator import EmulatorProcess
 
 
 @dc.dataclass
@@ -63,7 +73,6 @@ class TwinGripper:
     between the pads), 3 at the request."""
 
     def __init__(self, config, opening: float):
-        from lmap_drake.station.hardware.robotiq_client import OpeningToPos
         self.config = config
         self.lock = threading.Lock()
         self.regs = {k: 0 for k in ("ACT", "GTO", "ATR", "ADR", "POS", "PRE", "SPE", "FOR",
@@ -94,7 +103,6 @@ class TwinGripper:
             return self.regs.get(var)
 
     def RequestedOpening(self) -> float:
-        from lmap_drake.station.hardware.robotiq_client import PosToOpening
         with self.lock:
             if self.regs["STA"] != 3 or self.regs["GTO"] != 1:
                 return None
@@ -104,7 +112,6 @@ class TwinGripper:
         """The simulated fingers at simulated time ``t``: an object is
         reported once they stood still short of the request for 0.1 s (not
         in the instant a new request arrives, before they move)."""
-        from lmap_drake.station.hardware.robotiq_client import OpeningToPos
         with self.lock:
             pos = OpeningToPos(float(np.clip(opening, 0.0, 0.085)), self.config)
             self.regs["POS"] = pos
@@ -129,7 +136,6 @@ class _EmulatorChild:
     GIL). ``Poll`` refreshes the state the twin reads."""
 
     def __init__(self, host: str, q0):
-        from lmap_drake.station.hardware.ur_emulator import EmulatorProcess
         self.proc = EmulatorProcess(host, q0=q0)
         self.state = self.proc.State()
 
@@ -177,8 +183,6 @@ class Twin:
 
     def __init__(self, scenario: Scenario, options: TwinOptions | None = None,
                  progress: Callable[[str], None] | None = None):
-        from lmap_drake.perception.points import Intrinsics
-        from lmap_drake.plants.simworld import PlantWorldSim
         self.scenario, self.options = scenario, options or TwinOptions()
         self.progress = progress or (lambda m: None)
         self.world = PlantWorldSim(scenario, None, self.progress)
@@ -208,18 +212,15 @@ class Twin:
 
     # --- servers ------------------------------------------------------------
     def Start(self) -> "Twin":
-        from lmap_drake.station.hardware.fakes import FakeRobotiqServer
-        from lmap_drake.station.hardware.twin_camera import TwinCameraServer
         o = self.options
         try:
             self.emulator = _EmulatorChild(o.host, tuple(self.scenario.robot.initial_q))
-            self.gripper_server = FakeRobotiqServer(self.gripper, o.host, o.gripper_port)
+            self.gripper_server = RobotiqSocketServer(self.gripper, o.host, o.gripper_port)
             self.gripper_server.__enter__()
             self.camera = TwinCameraServer(self.camera_info, self._FrameRequest, o.host,
                                            o.camera_port).Start()
         except OSError as err:
             self.Close()
-            from lmap_drake.errors import InputError
             raise InputError(f"twin: cannot listen on {o.host} ({err}); another twin or a "
                              f"UR emulator may be running there: use --host 127.0.0.2 or other "
                              f"ports") from None
@@ -369,7 +370,6 @@ class Twin:
     # --- results ------------------------------------------------------------
     def Finish(self, out: Path) -> dict:
         """Writes ``outcome.json`` and ``twin_log.json`` to ``out``."""
-        from lmap_drake.plants.outcome import Summarize
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         w, cfg = self.world, self.scenario.plant_scene.outcome
@@ -425,7 +425,6 @@ def WriteTwinCalibration(scenario: Scenario, path: Path) -> None:
     """The twin camera's pose as a calibration file (serial ``twin``; the
     scenario's own pose values, at full precision)."""
     from pydrake.common.yaml import yaml_dump_typed
-    from lmap_drake.station.hardware_config import CameraCalibration
     calib = CameraCalibration(X_WC=scenario.cameras["camera0"].X_PB, camera_serial="twin",
                               notes="the simulated camera0 of the twin's scenario")
     Path(path).write_text("# the digital twin's camera pose (written by lmap-drake twin)\n"

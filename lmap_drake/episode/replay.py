@@ -1,0 +1,103 @@
+"""``ReplayRun`` (``lmap-drake replay``): re-plans offline on the view a
+run recorded (``perception.recording``), with the run's scenario, and says
+whether the replay chose the run's action.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+from lmap_drake.diagram import EpisodeResources, MakeReplayDiagram
+from lmap_drake.episode.figures import Overlay, PlanOnImage
+from lmap_drake.episode.records import DescribePlan, PlanRecord
+from lmap_drake.perception.points import Intrinsics
+from lmap_drake.perception.recording import LoadRecording, RecordingError
+from lmap_drake.perception.segmentation import MakeSegmenter
+from lmap_drake.scenario import DumpScenario, LoadScenario, Scenario, ScenarioWithCamera
+from lmap_drake.systems.view_recorder import RecordedViews
+from lmap_drake.viz import SavePng
+
+
+def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
+              progress: Callable[[str], None] = print) -> tuple[list[str], dict]:
+    """Re-runs perception, shape completion and planning on the view a run
+    recorded (``run_dir/recording``), with the run's ``scenario.yaml`` and
+    ``scenario_text`` overrides. Writes ``scenario.yaml``, ``plan.json``,
+    ``candidates.json``, ``replay.json`` (the run's and the replay's chosen
+    action, same or not, timings), ``rgb_before_segmented.png`` and
+    ``plan_on_image.png``. Returns (files, replay record)."""
+    run_dir, out = Path(run_dir), Path(out)
+    recording = LoadRecording(run_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scenario_file = run_dir / "scenario.yaml"
+    if not scenario_file.exists():
+        raise RecordingError(f"{scenario_file} not found: a replay needs the run's scenario")
+    scenario = LoadScenario(filename=str(scenario_file), scenario_text=scenario_text, bare=True)
+    scenario = ScenarioWithCamera(scenario, recording.camera, recording.X_WC)
+    if recording.station == "hardware":
+        scenario.perception.no_return_free_range = 0.0
+    if scenario.perception.segmenter == "label" and recording.views[0].label is None:
+        raise RecordingError(f"{run_dir}: the recording has no label images (a hardware "
+                             f"run); the label segmenter cannot replay it")
+    DumpScenario(scenario, out / "scenario.yaml")
+    progress(f"replaying view 0 of {recording.folder} ({recording.station} run)")
+    t0 = time.perf_counter()
+    resources = EpisodeResources.Make(scenario, progress)
+    t_load = time.perf_counter() - t0
+    diagram = MakeReplayDiagram(scenario, resources, RecordedViews(recording.views, 1))
+    ctx = diagram.CreateDefaultContext()
+
+    def timed(name):
+        system = diagram.GetSubsystemByName(name)
+        port = {"perception": "semantic_scene", "shape_completion": "scene_estimate",
+                "action_selection": "plan"}[name]
+        t = time.perf_counter()
+        value = system.GetOutputPort(port).Eval(system.GetMyContextFromRoot(ctx))
+        return value, time.perf_counter() - t
+    semantic, seg_s = timed("perception")
+    estimate, ssc_s = timed("shape_completion")
+    plan, plan_s = timed("action_selection")
+    stage_seconds = {"segmentation_s": seg_s, "shape_completion_s": ssc_s,
+                     "planning_s": plan_s, **plan.timings}
+    files = ["scenario.yaml", "plan.json", "replay.json"]
+    (out / "plan.json").write_text(json.dumps(PlanRecord(plan, stage_seconds), indent=1,
+                                              default=float))
+    plan.SaveJson(out / "candidates.json")
+    files.append("candidates.json")
+    original = None
+    if (run_dir / "plan.json").exists():
+        original = json.loads((run_dir / "plan.json").read_text()).get("chosen_action")
+    mine = plan.chosen.Row() if plan.chosen is not None else None
+    same = None if original is None and mine is None else (
+        original is not None and mine is not None and all(
+            original[k] == mine[k] for k in ("grasp_id", "direction_id", "distance")))
+    record = {"run": str(run_dir), "scenario_text": scenario_text, "status": plan.status,
+              "message": plan.message, "chosen_action": mine, "run_chosen_action": original,
+              "same_action_as_run": same,
+              "planning_wall_seconds": seg_s + ssc_s + plan_s,
+              "template_load_seconds": t_load, "stage_seconds": stage_seconds}
+    (out / "replay.json").write_text(json.dumps(record, indent=1, default=float))
+    files += SavePlanFigures(scenario, recording.views[0], plan, estimate, out)
+    progress(f"replay plan {plan.status}: " + (DescribePlan(plan) if plan.chosen is not None
+                                               else plan.message))
+    progress(f"planning on the replayed capture: {record['planning_wall_seconds']:.1f} s; "
+             + ("same action as the run" if same else "a different action from the run"
+                if same is False else "the run had no plan to compare"))
+    return files, record
+
+
+def SavePlanFigures(scenario: Scenario, view, plan, estimate, out: Path) -> list[str]:
+    """``rgb_before_segmented.png`` and ``plan_on_image.png`` for one view."""
+    cam = scenario.cameras["camera0"]
+    K = Intrinsics.FromCameraConfig(cam)
+    segmenter = MakeSegmenter(scenario.perception, K)
+    seg = segmenter.Segment(view.rgb, view.depth[..., None], None if view.label is None
+                            else view.label[..., None])
+    SavePng(Overlay(view.rgb, seg.class_map, title=f"segmenter: {segmenter.name} (before)"),
+            out / "rgb_before_segmented.png")
+    SavePng(PlanOnImage(view.rgb, plan, estimate, K,
+                        cam.X_PB.GetDeterministicValue().GetAsMatrix4()),
+            out / "plan_on_image.png")
+    return ["rgb_before_segmented.png", "plan_on_image.png"]
