@@ -111,7 +111,7 @@ def MeasureScene(scenario, push: bool, out_png=None, push_speed: float = 1.5) ->
 def main() -> None:
     from lmap_drake.paths import DIAGRAMS_DIR
     from lmap_drake.scenario import LoadScenario
-    from lmap_drake.shape.benchmark import SuiteScenarioNames
+    from lmap_drake.studies.shape_benchmark import SuiteScenarioNames
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--suite", default=str(DIAGRAMS_DIR / "multi_suite.yaml"))

@@ -9,7 +9,7 @@ peppers and, optionally, on a folder of scanned pepper meshes.
 
 Writes pepper_decoder.pt, mean_latent.npy and train_summary.json into
 --out_dir (default models/deepsdf/). The training is
-``lmap_drake.shape.training`` (the canonical frame, the scans, the
+``lmap_drake.studies.template_training`` (the canonical frame, the scans, the
 held-out errors, how the shipped weights were made).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lmap_drake.shape.training import DeepSdfTrainingOptions, TrainDeepSdf
+from lmap_drake.studies.template_training import DeepSdfTrainingOptions, TrainDeepSdf
 
 
 def main(argv=None):

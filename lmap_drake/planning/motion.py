@@ -12,7 +12,7 @@ from pydrake.common.eigen_geometry import AngleAxis
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.trajectories import PiecewisePolynomial
 
-from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
+from lmap_drake.robot import UR5_VELOCITY_LIMIT
 
 
 class MotionError(RuntimeError):

@@ -13,7 +13,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from lmap_drake.planning.ik import (IkResult, NewtonTcpIk, SolveTcpIk,
                                    SolveTcpIkMultiStart)
-from lmap_drake.station.robot import AddUr5AndGripper
+from lmap_drake.robot import AddUr5AndGripper
 
 
 # Clearance (m) kept between arm links three or more joints apart along the

@@ -35,7 +35,7 @@ from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, Petiol
 from lmap_drake.plants.plant_station import (GetPlantModel, LeafGrasp, MakePlantStation,
                                              UnoccludedFruitPixels)
 from lmap_drake.scenario import Scenario
-from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
+from lmap_drake.robot import GRIPPER_MAX_WIDTH
 
 
 def SetFemThreads(plant, threads: int = 0) -> int:

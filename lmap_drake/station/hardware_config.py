@@ -37,7 +37,7 @@ class UrConfig:
     ``servoStop`` decelerates at twice it. The workspace box bounds the TCP
     position (2F-85 ``tcp`` frame, between the pads) in the robot base frame
     (the UR controller's "Base" frame = the DH base frame of
-    ``lmap_drake.station.robot``), metres. ``command_period`` is the period
+    ``lmap_drake.robot``), metres. ``command_period`` is the period
     (s) of the Drake-side update that reads the arm state and takes a new
     command; the streaming thread interpolates between commands at
     ``rtde_frequency``.

@@ -34,7 +34,7 @@ from pydrake.systems.sensors import RgbdSensor
 from lmap_drake.labels import ROBOT, EncodeLabel
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.camera_noise import CameraNoise
-from lmap_drake.station.robot import (GRIPPER_JOINTS, UR5_JOINTS, AddUr5AndGripper,
+from lmap_drake.robot import (GRIPPER_JOINTS, UR5_JOINTS, AddUr5AndGripper,
                                       MakeControllerPlant)
 
 STATION_PORTS = {

@@ -45,7 +45,7 @@ from lmap_drake.evaluation.run_eval import JsonDefault
 from lmap_drake.evaluation.tables import IsSafe
 from lmap_drake.paths import REPO_ROOT
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.shape.benchmark import SuiteScenarioNames
+from lmap_drake.studies.shape_benchmark import SuiteScenarioNames
 
 SUITE = REPO_ROOT / "diagrams" / "suite.yaml"
 

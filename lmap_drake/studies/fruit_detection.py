@@ -15,7 +15,7 @@ from lmap_drake.errors import InputError
 from lmap_drake.perception.observe import SemanticSceneFromImages
 from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
 from lmap_drake.scenario import LoadScenario
-from lmap_drake.shape.benchmark import SuiteScenarioNames
+from lmap_drake.studies.shape_benchmark import SuiteScenarioNames
 
 
 def MatchInstances(points_W: np.ndarray, instance: np.ndarray, fruit_trees: list,

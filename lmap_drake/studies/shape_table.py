@@ -3,7 +3,7 @@ and without occlusion (leaf removed) for SupEps, HoMa-style and SSC.
 
 Cases come from the 12-scenario plant suite when ``diagrams/suite.yaml``
 exists (``--source auto``, the default, or ``--source suite``), otherwise
-from the synthetic benchmark of ``lmap_drake.shape.benchmark`` (12 seeded
+from the synthetic benchmark of ``lmap_drake.studies.shape_benchmark`` (12 seeded
 peppers of the project's family beside a branch, a leaf-like plate hiding
 35-75 % of the fruit, exact labels). The JSON and the Markdown say which.
 
@@ -71,7 +71,7 @@ from lmap_drake.plants.fruit_mesh import FruitMeshFolder, LoadFruitMesh
 from lmap_drake.plants.generator import PlantGenerationError
 from lmap_drake.scenario import MigrateScenarioText
 from lmap_drake.shape.config import ShapeConfig
-from lmap_drake.shape import benchmark
+from lmap_drake.studies import shape_benchmark as benchmark
 from lmap_drake.shape.completion import CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints

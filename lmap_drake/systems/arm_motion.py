@@ -15,7 +15,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.planning.motion import PlanActionPath, PlanApproach, TimeJointPath
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
+from lmap_drake.robot import UR5_VELOCITY_LIMIT
 
 ROTATION_SPEED = 0.5  # rad/s: the fastest the held leaf is turned (an arc or a twist)
 

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 
 from lmap_drake.planning.result import PlanResult
-from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
+from lmap_drake.robot import UR5_VELOCITY_LIMIT
 from lmap_drake.types import SceneEstimate
 
 MODES = ("idle", "capture", "plan_requested", "confirm_wait", "pregrasp", "approach",

@@ -52,7 +52,7 @@ from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 from lmap_drake.perception.fusion import FuseViews
 from lmap_drake.perception.points import BuildSemanticScene, Intrinsics, RemovePointsNear
 from lmap_drake.perception.segmentation import MakeSegmenter, Segmenter, SegmenterError
-from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
+from lmap_drake.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.types import SemanticScene
 
 

@@ -57,7 +57,7 @@ Implemented:
   an e-Series, 125 Hz as a CB3). movej: synchronised trapezoid in joint
   space; movel: straight line / slerp of the TCP with numeric inverse
   kinematics; TCP pose from the UR5 DH forward kinematics
-  (``lmap_drake.station.robot``) and the set TCP offset.
+  (``lmap_drake.robot``) and the set TCP offset.
 - Faults (methods and CLI options): ``ProtectiveStop``, ``EmergencyStop``,
   ``DropConnections`` (closes every client socket and refuses new ones for
   ``refuse_s``; the arm stops as on an RTDE watchdog; ur_rtde's control
@@ -100,7 +100,7 @@ from typing import Callable
 
 import numpy as np
 
-from lmap_drake.station.robot import (UR5_VELOCITY_LIMIT, Ur5DhForwardKinematics,
+from lmap_drake.robot import (UR5_VELOCITY_LIMIT, Ur5DhForwardKinematics,
                                       Ur5DhFrames)
 
 LOG = logging.getLogger("lmap_drake.ur_emulator")

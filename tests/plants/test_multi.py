@@ -174,7 +174,7 @@ def test_multi_suite_file_is_the_multi_suite():
 
     from lmap_drake.paths import DIAGRAMS_DIR
     from lmap_drake.plants.suite import MultiSuite
-    from lmap_drake.shape.benchmark import SuiteScenarioNames
+    from lmap_drake.studies.shape_benchmark import SuiteScenarioNames
     path = DIAGRAMS_DIR / "multi_suite.yaml"
     names = SuiteScenarioNames(path)
     suite = MultiSuite()

@@ -7,7 +7,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from lmap_drake.shape.config import ShapeConfig, SscConfig
-from lmap_drake.shape.benchmark import MakeSyntheticCase
+from lmap_drake.studies.shape_benchmark import MakeSyntheticCase
 from lmap_drake.shape.completion import CompleteScene
 from lmap_drake.shape.deepsdf import LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints

@@ -7,7 +7,7 @@ from lmap_drake.station.hardware.safety import (JointLimitRefusal, NonFiniteComm
                                                 Ur5JointLimitsAndTcpOffset,
                                                 VelocityLimitRefusal, WorkspaceRefusal)
 from lmap_drake.station.hardware_config import HardwareConfig, UrConfig, ValidateHardwareConfig
-from lmap_drake.station.robot import Ur5DhForwardKinematics
+from lmap_drake.robot import Ur5DhForwardKinematics
 
 Q_OK = np.array([2.0, -1.9, 1.9, -1.571, -1.571, 0.0])  # the default initial pose
 
@@ -71,7 +71,7 @@ def test_refuses_an_elbow_below_the_base_plane_with_the_tcp_inside():
     """Every link is checked, not only the TCP: with the shoulder lifted
     past horizontal the elbow dips below the base plane (DH frame 2 z < 0)
     while the TCP stays well inside the box."""
-    from lmap_drake.station.robot import Ur5DhFrames
+    from lmap_drake.robot import Ur5DhFrames
     q = np.array([0.0, 0.35, -2.3, -0.5, -1.57, 0.0])
     frames = Ur5DhFrames(q)
     assert frames[2][2, 3] < 0.0                       # the elbow is below the base

@@ -13,7 +13,7 @@ from lmap_drake.planning.ik import SolveTcpIk
 from lmap_drake.scenario import LoadScenario
 from lmap_drake.station import STATION_PORTS, MakeStation
 from lmap_drake.plants.plant_station import MakePlantStation
-from lmap_drake.station.robot import MakeControllerPlant
+from lmap_drake.robot import MakeControllerPlant
 from lmap_drake.errors import HardwareStationUnavailable
 
 

@@ -6,7 +6,7 @@ from pydrake.math import RigidTransform
 
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
-from lmap_drake.station.robot import UR5_VELOCITY_LIMIT
+from lmap_drake.robot import UR5_VELOCITY_LIMIT
 from lmap_drake.systems.arm_motion import ArmMotions
 
 

@@ -6,7 +6,7 @@ import torch
 from pydrake.common.value import AbstractValue
 
 from lmap_drake.shape.config import ShapeConfig, SscConfig
-from lmap_drake.shape.benchmark import MakeSyntheticCase
+from lmap_drake.studies.shape_benchmark import MakeSyntheticCase
 from lmap_drake.shape.deepsdf import MissingWeightsError
 from lmap_drake.systems.shape_completion import ShapeCompletion
 from lmap_drake.types import SceneEstimate, SemanticScene

@@ -23,7 +23,7 @@ from lmap_drake.twin.ur_emulator import (DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT,
                                                      RotationToRotvec, TcpTransform,
                                                      UrEmulator)
 from lmap_drake.station.hardware_config import UrConfig
-from lmap_drake.station.robot import Ur5DhForwardKinematics
+from lmap_drake.robot import Ur5DhForwardKinematics
 
 try:
     import rtde_control

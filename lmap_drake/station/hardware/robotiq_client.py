@@ -28,7 +28,7 @@ import numpy as np
 from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.station.hardware.safety import HardwareAbort, SafetyRefusal
 from lmap_drake.station.hardware_config import GripperConfig
-from lmap_drake.station.robot import GRIPPER_MAX_WIDTH
+from lmap_drake.robot import GRIPPER_MAX_WIDTH
 
 STA_RESET, STA_ACTIVATING, STA_ACTIVE = 0, 1, 3
 OBJ_MOVING, OBJ_STOPPED_OPENING, OBJ_STOPPED_CLOSING, OBJ_AT_REQUEST = 0, 1, 2, 3

@@ -24,7 +24,7 @@ import numpy as np
 from pydrake.math import RigidTransform
 
 from lmap_drake.station.hardware_config import UrConfig
-from lmap_drake.station.robot import (UR5_JOINTS, UR5_VELOCITY_LIMIT, MakeControllerPlant,
+from lmap_drake.robot import (UR5_JOINTS, UR5_VELOCITY_LIMIT, MakeControllerPlant,
                                       Ur5DhForwardKinematics, Ur5DhFrames)
 
 # What CheckWorkspace checks: DH frame index -> name (then the TCP).

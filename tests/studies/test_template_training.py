@@ -1,4 +1,4 @@
-"""lmap_drake.shape.training (scripts/train_deepsdf.py) on a folder of
+"""lmap_drake.studies.template_training (scripts/train_deepsdf.py) on a folder of
 scans (kept tiny: 2 procedural shapes, 3 scans, a few steps)."""
 import json
 import subprocess
@@ -12,7 +12,7 @@ from lmap_drake.errors import InputError
 from lmap_drake.paths import REPO_ROOT
 from lmap_drake.plants.pepper_meshes import MakeTestPepper
 from lmap_drake.shape.deepsdf import LoadDecoder
-from lmap_drake.shape.training import DeepSdfTrainingOptions, TrainDeepSdf
+from lmap_drake.studies.template_training import DeepSdfTrainingOptions, TrainDeepSdf
 
 _SCRIPT = str(REPO_ROOT / "scripts" / "train_deepsdf.py")
 

@@ -4,7 +4,7 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 
-from lmap_drake.station.robot import (GRIPPER_MAX_WIDTH, UR5_JOINTS, AddUr5AndGripper,
+from lmap_drake.robot import (GRIPPER_MAX_WIDTH, UR5_JOINTS, AddUr5AndGripper,
                                       MakeControllerPlant, Ur5DhForwardKinematics)
 
 
