@@ -47,7 +47,11 @@ from lmap_drake.station.hardware_config import HardwareConfig, ValidateHardwareC
 @dc.dataclass
 class Scenario:
     """Everything one run needs. See ``diagrams/default.yaml``."""
+    # Seed of the run's randomness: the Random baseline's draws and, plus
+    # ``camera_noise.seed_offset``, the simulated camera noise.
     random_seed: int = 0
+    # s: how long ``lmap-drake run`` simulates a station snapshot (``kind:
+    # placeholder``: the arm held at ``robot.initial_q``); episodes run until done.
     simulation_duration: float = 1.0
     simulator_config: SimulatorConfig = dc.field(
         default_factory=lambda: SimulatorConfig(

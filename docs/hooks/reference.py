@@ -356,6 +356,12 @@ def ScenarioMarkdown() -> str:
             out.append(f"| `{_Cell(k.path)}` | {_Cell(type_text)} | `{_Cell(k.default)}` "
                        f"| {_Cell(k.doc)} |")
         out.append("")
+    out += ["## Renamed keys", "",
+            "Keys of older scenario files that moved; files that use them still load "
+            "(the key is moved to its new place; setting both the old and the new key "
+            "is an error naming both).", "",
+            "| old key | new key |", "| --- | --- |"]
+    out += [f"| `{old}` | `{new}` |" for old, new in scenario_module.MOVED_KEYS.items()]
     return "\n".join(out) + "\n"
 
 

@@ -28,19 +28,21 @@ class DeformationConfig:
     the default) or "plain" (textbook global-local iterations from the
     Laplacian solve); both stop when the relative energy decrease of an
     iteration falls below ``relative_tolerance``."""
-    voxel_size: float = 0.005
-    edge_radius: float = 0.008
+    voxel_size: float = 0.005  # m: leaf and branch points become one graph node per voxel
+    edge_radius: float = 0.008  # m: nodes closer than this share an edge (not leaf-branch pairs)
+    # m: leaf nodes within this of the leaf's PCA centre line are midrib (vein) nodes
     vein_distance: float = 0.012
     vein_weights: list[float] = dc.field(default_factory=lambda: [3.0, 2.0, 1.0])
-    handle_grid: int = 5
-    handle_size: float = 0.025
+    handle_grid: int = 5  # the gripper handle is a handle_grid x handle_grid square of nodes
+    handle_size: float = 0.025  # m, side of that square, in the pads' plane, centred on the grasp
+    # m: branch nodes within this of a leaf node are the graph's fixed nodes
     fixed_branch_distance: float = 0.05
-    max_iterations: int = 300
+    max_iterations: int = 300  # cap on ARAP iterations per solve
     relative_tolerance: float = 1e-5
     arap_method: str = "lbfgs"
     leaf_branch_edge_radius: float = 0.016
     leaf_branch_weight: float = 100.0
-    branch_edge_weight: float = 1.0
+    branch_edge_weight: float = 1.0  # weight of branch-branch edges (between fixed nodes)
     max_grasp_distance: float = 0.02
     handle_fallback_neighbors: int = 3
     interpolation_neighbors: int = 8

@@ -23,6 +23,7 @@ import numpy as np
 
 from lmap_drake.errors import InputError
 from lmap_drake.evaluation import tables as T
+from lmap_drake.evaluation.report import SaveFigure
 
 # Keys the method labels own: sweeping them would mislabel the tables.
 RESERVED = {"planner.method": "choose methods with --methods"}
@@ -220,4 +221,4 @@ def SaveSummaryPlot(summary: dict, path: Path) -> str:
     fig.suptitle(f"sweep {Path(summary['sweep_file']).name} "
                  f"(success: safe and final visibility >= {summary['threshold']:g})",
                  fontsize=9)
-    return T._SaveFigure(fig, Path(path))
+    return SaveFigure(fig, Path(path))

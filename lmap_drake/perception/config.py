@@ -19,28 +19,32 @@ class PerceptionConfig:
     # segnet: weights (relative to the repository root; made by
     # scripts/train_segnet.py) and torch device.
     segnet_weights: str = "models/segnet/segnet.pt"
-    segnet_device: str = "cpu"
-    depth_cut: float = 1.5
-    dbscan_eps: float = 0.008
+    segnet_device: str = "cpu"  # segnet: torch device ("cpu", "cuda", ...)
+    depth_cut: float = 1.5  # m: pixels deeper (camera z) are not segmented or turned into points
+    dbscan_eps: float = 0.008  # m, DBSCAN neighbour radius that splits a class into instances
+    # DBSCAN: points a core point needs within dbscan_eps; fewer = noise (no instance)
     dbscan_min_points: int = 15
+    # m, voxel of the downsampled class clouds (per instance) and of view fusion
     voxel_size: float = 0.003
     # Statistical outlier removal (open3d): neighbours and std-dev ratio.
     outlier_neighbors: int = 20
+    # Outlier removal: a point whose mean neighbour distance exceeds the cloud's
+    # mean by this many standard deviations is dropped.
     outlier_std_ratio: float = 2.0
     # color_depth: structures narrower than this are branch candidates; green
     # curved regions may be reported as (green) fruit.
     branch_max_width: float = 0.035
-    detect_green_fruit: bool = True
+    detect_green_fruit: bool = True  # color_depth: report green curved regions as (green) fruit
     # grounded_sam: local files only (GroundingDINO config .py and checkpoint,
     # SAM checkpoint), never downloaded; SAM model type; torch device.
     grounded_sam_config: str = ""
-    grounded_sam_checkpoint: str = ""
-    sam_checkpoint: str = ""
-    sam_model_type: str = "vit_h"
-    grounded_sam_device: str = "cpu"
-    box_threshold: float = 0.25
-    text_threshold: float = 0.25
-    nms_threshold: float = 0.8
+    grounded_sam_checkpoint: str = ""  # grounded_sam: GroundingDINO checkpoint (.pth)
+    sam_checkpoint: str = ""  # grounded_sam: SAM checkpoint (.pth)
+    sam_model_type: str = "vit_h"  # grounded_sam: the SAM checkpoint's model, vit_h | vit_l | vit_b
+    grounded_sam_device: str = "cpu"  # grounded_sam: torch device of both models
+    box_threshold: float = 0.25  # grounded_sam: GroundingDINO box score threshold, [0, 1]
+    text_threshold: float = 0.25  # grounded_sam: GroundingDINO text (phrase) threshold, [0, 1]
+    nms_threshold: float = 0.8  # grounded_sam: IoU above which overlapping boxes are suppressed
     # view fusion: a new instance joins an earlier one within this distance.
     fusion_match_distance: float = 0.008
     # Free space from background pixels (every ``background_stride``-th
@@ -50,6 +54,7 @@ class PerceptionConfig:
     # hardware set it to 0: the RealSense client also maps dropouts (dark or
     # glancing surfaces, too close) to +inf, and those would carve the fruit.
     background_stride: int = 2
+    # m: a no-return (+inf) pixel's ray is free this far (0 = carves nothing; hardware: 0)
     no_return_free_range: float = 2.0
     # ... but only where no pixel with a return lies within this many pixels:
     # a narrower no-return patch is a dropout (glancing rim, thin part,

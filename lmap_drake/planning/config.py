@@ -240,26 +240,36 @@ class PlannerConfig:
     was held, ``systems.planning._ShownFruitPoints``); its actions then
     score by that surface (N_vis), and the reveal is made only if its
     chosen action shows at least ``next_leaf_min_gain`` of it."""
-    num_grasps: int = 15
-    grasp_inset: float = 0.01
+    num_grasps: int = 15  # grasp points evenly spaced along the leaf's outline (convex hull)
+    grasp_inset: float = 0.01  # m: grasp points lie this far inside the leaf's outline
+    # the first this many of the paper's 14 pull directions (W: 6 axial, then 8 diagonal)
     num_directions: int = 14
+    # deg: pulls are kept only within this angle of the line from the grasp to the
+    # nearest branch point (the leaf is not pulled away from its branch)
     max_branch_angle_deg: float = 120.0
+    # m, the straight pulls' lengths (the random and upward baselines pull the longest)
     distances: list[float] = dc.field(default_factory=lambda: [0.02, 0.04, 0.06, 0.08])
+    # fraction of the fruit predicted visible that is enough: longer moves of that
+    # grasp and direction, re-plans and further reveals are not needed beyond it
     early_stop_fraction: float = 0.95
-    pregrasp_distance: float = 0.05
-    pregrasp_opening: float = 0.035
+    pregrasp_distance: float = 0.05  # m: the pre-grasp sits this far back from the grasp (TCP z)
+    pregrasp_opening: float = 0.035  # m, pad opening on the approach (narrower if the pads hit)
     ready_distances: list[float] = dc.field(default_factory=lambda: [0.08, 0.02])
     grasp_close_width: float = 0.0     # the closing ramp's end: fully closed, so the pads meet a real 0.2-0.5 mm leaf
-    gripper_close_speed: float = 0.05
+    gripper_close_speed: float = 0.05  # m/s: the commanded opening closes on the leaf this fast
+    # m: in simulation (and the twin) the leaf is attached to the pads once their
+    # opening, closing, is at most this
     grasp_attach_opening: float = 0.006
-    min_branch_distance: float = 0.06
+    min_branch_distance: float = 0.06  # m: grasps closer than this to a branch point are dropped
     min_usable_grasps: int = 3
     deeper_grasp_insets: list[float] = dc.field(default_factory=lambda: [0.02, 0.03])
     targets: str = "largest"   # largest | all
-    visibility_voxel: float = 0.003
+    visibility_voxel: float = 0.003  # m, voxel of the fruit-visibility prediction (N_vis)
+    # m: clearance the robot keeps from the fruits, branch and leaves, and the
+    # predicted leaf from the fruit
     collision_margin: float = 0.005
     robot_fruit_margin: float = 0.015
-    energy_weight: float = 1.0
+    energy_weight: float = 1.0  # lambda of the score N_vis - lambda E (both min-max normalised)
     max_energy_per_node: float = 5.9e-7
     force_action: list[float] = dc.field(default_factory=list)
     method: str = "lmap"  # lmap | random | upward | min_overlap
@@ -270,14 +280,16 @@ class PlannerConfig:
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
     continue_after_pull: bool = False
+    # deg, the arcs' turns about the estimated petiole attachment
     arc_angles_deg: list[float] = dc.field(default_factory=lambda: [15.0, 30.0, 45.0])
+    # deg, the twists' turns about the attachment-grasp line (both senses)
     twist_angles_deg: list[float] = dc.field(default_factory=lambda: [30.0, 60.0])
-    num_arc_axes: int = 8
+    num_arc_axes: int = 8  # arc axes, evenly spread, perpendicular to the attachment-grasp line
     max_replans: int = 1
     min_replan_gain: float = 0.05
     hinge_bending_weight: float = 3.0e-7
     max_hinge_deg: float = 50.0
-    max_replan_turn_deg: float = 45.0
+    max_replan_turn_deg: float = 45.0  # deg: cap on the equivalent turn after a re-plan
     petiole_torsion_ratio: float = 0.25
     max_tether_elongation: float = 0.015
     max_pull_distance: float = 0.03

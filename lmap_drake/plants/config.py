@@ -21,9 +21,12 @@ from lmap_drake.plants.pepper import PepperShapeOf
 @dc.dataclass
 class BranchConfig:
     """Rigid branch: a vertical cylinder, optionally bowed sideways (m)."""
-    radius: float = 0.006
-    length: float = 0.5
+    radius: float = 0.006  # m, cylinder radius
+    length: float = 0.5  # m, height from the base ``plant_scene.p_W_branch_base`` to the top
+    # m, sideways bow at mid-height (sine profile; 0 = straight): procedural, away
+    # from the fruit's side (``fruit_side``); multi, toward camera0's right
     bend: float = 0.0
+    # RGBA (0-1) of the branch, the side shoots and the peduncle stalks
     color: Rgba = dc.field(default_factory=lambda: Rgba(0.33, 0.45, 0.2, 1.0))
 
 
@@ -39,24 +42,26 @@ class LeafConfig:
     ``clearance``: blade in front of the fruit's front (m); the blade leaves
     the branch ``attach_above_fruit`` above the fruit top and bends down with
     ``bend_radius``."""
-    length: float = 0.13
-    width: float = 0.075
-    shape: str = "ovate"
-    petiole_length: float = 0.04
-    petiole_width: float = 0.006
-    thickness: float = 0.002
-    target_tets: int = 1000
+    length: float = 0.13  # m, blade length along the midrib (petiole not included)
+    width: float = 0.075  # m, blade width at its widest
+    shape: str = "ovate"  # blade outline: ovate (widest near the base) | elliptic (in the middle)
+    petiole_length: float = 0.04  # m, the stalk from the branch to the blade base
+    petiole_width: float = 0.006  # m
+    thickness: float = 0.002  # m, simulated blade thickness (two tet layers)
+    target_tets: int = 1000  # about this many FEM tetrahedra (sizes the elements if element_size 0)
     element_size: float = 0.0  # 0 = derived from target_tets
-    youngs_modulus: float = 10.0e6
-    poissons_ratio: float = 0.3
+    youngs_modulus: float = 10.0e6  # Pa, FEM material stiffness E
+    poissons_ratio: float = 0.3  # FEM material Poisson ratio, [0, 0.5)
     mass_density: float = 100.0
     stiffness_damping: float = 0.01
     mass_damping: float = 1.0
     clearance: float = 0.025
+    # m: at rest every leaf vertex keeps this far from the fruit surface (the
+    # blade is pushed forward until it does); multi: from every fruit
     min_fruit_clearance: float = 0.004
     attach_above_fruit: float = 0.012
     bend_radius: float = 0.025
-    color: Rgba = dc.field(default_factory=lambda: Rgba(0.2, 0.55, 0.15, 1.0))
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.2, 0.55, 0.15, 1.0))  # RGBA (0-1)
 
 
 @dc.dataclass
@@ -92,15 +97,16 @@ class FruitConfig:
     ``peduncle_length`` whose end leaves the axis by ``peduncle_angle_deg``
     toward ``peduncle_azimuth_deg`` (labelled branch, joined to the branch
     from its end), instead of the straight stalk."""
-    variant: str = "blocky"
+    variant: str = "blocky"  # a label (blocky | elongated | conical); the keys below shape it
+    # [x, y, z] (m), the body's full extent before lobes and taper; z along the peduncle axis
     size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
-    lobes: int = 4
-    lobe_depth: float = 0.08
-    squareness: float = 2.4
-    shoulder: float = 0.12
-    taper: float = 0.06
-    cone: float = 0.0
-    lobe_phase_deg: float = 0.0
+    lobes: int = 4  # number of lengthwise furrows around the body; 0 = none
+    lobe_depth: float = 0.08  # relative depth of the furrows, [0, 0.5)
+    squareness: float = 2.4  # superquadric exponent of the body: 2 = ellipsoid, larger = boxier
+    shoulder: float = 0.12  # relative flattening of the top around the peduncle, [0, 0.5)
+    taper: float = 0.06  # relative narrowing of the blossom end, [0, 0.5); 0 = none
+    cone: float = 0.0  # narrowing of the lower half in x-y, [0, 0.8): 0 = none, 0.45 = conical
+    lobe_phase_deg: float = 0.0  # deg, turn of the lobes about the fruit's axis
     dimple: float = 0.0
     cavity_offset_deg: float = 0.0
     cavity_phase_deg: float = 0.0
@@ -109,16 +115,17 @@ class FruitConfig:
     peduncle_curved: bool = False
     peduncle_angle_deg: float = 0.0
     peduncle_azimuth_deg: float = 0.0
-    color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
+    color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))  # RGBA (0-1)
+    # RGBA (0-1) of the stripes (used with ``stripes`` > 0)
     stripe_color: Rgba = dc.field(default_factory=lambda: Rgba(0.55, 0.02, 0.02, 1.0))
-    stripes: int = 0
+    stripes: int = 0  # number of lengthwise stripes in ``stripe_color``; 0 = none
     height_on_branch: float = 0.22
     gap_to_branch: float = 0.004
     tilt_deg: float = 10.0
     tilt_azimuth_deg: float = 30.0
     lean_deg: float = 0.0
     peduncle_length: float = 0.015
-    peduncle_radius: float = 0.004
+    peduncle_radius: float = 0.004  # m, radius of the peduncle stalk (straight or curved)
     mesh_file: str = ""
     peduncle_file: str = ""
     mesh_scale: float = 1.0
@@ -134,10 +141,11 @@ class ScriptedPullConfig:
     ``pregrasp_opening`` (m) apart, closing across the blade. The pull moves
     the TCP ``distance`` (m) along ``direction_W`` in ``duration`` (s), then
     holds for ``hold`` (s)."""
+    # Not read: ``lmap-drake run --scripted`` runs the pull; kept so older scenario files load.
     enabled: bool = True
     grasp_from_tip: float = 0.015
     grasp_v: float = 0.0
-    pregrasp_distance: float = 0.05
+    pregrasp_distance: float = 0.05  # m, pre-grasp pose this far back along the approach axis
     pregrasp_opening: float = 0.02
     direction_W: list[float] = dc.field(default_factory=lambda: [-0.57, 0.0, 0.82])
     distance: float = 0.06
@@ -163,7 +171,7 @@ class OutcomeConfig:
     petiole_max_force: float = 15.0
     fruit_penetration: float = 0.001
     fruit_contact_force: float = 0.05
-    sample_period: float = 0.05
+    sample_period: float = 0.05  # s of simulated time between two samples of these measures
 
 
 @dc.dataclass
@@ -217,7 +225,7 @@ class MultiPlantConfig:
     1.51.1, see tests/plants/test_multi_contact.py). World frame, metres."""
     fruits: list[MultiFruitConfig] = dc.field(default_factory=_DefaultMultiFruits)
     num_leaves: int = 4
-    shoot_radius: float = 0.004
+    shoot_radius: float = 0.004  # m, radius of the fruits' side shoots, (0, 0.02]
     leaf_gap: float = 0.003
     free_leaf_swing_deg: float = 55.0
     leaf_leaf_contact: bool = False
@@ -254,9 +262,11 @@ class PlantSceneConfig:
     bit-equal on 1 and 2 threads); 2 threads cut a step with four awake
     leaves from 49-50 to 38-40 ms on this 2-core machine."""
     kind: str = "placeholder"
-    name: str = ""
+    name: str = ""  # the scene's name in episode records (``scenario``); empty = "default"
+    # [x, y, z] (m, W): the branch's (main stem's) base; the placeholder's branch too
     p_W_branch_base: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
     occlusion: float = 0.85
+    # Side of the branch the fruit hangs on (sign only): +1 = camera0's right, -1 = its left
     fruit_side: float = -1.0
     branch: BranchConfig = dc.field(default_factory=BranchConfig)
     leaf: LeafConfig = dc.field(default_factory=LeafConfig)
@@ -267,16 +277,24 @@ class PlantSceneConfig:
     sleep_distance: float = 0.03
     sleep_speed: float = 0.002
     fem_threads: int = 0
-    # placeholder-only fields
-    branch_length: float = 0.5
-    branch_radius: float = 0.006
+    # --- kind: placeholder only (rigid shapes welded to the world) ---
+
+    branch_length: float = 0.5  # m, placeholder: branch cylinder height above p_W_branch_base
+    branch_radius: float = 0.006  # m, placeholder: branch cylinder radius
+    # [x, y, z] (m, W), placeholder: the lobed pepper mesh's centre
     fruit_center_W: list[float] = dc.field(default_factory=lambda: [0.5, -0.045, 0.33])
+    # [x, y, z] (m), placeholder: the pepper's full extent (W axes)
     fruit_size: list[float] = dc.field(default_factory=lambda: [0.075, 0.075, 0.085])
-    fruit_lobes: int = 4
+    fruit_lobes: int = 4  # placeholder: the pepper's number of lobes; 0 = none
+    # RGBA (0-1), placeholder: the pepper
     fruit_color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
+    # [x, y, z] (m, W), placeholder: the leaf plate's centre
     leaf_center_W: list[float] = dc.field(default_factory=lambda: [0.5, -0.1, 0.355])
+    # [x, y, z] (m), placeholder: the leaf plate's box size along the W axes (y: thickness)
     leaf_size: list[float] = dc.field(default_factory=lambda: [0.10, 0.002, 0.065])
+    # RGBA (0-1), placeholder: the leaf plate
     leaf_color: Rgba = dc.field(default_factory=lambda: Rgba(0.2, 0.55, 0.15, 1.0))
+    # RGBA (0-1), placeholder: the branch cylinder
     branch_color: Rgba = dc.field(default_factory=lambda: Rgba(0.35, 0.5, 0.2, 1.0))
 
 

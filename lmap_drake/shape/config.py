@@ -32,21 +32,28 @@ class SscConfig:
     size stays near the start, so a lab that knows its variety should set it
     (see the README's *Your own pepper mesh*). ``seed``: the random
     subsampling of the points."""
-    w_sur: float = 1.0
-    w_neg: float = 2.0
-    w_ped: float = 0.1
-    w_reg: float = 1.0
+    w_sur: float = 1.0  # weight of the surface loss (fruit points on the fitted surface)
+    w_neg: float = 2.0  # weight of the negative loss (leaf, branch, free space kept outside)
+    w_ped: float = 0.1  # weight of the peduncle loss (fruit top to the completed branch); 0 = off
+    w_reg: float = 1.0  # weight of the latent regulariser |z|^2
+    # weight of the completed-branch samples among the negatives (the others weigh 1)
     w_neg_completed_branch: float = 0.1
-    learning_rate: float = 0.01
-    iterations: int = 300
-    num_peduncle_points: int = 10
+    learning_rate: float = 0.01  # Adam step size (latent, log scale, translation)
+    iterations: int = 300  # Adam steps of one fit
+    num_peduncle_points: int = 10  # template points at the fruit top used by the peduncle loss
     loss_length_unit: float = 0.01
+    # m: the fit starts at the fruit points' centroid moved this far away from the
+    # camera (unless ``init_from_observation``)
     push_from_camera: float = 0.01
-    max_surface_points: int = 300
-    max_negative_points: int = 300
+    max_surface_points: int = 300  # fruit points used by the surface loss (random subset)
+    max_negative_points: int = 300  # cap on the active negative points per refresh
+    # m: negatives inside or within this of the current surface are active
     negative_margin: float = 0.005
+    # negatives examined per refresh (random subset of those near the start centre)
     max_negative_candidates: int = 4000
+    # m: peduncle pairs (template top point, branch sample) farther apart are left out
     peduncle_max_distance: float = 0.02
+    # deg: a branch sample pairs only within this angle of the fruit axis, seen from the centre
     peduncle_cone_deg: float = 30.0
     peduncle_huber: float = 0.005
     peduncle_moves_scale: bool = False
@@ -59,8 +66,8 @@ class SscConfig:
     rotation_hold_steps: int = 50
     w_rot: float = 0.0
     init_scale_bounds: list[float] = dc.field(default_factory=lambda: [0.5, 2.0])
-    refresh_every: int = 25
-    mesh_spacing: float = 0.003
+    refresh_every: int = 25  # iterations between re-selections of active negatives, peduncle pairs
+    mesh_spacing: float = 0.003  # m, grid spacing of the fitted fruit's output mesh
     reestimate_w_ped: float = 0.01
     reestimate_w_neg_completed_branch: float = 0.01
     reestimate_rotation_lr_scale: float = 1.0
@@ -121,8 +128,10 @@ class ShapeConfig:
     weights_file: str = "models/deepsdf/pepper_decoder.pt"
     mean_latent_file: str = ""
     method: str = "ssc"
+    # Informational, not read by the pipeline: the decoder's latent size comes from
+    # ``weights_file`` (the shipped one: 32; ``scripts/train_deepsdf.py --latent_size``).
     latent_size: int = 32
-    free_space_voxel: float = 0.003
+    free_space_voxel: float = 0.003  # m, voxel of the ray-carved free space (SSC negatives)
     leaf_split_angle_deg: float = 15.0
     reuse_tolerance: float = 0.005
     min_fruit_points: int = 20

@@ -60,15 +60,24 @@ def DefaultCameraConfig() -> CameraConfig:
 class RobotConfig:
     """UR5 + Robotiq 2F-85 placement, initial state and the simulated joint
     servo (Drake's implicit PD on the plant plus gravity compensation)."""
+    # Pose of the UR5 base frame B (the DH base, the UR controller's "Base")
+    # in world W; also turns a ``robot_base`` camera calibration into world.
     X_WB: Transform = dc.field(
         default_factory=lambda: _transform([0.0, 0.0, 0.0], [0.0, 0.0, 180.0]))
+    # Start joint angles (rad), shoulder_pan .. wrist_3, of the simulated arm
+    # (a snapshot holds them); on hardware the arm starts where it stands.
     initial_q: list[float] = dc.field(
         default_factory=lambda: [-1.3941, -0.552, 1.9769, 0.1742, -1.4152, -0.1795])
-    initial_gripper_width: float = 0.085
+    initial_gripper_width: float = 0.085  # m, simulated start opening of the pads (0 .. 0.085)
+    # Joint PD stiffness of the simulated arm servo (N m/rad), one per joint
+    # (Drake's implicit PD on the plant's actuators); unused on hardware.
     kp: list[float] = dc.field(default_factory=lambda: [8000., 8000., 4000., 600., 600., 300.])
+    # Joint PD damping of the simulated arm servo (N m s/rad), one per joint.
     kd: list[float] = dc.field(default_factory=lambda: [400., 400., 200., 30., 30., 12.])
-    gripper_kp: float = 4000.0
-    gripper_kd: float = 40.0
+    gripper_kp: float = 4000.0  # N/m, PD stiffness of each simulated finger (prismatic joint)
+    gripper_kd: float = 40.0  # N s/m, PD damping of each simulated finger
+    # Add the arm's gravity torques (arm + gripper) to the simulated actuation,
+    # as the UR controller does; false leaves the PD to hold the weight.
     gravity_compensation: bool = True
 
 
@@ -106,23 +115,24 @@ class CameraNoiseConfig:
     ``seed_offset`` is added to the scenario's ``random_seed`` for the
     noise."""
     enabled: bool = True
-    depth_sigma_0: float = 0.001
-    depth_sigma_z2: float = 0.002
+    depth_sigma_0: float = 0.001  # m, depth noise sigma's constant part: sigma = this + z2 z^2
+    depth_sigma_z2: float = 0.002  # 1/m, depth noise sigma's part growing with depth z squared
+    # weight a of the smooth part of the depth noise: sqrt(1 - a^2) white + a smooth; 0 = white only
     correlated_fraction: float = 0.5
-    correlated_length_px: float = 6.0
-    grazing_start_deg: float = 72.0
-    grazing_full_deg: float = 86.0
-    thin_width_px: float = 3.0
-    thin_dropout: float = 0.5
-    edge_jump: float = 0.01
-    mixed_pixel_fraction: float = 0.3
-    speckle_dropout: float = 0.002
-    depth_unit: float = 0.00025
-    exposure_variation: float = 0.15
-    white_balance_variation: float = 0.05
-    illumination_gradient: float = 0.12
-    read_noise: float = 1.5
-    shot_noise: float = 0.15
+    correlated_length_px: float = 6.0  # px, Gaussian width of the smooth depth noise; 0 = off
+    grazing_start_deg: float = 72.0  # deg (ray to surface normal): returns start to drop out here
+    grazing_full_deg: float = 86.0  # deg: every return is lost from here (linear in between)
+    thin_width_px: float = 3.0  # px: surfaces narrower than this count as thin
+    thin_dropout: float = 0.5  # probability that a thin surface's pixel has no return; 0 = off
+    edge_jump: float = 0.01  # m: a larger depth difference between neighbours is a depth edge
+    mixed_pixel_fraction: float = 0.3  # chance a depth-edge pixel becomes a flying pixel; 0 = off
+    speckle_dropout: float = 0.002  # probability of a missing return anywhere; 0 = off
+    depth_unit: float = 0.00025  # m, depth quantisation step; 0 = none
+    exposure_variation: float = 0.15  # colour gain drawn per scene in 1 +- this
+    white_balance_variation: float = 0.05  # per-channel colour gain drawn per scene in 1 +- this
+    illumination_gradient: float = 0.12  # brightness ramp across the image, +- this, per scene
+    read_noise: float = 1.5  # colour noise floor (sigma, 0-255 levels) added in quadrature
+    shot_noise: float = 0.15  # colour shot noise: sigma^2 += shot_noise^2 I (I: 0-255 level)
     seed_offset: int = 0
 
 

@@ -42,13 +42,16 @@ class UrConfig:
     command; the streaming thread interpolates between commands at
     ``rtde_frequency``.
     """
-    robot_ip: str = "192.168.1.102"
-    rtde_frequency: float = 500.0
+    robot_ip: str = "192.168.1.102"  # the UR controller's address (RTDE; the gripper's too)
+    rtde_frequency: float = 500.0  # Hz, RTDE rate; the streaming thread's servoJ rate, (0, 500]
     servo_lookahead_time: float = 0.1
     servo_gain: float = 300.0
     joint_speed_limit: float = 0.5
     joint_acceleration_limit: float = 1.0
+    # Lower corner [x, y, z] (m, base frame B) of the box that the TCP, the
+    # elbow, the wrists and the flange must stay in; commands leaving it are refused.
     workspace_min: list[float] = dc.field(default_factory=lambda: [-0.85, -0.85, 0.05])
+    # Upper corner [x, y, z] (m, base frame B) of that workspace box.
     workspace_max: list[float] = dc.field(default_factory=lambda: [0.85, 0.85, 0.95])
     command_period: float = 0.01
 
@@ -63,14 +66,14 @@ class GripperConfig:
     (an approximation of the linkage). ``timeout`` (s) bounds every socket
     reply and the activation."""
     host: str = ""
-    port: int = 63352
+    port: int = 63352  # TCP port of the Robotiq URCap's socket on the UR controller
     speed: int = 255
     force: int = 50
     pos_open: int = 0
     pos_closed: int = 255
     timeout: float = 2.0
-    activate: bool = True
-    update_period: float = 0.05
+    activate: bool = True  # activate the gripper on connect if inactive (it opens and closes once)
+    update_period: float = 0.05  # s, period of the driver that reads and commands the gripper
 
 
 @dc.dataclass
@@ -88,8 +91,8 @@ class RealSenseConfig:
     height: int = 480
     depth_width: int = 640
     depth_height: int = 480
-    fps: int = 30
-    frame_timeout: float = 5.0
+    fps: int = 30  # frames per second of both streams; the station's camera samples at this rate
+    frame_timeout: float = 5.0  # s: no frameset within this aborts the hardware episode
     calibration_file: str = ""
     twin_address: str = ""
 
