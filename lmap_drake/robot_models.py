@@ -1,0 +1,252 @@
+"""The UR5 and Robotiq 2F-85 URDFs in ``models/``, generated from their
+published dimensions (``scripts/make_robot_models.py`` writes them; the
+output is committed and loaded by ``lmap_drake.robot``).
+
+The UR5 body frames follow the standard Denavit-Hartenberg convention: the
+frame of link i is DH frame i-1 rotated by q_i about its z axis, so forward
+kinematics of the URDF equals the DH product exactly (tested in
+``tests/test_robot.py``). Collision geometry is capsules and cylinders
+sized to the real links (shoulder offset 135.85 mm, elbow offset -119.7 mm,
+wrist offset 93 mm; tube and housing radii from the UR5 data sheet drawing).
+The DH parameters are ``robot.UR5_DH_*``, the ones ``robot.Ur5DhFrames``
+uses; ``tests/test_robot_models.py`` checks that the text generated here is
+the committed file.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from lmap_drake.paths import MODELS_DIR
+from lmap_drake.robot import UR5_DH_A, UR5_DH_ALPHA, UR5_DH_D, UR5_VELOCITY_LIMIT
+
+# UR5 DH parameters (m, rad): the ones the kinematics use (robot.py).
+D = [float(x) for x in UR5_DH_D]
+A = [float(x) for x in UR5_DH_A]
+ALPHA = [float(x) for x in UR5_DH_ALPHA]
+MASS = [3.7, 8.393, 2.275, 1.219, 1.219, 0.1879]
+JOINT_LIMIT = [2 * math.pi, 2 * math.pi, math.pi, 2 * math.pi, 2 * math.pi, 2 * math.pi]
+EFFORT = [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]
+VELOCITY = float(UR5_VELOCITY_LIMIT)  # rad/s, every joint
+SHOULDER_OFFSET = 0.13585
+ELBOW_OFFSET = 0.13585 - 0.1197  # forearm tube height along z of link 3
+
+
+def _f(x: float) -> str:
+    return repr(float(x))
+
+
+def _xyz(v) -> str:
+    return " ".join(_f(x) for x in v)
+
+
+def _inertia(mass: float, r: float, length: float, axis: str) -> str:
+    """Solid-cylinder inertia about its centre, axis 'x', 'y' or 'z'."""
+    i_axial = 0.5 * mass * r * r
+    i_perp = mass * (3 * r * r + length * length) / 12.0
+    ixx = i_axial if axis == "x" else i_perp
+    iyy = i_axial if axis == "y" else i_perp
+    izz = i_axial if axis == "z" else i_perp
+    return (f'<inertia ixx="{_f(ixx)}" ixy="0" ixz="0" iyy="{_f(iyy)}" '
+            f'iyz="0" izz="{_f(izz)}"/>')
+
+
+def _segment(p0, p1):
+    """Origin (xyz, rpy) and length of a z-aligned shape spanning p0 -> p1."""
+    dx, dy, dz = (p1[i] - p0[i] for i in range(3))
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    c = [(p0[i] + p1[i]) / 2 for i in range(3)]
+    # Rotate z onto (dx, dy, dz): rpy with roll about x then pitch about y.
+    ux, uy, uz = dx / length, dy / length, dz / length
+    pitch = math.atan2(ux, math.sqrt(uy * uy + uz * uz))
+    roll = math.atan2(-uy, uz)
+    return c, (roll, pitch, 0.0), length
+
+
+def _shape(kind: str, p0, p1, r: float, name: str, collision: bool,
+           color: str) -> str:
+    c, rpy, length = _segment(p0, p1)
+    if kind == "capsule":
+        geom = f'<drake:capsule radius="{_f(r)}" length="{_f(length)}"/>'
+    else:
+        geom = f'<cylinder radius="{_f(r)}" length="{_f(length)}"/>'
+    out = [f'    <visual name="{name}_visual">',
+           f'      <origin xyz="{_xyz(c)}" rpy="{_xyz(rpy)}"/>',
+           f'      <geometry>{geom}</geometry>',
+           f'      <material name="{color}"/>',
+           '    </visual>']
+    if collision:
+        out += [f'    <collision name="{name}">',
+                f'      <origin xyz="{_xyz(c)}" rpy="{_xyz(rpy)}"/>',
+                f'      <geometry>{geom}</geometry>',
+                '    </collision>']
+    return "\n".join(out)
+
+
+# Per link: list of (kind, p0, p1, radius, name) in the link's body frame
+# (DH frame i-1 rotated by q_i), plus the centre of mass.
+LINK_SHAPES = {
+    1: [("cylinder", (0, 0, -0.03), (0, 0, D[0] + 0.06), 0.06, "shoulder_column"),
+        ("cylinder", (0, 0.06, D[0]), (0, -SHOULDER_OFFSET - 0.06, D[0]), 0.06,
+         "shoulder_housing")],
+    2: [("capsule", (0, 0, SHOULDER_OFFSET), (A[1], 0, SHOULDER_OFFSET), 0.054,
+         "upper_arm"),
+        ("cylinder", (A[1], 0, SHOULDER_OFFSET + 0.05), (A[1], 0, ELBOW_OFFSET - 0.05),
+         0.05, "elbow_housing")],
+    3: [("capsule", (0, 0, ELBOW_OFFSET), (A[2], 0, ELBOW_OFFSET), 0.04, "forearm")],
+    4: [("cylinder", (0, 0, ELBOW_OFFSET - 0.045), (0, 0, D[3] + 0.045), 0.045,
+         "wrist1_housing")],
+    5: [("cylinder", (0, 0, -0.045), (0, 0, D[4] + 0.045), 0.045, "wrist2_housing")],
+    6: [("cylinder", (0, 0, 0.0), (0, 0, D[5]), 0.0375, "wrist3_flange")],
+}
+COM = {1: (0, 0, D[0] / 2), 2: (A[1] / 2, 0, SHOULDER_OFFSET),
+       3: (A[2] / 2, 0, ELBOW_OFFSET), 4: (0, 0, D[3] / 2),
+       5: (0, 0, D[4] / 2), 6: (0, 0, D[5] / 2)}
+INERTIA_AXIS = {1: ("z", 0.06, 0.15), 2: ("x", 0.054, 0.425), 3: ("x", 0.04, 0.392),
+                4: ("z", 0.045, 0.12), 5: ("z", 0.045, 0.12), 6: ("z", 0.0375, 0.08)}
+
+
+def Ur5Urdf() -> str:
+    """The UR5 URDF text (body frames = DH frames, flange frame ``flange``)."""
+    lines = ['<?xml version="1.0"?>',
+             '<!-- Generated by scripts/make_robot_models.py. Do not edit by hand. -->',
+             '<!-- UR5 (CB3) from its DH parameters; body frames = DH frames. -->',
+             '<robot name="ur5" xmlns:drake="http://drake.mit.edu">',
+             '  <material name="ur_grey"><color rgba="0.7 0.7 0.72 1"/></material>',
+             '  <material name="ur_blue"><color rgba="0.35 0.55 0.8 1"/></material>',
+             '  <link name="base_link">',
+             '    <inertial><mass value="4.0"/><origin xyz="0 0 0.025"/>'
+             + _inertia(4.0, 0.075, 0.05, "z") + '</inertial>',
+             _shape("cylinder", (0, 0, 0), (0, 0, 0.05), 0.075, "base", True, "ur_grey"),
+             '  </link>']
+    names = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+    link_names = ["shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link",
+                  "wrist_2_link", "wrist_3_link"]
+    parent = "base_link"
+    for i in range(6):
+        k = i + 1
+        if i == 0:
+            xyz, rpy = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        else:
+            xyz, rpy = (A[i - 1], 0.0, D[i - 1]), (ALPHA[i - 1], 0.0, 0.0)
+        lines += [f'  <joint name="{names[i]}_joint" type="revolute">',
+                  f'    <parent link="{parent}"/>',
+                  f'    <child link="{link_names[i]}"/>',
+                  f'    <origin xyz="{_xyz(xyz)}" rpy="{_xyz(rpy)}"/>',
+                  '    <axis xyz="0 0 1"/>',
+                  f'    <limit lower="{_f(-JOINT_LIMIT[i])}" upper="{_f(JOINT_LIMIT[i])}" '
+                  f'effort="{_f(EFFORT[i])}" velocity="{_f(VELOCITY)}"/>',
+                  '    <dynamics damping="0.0"/>',
+                  '  </joint>']
+        axis, r, length = INERTIA_AXIS[k]
+        color = "ur_blue" if k in (1, 4, 6) else "ur_grey"
+        lines += [f'  <link name="{link_names[i]}">',
+                  f'    <inertial><mass value="{_f(MASS[i])}"/>'
+                  f'<origin xyz="{_xyz(COM[k])}"/>'
+                  + _inertia(MASS[i], r, length, axis) + '</inertial>']
+        for kind, p0, p1, rad, name in LINK_SHAPES[k]:
+            lines.append(_shape(kind, p0, p1, rad, name, True, color))
+        lines.append('  </link>')
+        lines += [f'  <transmission name="{names[i]}_trans">',
+                  '    <type>transmission_interface/SimpleTransmission</type>',
+                  f'    <joint name="{names[i]}_joint"><hardwareInterface>'
+                  'PositionJointInterface</hardwareInterface></joint>',
+                  f'    <actuator name="{names[i]}_motor"><mechanicalReduction>1'
+                  '</mechanicalReduction></actuator>',
+                  '  </transmission>']
+        parent = link_names[i]
+    lines += ['  <joint name="flange_fixed_joint" type="fixed">',
+              '    <parent link="wrist_3_link"/>',
+              '    <child link="flange"/>',
+              f'    <origin xyz="{_xyz((A[5], 0.0, D[5]))}" rpy="{_xyz((ALPHA[5], 0, 0))}"/>',
+              '  </joint>',
+              '  <link name="flange"/>',
+              '</robot>', '']
+    return "\n".join(lines)
+
+
+# Robotiq 2F-85, simplified to a parallel-jaw model: the real 2F-85 keeps its
+# pads parallel through a linkage; we model each finger as a prismatic joint
+# whose value is the half opening (0 = closed, 0.0425 = 85 mm stroke open).
+BODY_Z0, BODY_Z1 = 0.012, 0.100
+FINGER_Z1 = 0.125
+PAD_LEN, PAD_WIDTH, PAD_THICK = 0.038, 0.022, 0.008
+PAD_Z0 = FINGER_Z1
+TCP_Z = PAD_Z0 + PAD_LEN / 2
+HALF_STROKE = 0.0425
+
+
+def Robotiq2f85Urdf() -> str:
+    """The Robotiq 2F-85 URDF text (parallel jaws; TCP frame ``tcp``, z = approach)."""
+    def box(name, size, xyz, color, collision=True, extra=""):
+        s = (f'    <visual name="{name}_visual"><origin xyz="{_xyz(xyz)}"/>'
+             f'<geometry><box size="{_xyz(size)}"/></geometry>'
+             f'<material name="{color}"/></visual>')
+        if collision:
+            s += (f'\n    <collision name="{name}"><origin xyz="{_xyz(xyz)}"/>'
+                  f'<geometry><box size="{_xyz(size)}"/></geometry>{extra}</collision>')
+        return s
+
+    pad_props = ('<drake:proximity_properties><drake:mu_dynamic value="1.0"/>'
+                 '<drake:mu_static value="1.0"/></drake:proximity_properties>')
+    lines = ['<?xml version="1.0"?>',
+             '<!-- Generated by scripts/make_robot_models.py. Do not edit by hand. -->',
+             '<!-- Robotiq 2F-85 as a parallel-jaw gripper: 85 mm stroke, 22 x 38 mm pads.',
+             '     Frame: z = approach axis (out of the flange), fingers close along y.',
+             f'     TCP frame "tcp" sits between the pad centres, {TCP_Z} m from the flange. -->',
+             '<robot name="robotiq_2f85" xmlns:drake="http://drake.mit.edu">',
+             '  <material name="rq_black"><color rgba="0.15 0.15 0.15 1"/></material>',
+             '  <material name="rq_grey"><color rgba="0.55 0.55 0.55 1"/></material>',
+             '  <material name="rq_pad"><color rgba="0.25 0.25 0.3 1"/></material>',
+             '  <link name="robotiq_base">',
+             '    <inertial><mass value="0.825"/><origin xyz="0 0 0.055"/>'
+             + _inertia(0.825, 0.04, 0.1, "z") + '</inertial>',
+             _shape("cylinder", (0, 0, 0), (0, 0, BODY_Z0), 0.0375, "coupling", True,
+                    "rq_black"),
+             box("body", (0.06, 0.09, BODY_Z1 - BODY_Z0),
+                 (0, 0, (BODY_Z0 + BODY_Z1) / 2), "rq_black"),
+             '  </link>']
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        y_off = sign * PAD_THICK / 2
+        lines += [f'  <joint name="{side}_finger_joint" type="prismatic">',
+                  '    <parent link="robotiq_base"/>',
+                  f'    <child link="{side}_finger"/>',
+                  '    <origin xyz="0 0 0"/>',
+                  f'    <axis xyz="0 {_f(sign)} 0"/>',
+                  f'    <limit lower="0" upper="{_f(HALF_STROKE)}" effort="120" velocity="0.15"/>',
+                  '  </joint>',
+                  f'  <link name="{side}_finger">',
+                  '    <inertial><mass value="0.05"/>'
+                  f'<origin xyz="0 {_f(y_off)} {_f(PAD_Z0)}"/>'
+                  + _inertia(0.05, 0.01, 0.05, "z") + '</inertial>',
+                  box(f"{side}_finger_link", (0.02, PAD_THICK, FINGER_Z1 - BODY_Z1 + 0.004),
+                      (0, sign * (PAD_THICK / 2 + 0.004), (BODY_Z1 + FINGER_Z1) / 2),
+                      "rq_grey"),
+                  box(f"{side}_pad", (PAD_WIDTH, PAD_THICK, PAD_LEN),
+                      (0, y_off, PAD_Z0 + PAD_LEN / 2), "rq_pad", True, pad_props),
+                  '  </link>',
+                  f'  <transmission name="{side}_finger_trans">',
+                  '    <type>transmission_interface/SimpleTransmission</type>',
+                  f'    <joint name="{side}_finger_joint"><hardwareInterface>'
+                  'PositionJointInterface</hardwareInterface></joint>',
+                  f'    <actuator name="{side}_finger_motor"><mechanicalReduction>1'
+                  '</mechanicalReduction></actuator>',
+                  '  </transmission>']
+    lines += ['  <joint name="tcp_fixed_joint" type="fixed">',
+              '    <parent link="robotiq_base"/>', '    <child link="tcp"/>',
+              f'    <origin xyz="0 0 {_f(TCP_Z)}"/>', '  </joint>',
+              '  <link name="tcp"/>', '</robot>', '']
+    return "\n".join(lines)
+
+
+def WriteRobotModels(models_dir: Path | str = MODELS_DIR) -> tuple[Path, Path]:
+    """Writes ``ur5/ur5.urdf`` and ``robotiq_2f85/robotiq_2f85.urdf`` under
+    ``models_dir``; their paths."""
+    root = Path(models_dir)
+    ur5 = root / "ur5" / "ur5.urdf"
+    robotiq = root / "robotiq_2f85" / "robotiq_2f85.urdf"
+    ur5.parent.mkdir(parents=True, exist_ok=True)
+    robotiq.parent.mkdir(parents=True, exist_ok=True)
+    ur5.write_text(Ur5Urdf())
+    robotiq.write_text(Robotiq2f85Urdf())
+    return ur5, robotiq
