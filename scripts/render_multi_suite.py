@@ -8,110 +8,17 @@ the simulated seconds per wall second, and per-fruit visibility.
     python scripts/render_multi_suite.py --no-push        # images only
     python scripts/render_multi_suite.py --scenario_text "{plant_scene: {multi: {leaf_leaf_contact: true}}}"
 
-Functions ``RenderScenePng`` and ``LabelColors`` can be used without the CLI.
+The study is ``lmap_drake.studies.multi_suite`` (``RenderScenePng`` and
+``LabelColors`` can be used without the CLI).
 """
 import argparse
-import json
-import time
-from pathlib import Path
+import sys
 
-import numpy as np
-
-from lmap_drake.labels import DecodeLabels
-
-_CLASS_RGB = {1: (120, 80, 30), 2: (40, 170, 40), 3: (220, 40, 40), 4: (90, 90, 200)}
+from lmap_drake.paths import DIAGRAMS_DIR
+from lmap_drake.studies.multi_suite import MeasureSuite
 
 
-def LabelColors(label: np.ndarray) -> np.ndarray:
-    """An RGB image (H, W, 3 uint8) of a label image: a colour per class,
-    brightness varying with the instance."""
-    cls, inst = DecodeLabels(label)
-    out = np.full(cls.shape + (3,), 235, np.uint8)
-    for c, rgb in _CLASS_RGB.items():
-        m = cls == c
-        if m.any():
-            shade = 0.55 + 0.45 * ((inst[m] * 0.37) % 1.0)
-            out[m] = (np.asarray(rgb)[None] * shade[:, None]).clip(0, 255).astype(np.uint8)
-    return out
-
-
-def RenderScenePng(scenario, path, rgb=None, label=None) -> None:
-    """Writes camera0's colour image and its label colours side by side
-    (``rgb``/``label`` given, or rendered with ``RenderStill``)."""
-    from PIL import Image
-    if rgb is None:
-        from lmap_drake.plants.plant_station import RenderStill
-        rgb, _, label = RenderStill(scenario)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.concatenate([np.asarray(rgb)[..., :3], LabelColors(label)], 1)).save(path)
-
-
-def _Interpenetration(world) -> dict:
-    from lmap_drake.plants.multi_geometry import LeafLeafPenetration, MeshesCross
-    import trimesh
-    from lmap_drake.plants.leaf import BoundaryTriangles
-    Vs = [world.LeafVertices(j) for j in range(world.num_leaves)]
-    tets = [r.tets for r in world.leaf_refs]
-    P = LeafLeafPenetration(Vs, tets)
-    surfs = [trimesh.Trimesh(V, BoundaryTriangles(T), process=False) for V, T in zip(Vs, tets)]
-    pairs = [(a, b) for a in range(len(Vs)) for b in range(a + 1, len(Vs))
-             if max(P[a, b], P[b, a]) > 1e-4 or MeshesCross(surfs[a], surfs[b])]
-    return {"max_depth_mm": float(P.max() * 1e3), "pairs": pairs}
-
-
-def MeasureScene(scenario, push: bool, out_png=None, push_speed: float = 1.5) -> dict:
-    """Settles the scene 0.3 s, renders it, measures leaf interpenetration;
-    with ``push`` flicks each leaf (its free vertices at ``push_speed`` m/s)
-    toward its nearest neighbour leaf and measures over 0.3 s."""
-    from lmap_drake.plants.plant_sim import PlantWorldSim
-    t0 = time.time()
-    w = PlantWorldSim(scenario)
-    build = time.time() - t0
-    t0 = time.time()
-    w.Hold(0.3)
-    rate = 0.3 / (time.time() - t0)
-    images = w.Images()
-    if out_png:
-        RenderScenePng(scenario, out_png, np.asarray(images["rgb_image"].data),
-                       np.asarray(images["label_image"].data)[..., 0])
-    m = w.model
-    rec = {"leaves": w.num_leaves, "fruits": len(m.fruits), "build_s": round(build, 2),
-           "sim_s_per_wall_s": round(rate, 3),
-           "occlusion_predicted": [round(f.occlusion_predicted, 3) for f in m.fruits],
-           "visibility_rendered": [round(w.Visibility(fruit=i), 3) for i in range(len(m.fruits))],
-           "rest": _Interpenetration(w), "pushes": []}
-    if push:
-        base = w.Fork()
-        C = [lf.rest_W.mean(0) for lf in m.leaves]
-        for j, leaf in enumerate(m.leaves):
-            k = min((i for i in range(len(C)) if i != j),
-                    key=lambda i: np.linalg.norm(C[i] - C[j]))
-            d = C[k] - C[j]
-            d /= np.linalg.norm(d)
-            x = base.Fork()
-            v = np.zeros((len(leaf.rest_W), 3))
-            v[~leaf.fixed] = push_speed * d                 # m/s toward the neighbour
-            x.deformable.SetVelocities(x.plant_context, x.leaf_ids[j], v.T)
-            worst = {"max_depth_mm": 0.0, "pairs": [], "max_displacement_mm": 0.0}
-            t0 = time.time()
-            V0 = x.LeafVertices(j)
-            for _ in range(6):
-                x.Hold(0.05)
-                worst["max_displacement_mm"] = max(worst["max_displacement_mm"], float(
-                    np.linalg.norm(x.LeafVertices(j) - V0, axis=1).max() * 1e3))
-                r = _Interpenetration(x)
-                worst["max_depth_mm"] = max(worst["max_depth_mm"], r["max_depth_mm"])
-                worst["pairs"] = sorted(set(map(tuple, worst["pairs"])) | set(map(tuple, r["pairs"])))
-            worst["settled"] = _Interpenetration(x)
-            worst.update(leaf=j, toward=k, wall_s=round(time.time() - t0, 2))
-            rec["pushes"].append(worst)
-    return rec
-
-
-def main() -> None:
-    from lmap_drake.paths import DIAGRAMS_DIR
-    from lmap_drake.scenario import LoadScenario
-    from lmap_drake.studies.shape_benchmark import SuiteScenarioNames
+def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--suite", default=str(DIAGRAMS_DIR / "multi_suite.yaml"))
@@ -120,30 +27,10 @@ def main() -> None:
     p.add_argument("--no-push", action="store_true")
     p.add_argument("--push_speed", type=float, default=1.5, help="m/s")
     p.add_argument("--only", default="", help="comma-separated scene names")
-    a = p.parse_args()
-    names = SuiteScenarioNames(a.suite)
-    if a.only:
-        names = [n for n in names if n in a.only.split(",")]
-    out = Path(a.out)
-    results = {}
-    for name in names:
-        s = LoadScenario(filename=a.suite, scenario_name=name, scenario_text=a.scenario_text)
-        rec = MeasureScene(s, not a.no_push, out / f"{name}.png", a.push_speed)
-        results[name] = rec
-        pushed = sum(bool(x["pairs"]) for x in rec["pushes"])
-        print(f"{name}: {rec['fruits']} fruits, {rec['leaves']} leaves, "
-              f"{rec['sim_s_per_wall_s']} sim s/wall s, rest interpenetration "
-              f"{rec['rest']['max_depth_mm']:.2f} mm {rec['rest']['pairs']}, pushes with "
-              f"interpenetration {pushed}/{len(rec['pushes'])} (max displacement "
-              f"{max([x['max_displacement_mm'] for x in rec['pushes']] or [0]):.0f} mm)",
-              flush=True)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "measurements.json").write_text(json.dumps(results, indent=1))
-    print(f"wrote {len(names)} images and measurements.json to {out}")
+    a = p.parse_args(argv)
+    MeasureSuite(a.suite, a.out, a.scenario_text, not a.no_push, a.push_speed, a.only)
 
 
 if __name__ == "__main__":
-    import sys
-
     from lmap_drake.errors import RunMain
     sys.exit(RunMain(main, prog="render_multi_suite.py", strip_debug=True))

@@ -2,7 +2,8 @@
 each loads (its package imports resolve) and parses its flags (``--help``
 lists them and exits 0). What they run is tested beside the package code;
 their exit codes where a test runs them (calibrate_energy_cap,
-eval_fruit_detection, eval_shape, eval_held_leaf, train_deepsdf)."""
+eval_fruit_detection, eval_shape, eval_held_leaf, train_deepsdf, make_suite).
+Every script is listed here."""
 import runpy
 
 import pytest
@@ -12,6 +13,12 @@ from lmap_drake.paths import REPO_ROOT
 SHELLS = {
     "action_oracle": ["--out", "--scenario_file", "--scenario_names", "--top",
                       "--energy_weight", "--workers"],
+    "bench_deformation": ["--out", "--leaf-npz", "--factorization", "--no-dense", "--method",
+                          "--workers", "--repeats", "--relative-tolerance"],
+    "bench_engines": ["--out", "--repeats", "--workers", "--scenario_names", "--methods",
+                      "--distances", "--keep", "--reanalyse"],
+    "bench_planner": ["--out", "--scenario_name", "--suite", "--shapes"],
+    "bench_station": ["--out", "--scenario_name", "--duration"],
     "calibrate_energy_cap": ["records", "--out"],
     "eval_deformation_vs_fem": ["--out", "--scenarios", "--corr_scenarios", "--corr_directions",
                                 "--corr_distances", "--grasp_fallbacks",
@@ -25,9 +32,14 @@ SHELLS = {
                           "--settle"],
     "eval_shape": ["--out", "--md", "--methods", "--fruit_mesh_dir", "--conditions",
                    "--figures"],
+    "make_robot_models": [],
     "make_segnet_data": ["--out", "--count", "--seed", "--workers", "--arm_near_leaf",
                          "--multi", "--held_leaf"],
+    "make_suite": ["--random", "--seed", "--out", "--multi", "--fruit_mesh_dir"],
     "make_test_peppers": ["--out", "--count", "--seed", "--kinds", "--no_peduncle"],
+    "plan_plant": ["--scenario_file", "--scenario_name", "--scenario_text", "--out"],
+    "render_multi_suite": ["--suite", "--out", "--scenario_text", "--no-push", "--push_speed",
+                           "--only"],
     "train_deepsdf": ["--out_dir", "--family", "--meshes", "--mesh_scale", "--init",
                       "--time_limit_s"],
     "train_segnet": ["--data", "--out", "--steps", "--batch", "--init"],
@@ -43,3 +55,7 @@ def test_script_parses_its_flags(name, capsys):
     usage = capsys.readouterr().out
     for flag in SHELLS[name]:
         assert flag in usage, (name, flag)
+
+
+def test_every_script_is_a_listed_shell():
+    assert {p.stem for p in (REPO_ROOT / "scripts").glob("*.py")} == set(SHELLS)

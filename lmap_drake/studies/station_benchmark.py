@@ -1,0 +1,44 @@
+"""Realtime factor of the simulated station during a pull (behind
+``scripts/bench_station.py``): the default scenario (FEM leaf) approaches
+and grasps the leaf (not timed), then a pull of the default direction and
+distance is timed with the ground-truth monitors and, on a fork, without.
+"""
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+import numpy as np
+
+from lmap_drake.paths import DEFAULT_SCENARIO_FILE
+from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.scripted import ApproachAndGrasp, Pull
+from lmap_drake.scenario import LoadScenario
+
+
+def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0) -> dict:
+    """``realtime_factor``: wall seconds per simulated second of a
+    ``duration`` s pull (monitors sampled every ``outcome.sample_period``);
+    ``realtime_factor_simulation_only``: the same with the monitors off."""
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name=scenario_name)
+    world = PlantWorldSim(scenario, progress=lambda m: print(f"[bench] {m}", flush=True))
+    world.Hold(0.3)
+    ApproachAndGrasp(world, scenario.plant_scene.pull)
+    pull = scenario.plant_scene.pull
+    fork = world.Fork()
+    t0 = time.perf_counter()
+    Pull(world, pull.direction_W, pull.distance, duration)
+    wall = time.perf_counter() - t0
+    fork.Sample = lambda: None  # monitors off
+    fork.samples = []
+    t1 = time.perf_counter()
+    d = np.asarray(pull.direction_W, float)
+    Pull(fork, d, pull.distance, duration)
+    wall_sim = time.perf_counter() - t1
+    return {"realtime_factor": wall / duration,
+            "realtime_factor_simulation_only": wall_sim / duration,
+            "simulated_seconds": duration,
+            "time_step": scenario.plant_config.time_step,
+            "leaf_tets": int(len(world.model.leaf_tets)),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cpus"}
