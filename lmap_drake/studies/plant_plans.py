@@ -83,7 +83,7 @@ def PlanScene(s, quiet: bool = True) -> dict:
     return {"shape_completion_s": round(t_shape, 2), "order": order, "fruits": fruits}
 
 
-def PlanPlants(scenario_file: str, out: str | Path, scenario_names: list[str] = (),
+def PlanPlants(scenario_file: str, out: str | Path, scenario_names: list[str] | tuple = (),
                scenario_text: str = "") -> dict:
     """``PlanScene`` on the named scenes of a scenario file (default: every
     scene), ``scenario_text`` overriding each; the JSON rewritten to ``out``
