@@ -18,3 +18,23 @@ from lmap_drake.scenario import LoadDefaultScenario  # noqa: E402
 def scenario():
     """The built-in default scenario (a fresh copy per test)."""
     return LoadDefaultScenario()
+
+
+# The files that take longest (about a minute each on 2 cores: the twin's full
+# episodes, the Ray engine, the simulated episodes) go first, so that with
+# two workers (`--dist loadfile`) neither is left with one of them at the end.
+SLOW_FILES_FIRST = (
+    "twin/test_twin.py",
+    "evaluation/test_engines.py",
+    "episode/test_episode_simulation.py",
+    "test_cli.py",
+    "plants/test_multi.py",
+    "episode/test_episode_hardware.py",
+)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    def rank(item):
+        path = item.nodeid.split("::")[0].removeprefix("tests/")
+        return SLOW_FILES_FIRST.index(path) if path in SLOW_FILES_FIRST else len(SLOW_FILES_FIRST)
+    items.sort(key=rank)     # stable: the order within a file, and of the rest, is kept
