@@ -69,6 +69,6 @@ def ReplayBag(capture: BagCapture, X_WC: np.ndarray, scenario: Scenario, out: Pa
              f"{src['frames']} at {src['t']:.3f} s, depth {src['alignment']}")
     files = WriteBagRun(capture, X_WC, scenario, out, calibration_file)
     replayed, record = ReplayRun(out, out, scenario_text, progress=progress)
-    record["bag"] = src
+    record["run"], record["bag"] = src["bag"], src
     (out / "replay.json").write_text(json.dumps(record, indent=1, default=float))
     return sorted(set(files) | set(replayed)), record

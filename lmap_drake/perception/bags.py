@@ -180,21 +180,39 @@ def TransformMatrix(msg) -> np.ndarray:
 
 def AlignDepthToColor(depth: np.ndarray, K_D: dict, K_C: dict, X_CD: np.ndarray) -> np.ndarray:
     """The depth image of camera D re-projected into colour camera C
-    (``X_CD``: pose of D in C, ``p_C = X_CD p_D``): each valid depth pixel's
-    point lands on its nearest colour pixel, the nearest point wins; pixels
-    no point lands on are ``inf``. Returns K_C's HxW float32 metres."""
-    h, w = depth.shape
+    (``X_CD``: pose of D in C, ``p_C = X_CD p_D``), as the RealSense SDK's
+    align does: each valid depth pixel's footprint (its corners at its depth)
+    is projected into C and fills the colour pixels whose centres it covers
+    (at least the nearest one); the nearest surface wins. Colour pixels no
+    footprint covers are ``inf``. Returns K_C's HxW float32 metres."""
     v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
     z = depth[v, u].astype(np.float64)
-    p = np.stack([(u - K_D["cx"]) / K_D["fx"] * z, (v - K_D["cy"]) / K_D["fy"] * z, z])
-    p = X_CD[:3, :3] @ p + X_CD[:3, 3:4]
-    out = np.full((K_C["height"], K_C["width"]), np.inf)
-    front = p[2] > 1e-6
-    p = p[:, front]
-    uc = np.rint(K_C["fx"] * p[0] / p[2] + K_C["cx"]).astype(np.int64)
-    vc = np.rint(K_C["fy"] * p[1] / p[2] + K_C["cy"]).astype(np.int64)
-    inside = (uc >= 0) & (uc < K_C["width"]) & (vc >= 0) & (vc < K_C["height"])
-    np.minimum.at(out, (vc[inside], uc[inside]), p[2, inside])
+    R, t = X_CD[:3, :3], X_CD[:3, 3:4]
+
+    def project(du, dv):
+        p = np.stack([(u + du - K_D["cx"]) / K_D["fx"] * z,
+                      (v + dv - K_D["cy"]) / K_D["fy"] * z, z])
+        p = R @ p + t
+        zc = np.where(p[2] > 1e-6, p[2], np.nan)
+        return K_C["fx"] * p[0] / zc + K_C["cx"], K_C["fy"] * p[1] / zc + K_C["cy"], p[2]
+    xc, yc, zc = project(0.0, 0.0)
+    xa, ya, _ = project(-0.5, -0.5)
+    xb, yb, _ = project(0.5, 0.5)
+    ok = np.isfinite(xc) & np.isfinite(yc) & np.isfinite(xa + ya + xb + yb)
+    xc, yc, zc, xa, ya, xb, yb = (a[ok] for a in (xc, yc, zc, xa, ya, xb, yb))
+    lo_x = np.minimum(np.ceil(np.minimum(xa, xb)), np.rint(xc)).astype(np.int64)
+    hi_x = np.maximum(np.ceil(np.maximum(xa, xb)) - 1, np.rint(xc)).astype(np.int64)
+    lo_y = np.minimum(np.ceil(np.minimum(ya, yb)), np.rint(yc)).astype(np.int64)
+    hi_y = np.maximum(np.ceil(np.maximum(ya, yb)) - 1, np.rint(yc)).astype(np.int64)
+    W, H = K_C["width"], K_C["height"]
+    out = np.full((H, W), np.inf)
+    span_x = int(min(np.max(hi_x - lo_x, initial=0), 16)) + 1   # a footprint spans few pixels
+    span_y = int(min(np.max(hi_y - lo_y, initial=0), 16)) + 1
+    for dy in range(span_y):
+        for dx in range(span_x):
+            x, y = lo_x + dx, lo_y + dy
+            m = (x <= hi_x) & (y <= hi_y) & (x >= 0) & (x < W) & (y >= 0) & (y < H)
+            np.minimum.at(out, (y[m], x[m]), zc[m])
     return out.astype(np.float32)
 
 
@@ -298,7 +316,7 @@ def _Read(reader, path: Path, time, index, topics: dict) -> BagCapture:
         k = index
     else:
         t_ns = start + int(round((time or 0.0) * 1e9))
-        if time is not None and not (start <= t_ns <= reader.end_time):
+        if time is not None and not (start <= t_ns <= reader.end_time + MAX_PAIR_GAP_S * 1e9):
             raise BagError(f"--time {time}: the bag {path} spans 0..{reader.duration * 1e-9:.3f} s")
         k = int(np.argmin(np.abs(np.asarray(stamps, np.int64) - t_ns)))
     t_color = stamps[k]
