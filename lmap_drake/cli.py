@@ -14,9 +14,9 @@
                     [--engine pool|ray [--address HOST:PORT]] [--sweep FILE]
 
 Exit codes: 0 done (or planned, with --plan-only), 1 error, 2 bad input
-(scenario, weights, calibration, recording, output folder, arguments), 3
-episode aborted / no feasible action / not confirmed, 130 interrupted. Errors
-are one line on stderr; --debug adds the traceback.
+(scenario, weights, calibration, recording, bag, output folder, arguments),
+3 episode aborted / no feasible action / not confirmed, 130 interrupted.
+Errors are one line on stderr; --debug adds the traceback.
 """
 from __future__ import annotations
 

@@ -36,6 +36,18 @@ def ImageMsg(ts, t_ns: int, frame: str, array: np.ndarray, encoding: str, ros1: 
         is_bigendian=0, step=a.nbytes // h, data=np.frombuffer(a.tobytes(), np.uint8))
 
 
+def CompressedMsg(ts, t_ns: int, frame: str, rgba: np.ndarray):
+    """A PNG ``sensor_msgs/CompressedImage`` of the RGB of ``rgba``."""
+    import io
+
+    from PIL import Image
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgba[..., :3])).save(buf, format="PNG")
+    return ts.types["sensor_msgs/msg/CompressedImage"](
+        header=_Header(ts, t_ns, frame, False), format="png",
+        data=np.frombuffer(buf.getvalue(), np.uint8))
+
+
 def InfoMsg(ts, t_ns: int, frame: str, camera: dict, ros1: bool):
     """A ``sensor_msgs/CameraInfo`` (pinhole, no distortion) of ``camera``."""
     K = np.array([camera["fx"], 0, camera["cx"], 0, camera["fy"], camera["cy"], 0, 0, 1.0])
@@ -69,7 +81,10 @@ def WriteRos2Bag(path: Path, frames: list[dict], camera: dict, *, depth_encoding
     (HxWx4 uint8) and ``depth`` (HxW float32 m, inf = no return). ``skip``:
     topics not to write (bad-bag tests)."""
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    topics = {"color": ("/camera/color/image_raw", "sensor_msgs/msg/Image"),
+    png = color_encoding == "png"          # a PNG sensor_msgs/CompressedImage
+    topics = {"color": ("/camera/color/image_raw/compressed" if png else
+                        "/camera/color/image_raw",
+                        "sensor_msgs/msg/CompressedImage" if png else "sensor_msgs/msg/Image"),
               "depth": ("/camera/aligned_depth_to_color/image_raw", "sensor_msgs/msg/Image"),
               "info": ("/camera/color/camera_info", "sensor_msgs/msg/CameraInfo"),
               "joints": ("/joint_states", "sensor_msgs/msg/JointState")}
@@ -84,7 +99,8 @@ def WriteRos2Bag(path: Path, frames: list[dict], camera: dict, *, depth_encoding
         for k, f in enumerate(frames):
             t = start_ns + k * period_ns
             put("info", t, InfoMsg(ts, t, "camera_color_optical_frame", camera, False))
-            put("color", t, ImageMsg(ts, t, "camera_color_optical_frame",
+            put("color", t, CompressedMsg(ts, t, "camera_color_optical_frame", f["rgb"])
+                if png else ImageMsg(ts, t, "camera_color_optical_frame",
                                      _Color(f["rgb"], color_encoding), color_encoding, False))
             put("depth", t + 1000, ImageMsg(ts, t, "camera_color_optical_frame",
                                             _Depth(f["depth"], depth_encoding, 0.001),

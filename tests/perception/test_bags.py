@@ -72,8 +72,9 @@ def test_a_realsense_bag_gives_the_recorded_view_exactly(realsense_bag, frames):
     assert "identity extrinsics" in c.source["alignment"]
 
 
-@pytest.mark.parametrize("encoding", ["bgr8", "rgba8", "bgra8"])
+@pytest.mark.parametrize("encoding", ["bgr8", "rgba8", "bgra8", "png"])
 def test_colour_encodings(tmp_path, frames, encoding):
+    """Raw encodings and a PNG CompressedImage (found by its type)."""
     bag = WriteRos2Bag(tmp_path / "b", frames[:1], CAMERA, color_encoding=encoding)
     assert np.array_equal(ReadBagCapture(bag).rgb, frames[0]["rgb"])
 
