@@ -103,11 +103,11 @@ def cmd_run(args) -> int:
 
 def cmd_replay(args) -> int:
     from lmap_drake.outputs import DefaultOutputFolder, OutputFolder
+    from lmap_drake.perception.bags import IsBag
     from lmap_drake.perception.recording import LoadRecording
     from lmap_drake.scenario import LoadScenario
 
     run_dir = Path(args.run_dir)
-    from lmap_drake.perception.bags import IsBag
     if IsBag(run_dir):
         return _ReplayBag(args)
     if args.time is not None or args.index is not None or args.topics or args.calibration:
@@ -143,11 +143,13 @@ def _ReplayBag(args) -> int:
     if args.time is not None and not args.time >= 0:
         raise UsageError(f"--time must be >= 0 s from the bag's start, got {args.time}")
     topics = ParseTopics(args.topics)
+    # the scenario is written as the converted run's; the replay applies the
+    # overrides to it (loaded here too: a bad override fails now)
     scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name)
-    LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
-                 scenario_text=args.scenario_text)           # a bad override fails now
+    overridden = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
+                              scenario_text=args.scenario_text)
     from lmap_drake.episode.bag_replay import LoadBagView, ReplayBag
-    capture, X_WC = LoadBagView(args.run_dir, args.calibration, scenario, time=args.time,
+    capture, X_WC = LoadBagView(args.run_dir, args.calibration, overridden, time=args.time,
                                 index=args.index, topics=topics)   # a bad bag fails now
     final = Path(args.output) if args.output else DefaultOutputFolder(prefix="replay-")
     folder = OutputFolder(final, overwrite=args.overwrite)
