@@ -4,6 +4,8 @@
                    [--output DIR] [--overwrite] [--hardware] [--plan-only | --dry-run]
                    [--confirm | --no-confirm] [--speed_scale S] [--scripted] [--debug]
     lmap-drake replay RUN_DIR [--scenario_text YAML] [--output DIR] [--overwrite]
+    lmap-drake replay BAG --calibration FILE [--time S | --index K] [--topics ROLE=T,..]
+                      [--scenario_file F] [--scenario_name N] [--scenario_text YAML] [--output DIR]
     lmap-drake twin [--scenario_file F] [--scenario_name N] [--host H] [--rate R]
                     [--output DIR] [--duration S] [--fault K --fault_after_grasp_move D]
     lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
@@ -12,9 +14,9 @@
                     [--engine pool|ray [--address HOST:PORT]] [--sweep FILE]
 
 Exit codes: 0 done (or planned, with --plan-only), 1 error, 2 bad input
-(scenario, weights, calibration, recording, output folder, arguments), 3
-episode aborted / no feasible action / not confirmed, 130 interrupted. Errors
-are one line on stderr; --debug adds the traceback.
+(scenario, weights, calibration, recording, bag, output folder, arguments),
+3 episode aborted / no feasible action / not confirmed, 130 interrupted.
+Errors are one line on stderr; --debug adds the traceback.
 """
 from __future__ import annotations
 
@@ -101,10 +103,16 @@ def cmd_run(args) -> int:
 
 def cmd_replay(args) -> int:
     from lmap_drake.outputs import DefaultOutputFolder, OutputFolder
+    from lmap_drake.perception.bags import IsBag
     from lmap_drake.perception.recording import LoadRecording
     from lmap_drake.scenario import LoadScenario
 
     run_dir = Path(args.run_dir)
+    if IsBag(run_dir):
+        return _ReplayBag(args)
+    if args.time is not None or args.index is not None or args.topics or args.calibration:
+        raise UsageError("--time, --index, --topics and --calibration are for replaying a bag; "
+                         f"{run_dir} is not a .bag file or a ROS 2 bag folder")
     if not run_dir.is_dir():
         raise UsageError(f"run folder {run_dir} not found")
     LoadRecording(run_dir)                       # bad recording: fail before building
@@ -117,6 +125,41 @@ def cmd_replay(args) -> int:
         files, record = ReplayRun(run_dir, out, args.scenario_text, progress=_stage)
     _stage(f"done in {time.time() - t0:.1f} s; wrote {folder.final}/: "
            + ", ".join(sorted(files)))
+    return 0 if record["status"] in ("ok", "no_action_needed") else EXIT_ABORTED
+
+
+def _ReplayBag(args) -> int:
+    """``lmap-drake replay BAG``: the bag's view converted into the output
+    folder's ``recording/``, then replayed (``episode.bag_replay``)."""
+    from lmap_drake.outputs import DefaultOutputFolder, OutputFolder
+    from lmap_drake.perception.bags import ParseTopics
+    from lmap_drake.scenario import LoadScenario
+
+    if not args.calibration:
+        raise UsageError(f"replaying the bag {args.run_dir} needs --calibration FILE (the "
+                         f"camera pose X_WC; format: diagrams/calibration_example.yaml)")
+    if args.index is not None and args.index < 0:
+        raise UsageError(f"--index must be >= 0, got {args.index}")
+    if args.time is not None and not args.time >= 0:
+        raise UsageError(f"--time must be >= 0 s from the bag's start, got {args.time}")
+    topics = ParseTopics(args.topics)
+    # the scenario is written as the converted run's; the replay applies the
+    # overrides to it (loaded here too: a bad override fails now)
+    scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name)
+    overridden = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
+                              scenario_text=args.scenario_text)
+    from lmap_drake.episode.bag_replay import LoadBagView, ReplayBag
+    capture, X_WC = LoadBagView(args.run_dir, args.calibration, overridden, time=args.time,
+                                index=args.index, topics=topics)   # a bad bag fails now
+    final = Path(args.output) if args.output else DefaultOutputFolder(prefix="replay-")
+    folder = OutputFolder(final, overwrite=args.overwrite)
+    t0 = time.time()
+    with folder as out:
+        files, record = ReplayBag(capture, X_WC, scenario, out, args.scenario_text,
+                                  args.calibration, progress=_stage)
+    _stage(f"done in {time.time() - t0:.1f} s; wrote {folder.final}/: "
+           + ", ".join(sorted(f for f in files if not f.startswith("recording/")))
+           + ", recording/")
     return 0 if record["status"] in ("ok", "no_action_needed") else EXIT_ABORTED
 
 
@@ -364,10 +407,27 @@ def _main(argv=None) -> int:
     run.set_defaults(func=cmd_run)
     rp = sub.add_parser("replay", help="re-run perception, shape completion and planning "
                         "offline on a run's recording (its recording/ folder)")
-    rp.add_argument("run_dir", help="output folder of a simulated or hardware run")
+    rp.add_argument("run_dir", help="output folder of a simulated or hardware run, or a "
+                    "RealSense .bag / ROS 1 .bag file / ROS 2 bag folder")
     rp.add_argument("--scenario_text", default="{}",
-                    help="YAML overrides applied to the run's scenario.yaml, e.g. "
+                    help="YAML overrides applied to the run's scenario.yaml (a bag: to "
+                         "--scenario_file's scenario), e.g. "
                          "\"{planner: {energy_weight: 0.5}}\"")
+    rp.add_argument("--calibration", default="",
+                    help="a bag: the camera calibration file giving X_WC (format: "
+                         "diagrams/calibration_example.yaml)")
+    rp.add_argument("--time", type=float, default=None,
+                    help="a bag: the colour frame nearest this many s from the bag's start")
+    rp.add_argument("--index", type=int, default=None,
+                    help="a bag: colour frame number (0 = first, the default)")
+    rp.add_argument("--topics", default="",
+                    help="a bag: topics by role, e.g. color=/camera/color/image_raw,"
+                         "depth=/camera/aligned_depth_to_color/image_raw,info=/camera/color/"
+                         "camera_info (also depth_info=, joints=); found when not given")
+    rp.add_argument("--scenario_file", default=str(DEFAULT_SCENARIO_FILE),
+                    help="a bag: the scenario YAML to plan with (default: %(default)s)")
+    rp.add_argument("--scenario_name", default=DEFAULT_SCENARIO_NAME,
+                    help="a bag: the scenario inside the file (default: %(default)s)")
     rp.add_argument("--output", default=None,
                     help="output folder (default: out/replay-<timestamp>-<random>/)")
     rp.add_argument("--overwrite", action="store_true",

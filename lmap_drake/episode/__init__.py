@@ -10,7 +10,8 @@
 - ``records``: what a run writes (``SaveEpisode``, ``PlanRecord``).
 - ``figures``: the episode's pictures.
 - ``replay``: ``ReplayRun`` re-plans offline on a run's recording
-  (``lmap-drake replay``).
+  (``lmap-drake replay``); ``bag_replay``: a RealSense / ROS bag's view
+  converted into a recording and replayed (``lmap-drake replay BAG``).
 - ``snapshots``: the station snapshot and the scripted pull of
   ``lmap-drake run``.
 

@@ -61,16 +61,18 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
     plan, plan_s = timed("action_selection")
     stage_seconds = {"segmentation_s": seg_s, "shape_completion_s": ssc_s,
                      "planning_s": plan_s, **plan.timings}
+    # the run's plan, read before this replay writes its own (a bag is
+    # converted into the replay's own folder); no plan.json: nothing to compare
+    had_plan = (run_dir / "plan.json").exists()
+    original = (json.loads((run_dir / "plan.json").read_text()).get("chosen_action")
+                if had_plan else None)
     files = ["scenario.yaml", "plan.json", "replay.json"]
     (out / "plan.json").write_text(json.dumps(PlanRecord(plan, stage_seconds), indent=1,
                                               default=float))
     plan.SaveJson(out / "candidates.json")
     files.append("candidates.json")
-    original = None
-    if (run_dir / "plan.json").exists():
-        original = json.loads((run_dir / "plan.json").read_text()).get("chosen_action")
     mine = plan.chosen.Row() if plan.chosen is not None else None
-    same = None if original is None and mine is None else (
+    same = None if (original is None and mine is None) or not had_plan else (
         original is not None and mine is not None and all(
             original[k] == mine[k] for k in ("grasp_id", "direction_id", "distance")))
     record = {"run": str(run_dir), "scenario_text": scenario_text, "status": plan.status,

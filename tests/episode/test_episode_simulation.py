@@ -158,3 +158,29 @@ def test_eval_held_leaf_scores_the_views_of_a_recorded_episode(episode, tmp_path
     none = tmp_path / "none.json"
     assert main(["--runs", str(tmp_path / "empty"), "--out", str(none)]) == 2
     assert not none.exists()
+
+
+def test_the_episode_capture_as_bags_replays_to_the_run_action(episode, tmp_path):
+    """Issue 60's target: the run's view 0 written as a ROS 2 bag (with the
+    joints) and as a RealSense-style bag (Z16 depth, 0.25 mm unit), each
+    replayed with the example calibration (the simulated camera's pose),
+    chooses the run's action."""
+    from lmap_drake.episode import SaveEpisode
+    from lmap_drake.episode.bag_replay import LoadBagView, ReplayBag
+    from lmap_drake.paths import REPO_ROOT
+    from lmap_drake.perception.recording import LoadRecording
+    from perception.bag_files import WriteRealSenseBag, WriteRos2Bag
+    run = tmp_path / "run"
+    SaveEpisode(episode, run)
+    rec = LoadRecording(run)
+    view, s = rec.views[0], episode.world.scenario
+    frames = [{"rgb": view.rgb, "depth": view.depth}]
+    calibration = str(REPO_ROOT / "diagrams" / "calibration_example.yaml")
+    run_action = {k: episode.record["chosen_action"][k]
+                  for k in ("grasp_id", "direction_id", "distance", "family")}
+    for bag in (WriteRos2Bag(tmp_path / "ros2", frames, rec.camera, q=view.q),
+                WriteRealSenseBag(tmp_path / "capture.bag", frames, rec.camera)):
+        capture, X_WC = LoadBagView(bag, calibration, s)
+        assert np.allclose(X_WC, rec.X_WC, atol=1e-12)
+        _, replay = ReplayBag(capture, X_WC, s, tmp_path / bag.stem, progress=print)
+        assert {k: replay["chosen_action"][k] for k in run_action} == run_action, bag
