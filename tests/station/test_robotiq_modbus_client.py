@@ -115,6 +115,10 @@ def test_a_gripper_fault_is_a_clear_error_and_a_reactivation_clears_it(server):
         c.Opening()
     assert isinstance(err.value, HardwareAbort) and "\n" not in str(err.value)
     assert c.Fault() == 0x0E
+    n = len(server.writes)
+    with pytest.raises(RobotiqFault):
+        c.MoveToPos(255)                          # a gripper in fault gets no request
+    assert len(server.writes) == n
     server.gripper.regs["FLT"] = 0x09             # "no communication for 1 s": not an abort
     assert c.Position() == 0
     server.gripper.regs["FLT"] = 0x0E

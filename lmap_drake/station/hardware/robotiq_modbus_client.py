@@ -30,7 +30,8 @@ fields a call names. A reply missing within ``timeout`` (after ``retries``
 resends) or a serial error is a lost link (``RobotiqError``, a
 ``HardwareAbort``: the station stops the arm and sends the gripper nothing
 more, so a held leaf stays held). A gripper fault (gFLT) other than 0x09 is
-``RobotiqFault`` on the next read; 0x09 ("no communication for at least
+``RobotiqFault`` on the next read, and a move is sent only after a status
+read without one; 0x09 ("no communication for at least
 1 s") is what a pause in polling, such as planning, leaves, and is not an
 abort. A reset and activation clears a fault (``Activate``).
 
@@ -249,8 +250,11 @@ class RobotiqModbusClient:
                            f"{timeout} s")
 
     def MoveToPos(self, pos: int) -> None:
-        """Requests ``pos`` with the configured speed and force, and GTO 1."""
+        """Requests ``pos`` with the configured speed and force, and GTO 1,
+        after a status read: a gripper in fault gets no request
+        (RobotiqFault)."""
         pos = int(min(max(int(pos), 0), 255))
+        self.ReadStatus()
         self.Set(POS=pos, SPE=self.config.speed, FOR=self.config.force, GTO=1)
         self.last_pos_sent = pos
 
