@@ -3,21 +3,25 @@ slave: ``fakes.modbus.FakeModbusGripperServer``, a real pymodbus serial
 server on a pseudo-terminal pair in front of the project's fake gripper
 model; no gripper here. The frames on the line are checked against the
 2F-85 manual's examples."""
+import dataclasses as dc
 import json
+import sys
 import time
 
 import pytest
 
-from fakes.hardware import FakeGripper
+from fakes.hardware import FakeGripper, FakeRobotiqServer
 from fakes.modbus import FakeModbusGripperServer
 from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.scenario import LoadScenario, ScenarioError
-from lmap_drake.station.hardware.robotiq_client import GripperCommandRefusal, PosToOpening
+from lmap_drake.station.hardware.robotiq_client import (GripperCommandRefusal, PosToOpening,
+                                                        RobotiqClient)
 from lmap_drake.station.hardware.robotiq_modbus_client import (RequestRegisters,
                                                                RobotiqError, RobotiqFault,
                                                                RobotiqModbusClient,
                                                                StatusFromRegisters)
 from lmap_drake.station.hardware.safety import HardwareAbort
+from lmap_drake.station.hardware.station import CheckHardwareSetup, ConnectGripper
 from lmap_drake.station.hardware_config import (GripperConfig, HardwareConfig,
                                                 ValidateHardwareConfig)
 
@@ -31,7 +35,7 @@ def server():
 
 
 def _client(server, **kw) -> RobotiqModbusClient:
-    kw = {"timeout": 0.3, "retries": 0, **kw}
+    kw = {"timeout": 1.0, "retries": 1, **kw}      # generous: the machine may be loaded
     return RobotiqModbusClient.Connect(GripperConfig(link="modbus_rtu",
                                                      serial_device=server.device, **kw))
 
@@ -128,7 +132,7 @@ def test_a_gripper_fault_is_a_clear_error_and_a_reactivation_clears_it(server):
 
 @pytest.mark.parametrize("how", ["Stop", "Unplug"])
 def test_a_lost_link_is_reported(server, how):
-    c = _client(server, retries=1)
+    c = _client(server, timeout=0.3, retries=1)
     c.Activate(timeout=2.0)
     n = len(server.writes)
     getattr(server, how)()
@@ -150,7 +154,7 @@ def test_connect_errors_say_what_to_check(server, tmp_path):
                                                   serial_device="/nonexistent/ttyUSB7"))
     with pytest.raises(HardwareStationUnavailable,
                        match=r"no Robotiq gripper answered on .*slave 5.*slave_id and baud"):
-        _client(server, slave_id=5)
+        _client(server, slave_id=5, timeout=0.3, retries=0)
 
 
 @pytest.mark.parametrize("gripper,message", [
@@ -174,3 +178,27 @@ def test_the_default_link_is_the_urcap_socket():
     assert (g.link, g.baud, g.slave_id, g.serial_device) == ("urcap_socket", 115200, 9,
                                                               "/dev/ttyUSB0")
     ValidateHardwareConfig(HardwareConfig(gripper=GripperConfig(link="modbus_rtu")))
+
+
+def test_the_station_picks_the_client_by_link(server):
+    """``ConnectGripper`` (used by ``ConnectHardwareClients``): the URCap
+    socket client by default, the Modbus RTU client for ``link: modbus_rtu``."""
+    config = HardwareConfig()
+    with FakeRobotiqServer() as socket_server:
+        config.gripper = dc.replace(config.gripper, port=socket_server.port, host="127.0.0.1")
+        client = ConnectGripper(config)
+        assert type(client) is RobotiqClient
+        client.Close()
+    config.gripper = dc.replace(config.gripper, link="modbus_rtu", serial_device=server.device)
+    client = ConnectGripper(config)
+    assert type(client) is RobotiqModbusClient and client.Position() == 0
+    assert server.received                       # it asked the Modbus slave
+    client.Close()
+
+
+def test_without_pymodbus_the_modbus_link_says_how_to_install(scenario, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pymodbus.client", None)
+    s = dc.replace(scenario, hardware=HardwareConfig(gripper=GripperConfig(link="modbus_rtu")))
+    with pytest.raises(HardwareStationUnavailable,
+                       match=r"modbus_rtu needs pymodbus.*pip install -e \.\[hardware\]"):
+        CheckHardwareSetup(s, own_clients=True)

@@ -84,8 +84,8 @@ def ImportPymodbus():
             f"hardware.gripper.link modbus_rtu needs pymodbus (with pyserial), which is not "
             f"installed ({err}); install the hardware extra: {INSTALL_HINT}") from err
     # pymodbus logs a lost reply itself; RobotiqError says it once, in the run's words.
+    # (a handler on its logger keeps Python's last-resort stderr handler away)
     logging.getLogger("pymodbus").addHandler(logging.NullHandler())
-    logging.getLogger("pymodbus").propagate = False
     return ModbusSerialClient, ModbusException
 
 
