@@ -1,5 +1,5 @@
 """Configuration of the hardware station (UR5 over ur_rtde, Robotiq 2F-85
-over the URCap socket, RealSense L515 over pyrealsense2).
+over the URCap socket or Modbus RTU, RealSense L515 over pyrealsense2).
 
 These dataclasses are the ``hardware:`` section of a scenario; they are
 loaded with Drake's ``yaml_load_typed`` like the rest of the scenario, so
@@ -56,15 +56,24 @@ class UrConfig:
     command_period: float = 0.01
 
 
+GRIPPER_LINKS = ("urcap_socket", "modbus_rtu")
+MODBUS_BAUDS = (9600, 19200, 38400, 57600, 115200)
+
+
 @dc.dataclass
 class GripperConfig:
-    """Robotiq 2F-85 through the Robotiq URCap's ASCII socket (port 63352 on
-    the UR controller). ``host`` empty means ``ur.robot_ip``. ``speed`` and
-    ``force`` are register values 0..255 (255 = fastest / strongest; 50 is a
-    gentle grip for a leaf). ``pos_open`` / ``pos_closed`` are the POS
-    register values taken as 85 mm and 0 mm; opening is linear in between
-    (an approximation of the linkage). ``timeout`` (s) bounds every socket
-    reply and the activation."""
+    """Robotiq 2F-85, reached as ``link`` says: ``urcap_socket``, the
+    Robotiq URCap's ASCII socket (port 63352 on the UR controller; ``host``
+    empty means ``ur.robot_ip``), or ``modbus_rtu``, Modbus RTU over RS-485
+    (a USB adapter or the UR tool connector) on ``serial_device`` at
+    ``baud``, 8 data bits, no parity, 1 stop bit, slave ``slave_id``.
+    ``speed`` and ``force`` are register values 0..255 (255 = fastest /
+    strongest; 50 is a gentle grip for a leaf). ``pos_open`` /
+    ``pos_closed`` are the POS register values taken as 85 mm and 0 mm;
+    opening is linear in between (an approximation of the linkage).
+    ``timeout`` (s) bounds every reply (socket line or Modbus frame);
+    ``activation_timeout`` (s) the activation."""
+    link: str = "urcap_socket"  # urcap_socket (URCap socket on the UR controller) or modbus_rtu (RS-485)
     host: str = ""
     port: int = 63352  # TCP port of the Robotiq URCap's socket on the UR controller
     speed: int = 255
@@ -72,6 +81,11 @@ class GripperConfig:
     pos_open: int = 0
     pos_closed: int = 255
     timeout: float = 2.0
+    activation_timeout: float = 10.0  # s: the gripper must report itself active (STA 3) within this
+    serial_device: str = "/dev/ttyUSB0"  # modbus_rtu: the RS-485 serial device (e.g. /dev/serial/by-id/...)
+    baud: int = 115200  # modbus_rtu: bits per second (the 2F-85's factory setting is 115200)
+    slave_id: int = 9  # modbus_rtu: the gripper's Modbus slave id (factory setting 9)
+    retries: int = 1  # modbus_rtu: a request without a reply within timeout is sent again this often
     activate: bool = True  # activate the gripper on connect if inactive (it opens and closes once)
     update_period: float = 0.05  # s, period of the driver that reads and commands the gripper
 
@@ -201,7 +215,18 @@ def ValidateHardwareConfig(config: HardwareConfig) -> None:
     need(all(a < b for a, b in zip(ur.workspace_min, ur.workspace_max)),
          "ur.workspace_min must be below ur.workspace_max on every axis")
     need(ur.command_period > 0, "ur.command_period must be > 0 s")
+    need(grip.link in GRIPPER_LINKS, f"gripper.link {grip.link!r} unknown; choose one of "
+         f"{', '.join(GRIPPER_LINKS)}")
     need(0 < grip.port < 65536, "gripper.port must be a TCP port")
+    if grip.link == "modbus_rtu":
+        need(bool(grip.serial_device.strip()),
+             "gripper.serial_device must name the RS-485 serial device (link modbus_rtu)")
+        need(grip.baud in MODBUS_BAUDS, f"gripper.baud must be one of "
+             f"{', '.join(map(str, MODBUS_BAUDS))} bit/s, got {grip.baud}")
+        need(1 <= grip.slave_id <= 247, f"gripper.slave_id must be a Modbus slave id in "
+             f"1..247, got {grip.slave_id}")
+    need(grip.retries >= 0, f"gripper.retries must be >= 0, got {grip.retries}")
+    need(grip.activation_timeout > 0, "gripper.activation_timeout must be > 0 s")
     for name in ("speed", "force", "pos_open", "pos_closed"):
         v = getattr(grip, name)
         need(0 <= v <= 255, f"gripper.{name} must be in 0..255 (Robotiq register units)")

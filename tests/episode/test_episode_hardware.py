@@ -1,10 +1,12 @@
 """The episode runner on the hardware station, with the project's FAKE
 clients (fake ur_rtde interfaces, a FakeRobotiqServer speaking the URCap
-protocol on localhost, a fake pyrealsense2 serving a render of the default
-plant world): the whole LMAP loop, plan-only, operator confirmation, an
+protocol on localhost, or a FakeModbusGripperServer, the same fake gripper
+as a Modbus RTU slave on a pseudo-terminal, a fake pyrealsense2 serving a
+render of the default plant world): the whole LMAP loop, plan-only, operator confirmation, an
 abort in every state, Ctrl-C, and record -> replay. Nothing here talks to a
 robot; the planner is made cheap (fewer grasps and directions, fewer SSC
 iterations) and the fake cell runs unpaced (``realtime_rate=0``)."""
+import copy
 import json
 
 import numpy as np
@@ -18,6 +20,7 @@ from lmap_drake.perception.recording import LoadRecording
 from lmap_drake.scenario import LoadScenario
 from fakes.hardware import (FakeGripper, FakePyrealsense2, FakeRobotiqServer,
                                                MakeFakeHardwareClients)
+from fakes.modbus import FakeModbusGripperServer
 from lmap_drake.station.hardware.robotiq_client import OpeningToPos
 from lmap_drake.station.hardware.safety import TcpPositionInBase
 
@@ -45,13 +48,20 @@ class FakeCell:
     """Fake clients for one run plus a progress log and fault injection:
     ``inject[mode] = callable`` runs when the controller enters ``mode``."""
 
-    def __init__(self, cell, read_only=False, leaf_opening=LEAF_OPENING):
+    def __init__(self, cell, read_only=False, leaf_opening=LEAF_OPENING, link="urcap_socket"):
         self.scenario, frames, self.resources = cell
         K = Intrinsics.FromCameraConfig(self.scenario.cameras["camera0"])
         self.rs = FakePyrealsense2(frames=frames, intrinsics=(K.fx, K.fy, K.cx, K.cy))
         self.gripper = FakeGripper(object_pos=None if leaf_opening is None else OpeningToPos(
             leaf_opening, self.scenario.hardware.gripper))
-        self.server = FakeRobotiqServer(self.gripper).__enter__()
+        self.link = link
+        if link == "modbus_rtu":      # the 2F-85 over RS-485: a Modbus RTU slave on a pty
+            self.server = FakeModbusGripperServer(self.gripper).__enter__()
+            self.scenario = copy.deepcopy(self.scenario)
+            self.scenario.hardware.gripper.link = "modbus_rtu"
+            self.scenario.hardware.gripper.serial_device = self.server.device
+        else:
+            self.server = FakeRobotiqServer(self.gripper).__enter__()
         self.clients = MakeFakeHardwareClients(self.scenario.hardware,
                                                q0=self.scenario.robot.initial_q,
                                                gripper_server=self.server, rs=self.rs,
@@ -64,8 +74,7 @@ class FakeCell:
         mode = msg.split(":")[0]
         self.targets[mode] = self.clients.ur.last_target
         if mode in self.inject:
-            self.at_injection = {"PRE": self.gripper.regs["PRE"],
-                                 "sets": sum(r.startswith("SET") for r in self.server.received)}
+            self.at_injection = {"PRE": self.gripper.regs["PRE"], "sets": self.gripper_writes}
             self.inject.pop(mode)()
 
     def run(self, out, **kw):
@@ -79,6 +88,13 @@ class FakeCell:
         return files, status
 
     @property
+    def gripper_writes(self) -> int:
+        """Requests sent to the gripper so far (SET lines, or Modbus writes)."""
+        if self.link == "modbus_rtu":
+            return len(self.server.writes)
+        return sum(r.startswith("SET") for r in self.server.received)
+
+    @property
     def modes(self):
         return [m for _, m in self.record["mode_log"]]
 
@@ -87,10 +103,9 @@ class FakeCell:
         return np.array(self.clients.ur.control.servoed_qs) if self.clients.ur.control else []
 
 
-@pytest.fixture(scope="module")
-def full_run(cell, tmp_path_factory):
-    fake = FakeCell(cell)
-    out = tmp_path_factory.mktemp("hw_full")
+def _FullRun(cell, tmp_path_factory, link):
+    fake = FakeCell(cell, link=link)
+    out = tmp_path_factory.mktemp(f"hw_full_{link}")
     asked = []
 
     def yes(plan):
@@ -100,8 +115,20 @@ def full_run(cell, tmp_path_factory):
     return fake, out, files, status, asked
 
 
-def test_hardware_episode_runs_every_state_then_releases_and_retreats(full_run):
-    fake, out, files, status, asked = full_run
+@pytest.fixture(scope="module")
+def full_run(cell, tmp_path_factory):
+    return _FullRun(cell, tmp_path_factory, "urcap_socket")
+
+
+@pytest.fixture(scope="module")
+def modbus_run(cell, tmp_path_factory):
+    """The full episode with ``hardware.gripper.link: modbus_rtu``."""
+    return _FullRun(cell, tmp_path_factory, "modbus_rtu")
+
+
+@pytest.mark.parametrize("run", ["full_run", "modbus_run"])
+def test_hardware_episode_runs_every_state_then_releases_and_retreats(request, run):
+    fake, out, files, status, asked = request.getfixturevalue(run)
     assert status == "done", fake.record["message"]
     # The fake camera serves one still frame, so the fruit stays hidden after
     # the pull and the controller may plan further motions from the held
@@ -136,6 +163,9 @@ def test_hardware_episode_runs_every_state_then_releases_and_retreats(full_run):
     # hardware runs are recorded with the device's intrinsics and the calibration
     sc = (out / "scenario.yaml").read_text()
     assert "no_return_free_range: 0.0" in sc
+    assert f"link: {fake.link}" in sc and fake.gripper_writes >= 3   # activation, close, open
+    if fake.link == "modbus_rtu":       # every request went over the RS-485 line
+        assert all(fc in (3, 16) for fc, _, _ in fake.server.received)
 
 
 def test_hardware_recording_replays_to_the_same_action(full_run, tmp_path):
@@ -183,6 +213,28 @@ def test_a_lost_gripper_link_while_holding_stops_the_arm(cell, tmp_path):
     _, status = fake.run(tmp_path)
     assert status == "aborted" and fake.clients.ur._halted
     assert fake.modes[-1] == "pull"
+
+
+@pytest.mark.parametrize("failure", ["server_stops", "gripper_fault"])
+def test_a_modbus_gripper_lost_or_faulted_while_holding_stops_the_arm(cell, tmp_path, failure):
+    """``link: modbus_rtu``: the gripper's Modbus slave stops answering, or
+    reports a fault (gFLT 0x0E, overcurrent), during the pull: the episode
+    aborts with a clear message, the arm is stopped, and the gripper gets no
+    further request (the leaf stays held)."""
+    fake = FakeCell(cell, link="modbus_rtu")
+    if failure == "server_stops":
+        fake.inject["pull"] = fake.server.Stop
+    else:
+        fake.inject["pull"] = lambda: fake.gripper.regs.__setitem__("FLT", 0x0E)
+    _, status = fake.run(tmp_path)
+    assert status == "aborted" and fake.modes[-1] == "pull"
+    assert fake.clients.ur._halted and fake.clients.ur.control.servo_stops
+    expected = ("lost the link to the gripper on /dev/" if failure == "server_stops"
+                else "reports fault 0x0E (overcurrent triggered)")
+    assert expected in fake.record["message"], fake.record["message"]
+    assert fake.gripper.regs["PRE"] == fake.at_injection["PRE"] > OpeningToPos(
+        0.01, fake.scenario.hardware.gripper)
+    assert fake.gripper_writes == fake.at_injection["sets"]
 
 
 def test_ctrl_c_stops_the_arm_and_leaves_the_gripper_holding(cell, tmp_path):

@@ -10,6 +10,8 @@ real robot, gripper or camera.
   URCap ASCII protocol (``SET ... -> ack``, ``GET VAR -> VAR value``; the
   twin's ``RobotiqSocketServer``) with a simple fake gripper behind it
   (``FakeGripper``: activation delay, finite finger speed).
+- (``fakes.modbus.FakeModbusGripperServer``: the same fake gripper as a
+  Modbus RTU slave on a pseudo-terminal.)
 - ``FakePyrealsense2``: a stand-in for the ``pyrealsense2`` module exposing
   the names ``ConnectRealSense`` uses (``pipeline``, ``config``, ``align``,
   ``stream``, ``format``, ``camera_info``); frames show a synthetic scene.
@@ -25,6 +27,7 @@ import numpy as np
 
 from lmap_drake.station.hardware.realsense_client import ConnectRealSense
 from lmap_drake.station.hardware.robotiq_client import RobotiqClient
+from lmap_drake.station.hardware.robotiq_modbus_client import RobotiqModbusClient
 from lmap_drake.station.hardware.ur_client import UrClient
 from lmap_drake.twin.robotiq_server import RobotiqSocketServer
 
@@ -358,18 +361,25 @@ class _FakeProfile:
         return types.SimpleNamespace(as_video_stream_profile=lambda: vsp)
 
 
-def MakeFakeHardwareClients(config, q0=None, gripper_server: FakeRobotiqServer | None = None,
+def MakeFakeHardwareClients(config, q0=None, gripper_server=None,
                             rs: FakePyrealsense2 | None = None, read_only: bool = False):
-    """HardwareClients over fakes: fake ur_rtde interfaces, a RobotiqClient
-    connected to ``gripper_server`` (a running FakeRobotiqServer; required),
-    and a RealSenseClient over ``FakePyrealsense2``."""
+    """HardwareClients over fakes: fake ur_rtde interfaces, the gripper
+    client connected to ``gripper_server`` (required: a running
+    FakeRobotiqServer, then a RobotiqClient on its port; or a running
+    ``fakes.modbus.FakeModbusGripperServer``, then a RobotiqModbusClient on
+    its pty, with ``config.gripper``'s Modbus settings), and a
+    RealSenseClient over ``FakePyrealsense2``."""
     from lmap_drake.station.hardware.station import HardwareClients
 
     if gripper_server is None:
         raise ValueError("start a FakeRobotiqServer and pass it as gripper_server")
     ur = MakeFakeUrClient(config.ur, q0, read_only=read_only)
-    gcfg = dc.replace(config.gripper, port=gripper_server.port)
-    gripper = RobotiqClient.Connect(gcfg, "127.0.0.1")
+    if hasattr(gripper_server, "device"):          # a FakeModbusGripperServer
+        gcfg = dc.replace(config.gripper, link="modbus_rtu", serial_device=gripper_server.device)
+        gripper = RobotiqModbusClient.Connect(gcfg)
+    else:
+        gcfg = dc.replace(config.gripper, port=gripper_server.port)
+        gripper = RobotiqClient.Connect(gcfg, "127.0.0.1")
     if gcfg.activate and not read_only:
         gripper.Activate(timeout=2.0)
     camera_rs = rs or FakePyrealsense2()

@@ -2,7 +2,9 @@
 exported ports as the simulated station (``lmap_drake.station.STATION_PORTS``).
 
 - ``ur5.position`` (in, 6 rad) -> safety checks -> ur_rtde servoJ streaming;
-- ``gripper.position`` (in, 1 m) -> Robotiq ``SET POS .. SPE .. FOR .. GTO 1``;
+- ``gripper.position`` (in, 1 m) -> Robotiq ``SET POS .. SPE .. FOR .. GTO 1``
+  (``hardware.gripper.link`` urcap_socket) or the same request written to
+  the 2F-85's Modbus RTU registers from 0x03E8 (modbus_rtu);
 - ``ur5.position_measured`` (6), ``ur5.state_estimated`` (12) <- getActualQ/Qd;
 - ``gripper.state_measured`` (3) <- ``GET POS``, ``GET OBJ`` (opening m,
   rate m/s, 1 when the gripper reports it stopped on an object while
@@ -31,6 +33,7 @@ from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.hardware.realsense_client import ConnectRealSense, ImportPyrealsense2
 from lmap_drake.station.hardware.robotiq_client import RobotiqClient
+from lmap_drake.station.hardware.robotiq_modbus_client import ImportPymodbus, RobotiqModbusClient
 from lmap_drake.station.hardware.systems import RealSenseCamera, RobotiqDriver, Ur5Driver
 from lmap_drake.station.hardware.twin_camera_client import TwinCameraClient
 from lmap_drake.station.hardware.ur_client import ConnectUr, ImportUrRtde
@@ -62,20 +65,29 @@ def _Unavailable(msg: str) -> Exception:
     return HardwareStationUnavailable(msg)
 
 
+def ConnectGripper(config: HardwareConfig):
+    """The gripper client ``hardware.gripper.link`` names: the URCap socket
+    (``RobotiqClient``) or Modbus RTU (``RobotiqModbusClient``)."""
+    if config.gripper.link == "modbus_rtu":
+        return RobotiqModbusClient.Connect(config.gripper)
+    return RobotiqClient.Connect(config.gripper, config.gripper.host or config.ur.robot_ip)
+
+
 def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> HardwareClients:
     """Connects UR5, gripper and camera (libraries checked first, before
     anything is touched). ``read_only``: no RTDE control interface (the arm
     cannot move) and no gripper activation (activation moves the fingers)."""
     ImportUrRtde()
+    if config.gripper.link == "modbus_rtu":
+        ImportPymodbus()
     if not config.camera.twin_address:
         ImportPyrealsense2()
     ur = gripper = camera = None
     try:
         ur = ConnectUr(config.ur, read_only=read_only)
-        host = config.gripper.host or config.ur.robot_ip
-        gripper = RobotiqClient.Connect(config.gripper, host)
+        gripper = ConnectGripper(config)
         if config.gripper.activate and not read_only:
-            gripper.Activate(timeout=10.0)
+            gripper.Activate(timeout=config.gripper.activation_timeout)
         if config.camera.twin_address:     # a digital twin's frames (lmap-drake twin)
             camera = TwinCameraClient(config.camera.twin_address, config.camera.frame_timeout)
         else:
@@ -94,6 +106,8 @@ def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
     config = scenario.hardware
     if own_clients:  # a missing library is the first thing to report
         ImportUrRtde()
+        if config.gripper.link == "modbus_rtu":
+            ImportPymodbus()
         if not config.camera.twin_address:
             ImportPyrealsense2()
     try:
