@@ -67,7 +67,8 @@ def cmd_run(args) -> int:
     # On the real cell the operator confirms the action unless told otherwise.
     confirm = args.hardware if args.confirm is None else args.confirm
     final = Path(args.output) if args.output else DefaultOutputFolder()
-    folder = OutputFolder(final, overwrite=args.overwrite)
+    folder = OutputFolder(final, overwrite=args.overwrite, command="run",
+                          inputs=[args.scenario_file])
     _stage(f"scenario '{args.scenario_name}' from {args.scenario_file}; output {final}"
            + ("; hardware" if args.hardware else "") + ("; plan only" if plan_only else ""))
     t0 = time.time()
@@ -110,7 +111,7 @@ def cmd_replay(args) -> int:
     LoadRecording(run_dir)                       # bad recording: fail before building
     LoadScenario(scenario_text=args.scenario_text)
     final = Path(args.output) if args.output else DefaultOutputFolder(prefix="replay-")
-    folder = OutputFolder(final, overwrite=args.overwrite)
+    folder = OutputFolder(final, overwrite=args.overwrite, command="replay", inputs=[run_dir])
     t0 = time.time()
     with folder as out:
         from lmap_drake.episode import ReplayRun
@@ -190,6 +191,9 @@ def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
     if args.engine == "ray":
         from lmap_drake.evaluation.engines import ImportRay
         ImportRay(local=not args.address)        # a missing Ray fails now, in one line
+        if args.address:                          # no cluster there: before any folder
+            from lmap_drake.evaluation.engines import CheckAddress
+            CheckAddress(args.address)
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
     if not 0.0 < args.visibility_success <= 1.0:
@@ -224,14 +228,14 @@ def _SweepSpecs(specs: list[dict], sweep, points: list[dict], labels: list[str],
     override, resolved (a scenario that does not load with a point's values
     fails now, naming the point and the sweep file)."""
     from lmap_drake.evaluation import sweep as S
-    from lmap_drake.evaluation.run_eval import ResolveSpecs
+    from lmap_drake.evaluation.run_eval import EVAL_KINDS, ResolveSpecs
     from lmap_drake.scenario import ScenarioError
     out = []
     for p, label in zip(points, labels):
         text = S.OverrideText(p)
         group = [dict(s, sweep_text=text, sweep_point=label, sweep_values=p) for s in specs]
         try:
-            ResolveSpecs(group, suite_file)
+            ResolveSpecs(group, suite_file, kinds=EVAL_KINDS)
         except ScenarioError as err:
             raise S.SweepError(f"{sweep_file}: grid point {text}: "
                                f"{str(err).replace('--scenario_text', 'the sweep')}") from None
@@ -258,10 +262,8 @@ def _CheckOverride(text: str) -> None:
 
 
 def cmd_eval(args) -> int:
-    from lmap_drake.evaluation import tables as T
-    from lmap_drake.evaluation.run_eval import ResolveSpecs, RunEvaluation, RunSweep
-    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
-    from lmap_drake.scenario import LoadScenario, RawYaml, ReadScenarioFile
+    from lmap_drake.evaluation.run_eval import EvalOptions, HasRecords
+    from lmap_drake.outputs import DefaultOutputFolder, InPlaceFolder
 
     methods, distances = _CheckEvalArgs(args)
     _CheckOverride(args.scenario_text)      # fail now on a bad override
@@ -272,6 +274,25 @@ def cmd_eval(args) -> int:
         points = S.CheckPoints(sweep, args.sweep, args.scenario_text)
         labels = [S.PointLabel(i, p) for i, p in enumerate(points)]
     out = Path(args.output) if args.output else DefaultOutputFolder(prefix="eval-")
+    options = EvalOptions(args.scenarios, args.seed, args.scenario_file, args.scenario_names,
+                          methods, distances, args.random_seeds, args.scenario_text,
+                          Path(args.sweep).read_text() if args.sweep else None)
+    # Claimed (locked, checked) before anything is written; a folder this
+    # eval made is removed again if it fails before its first record.
+    with InPlaceFolder(out, "eval", options, resume=args.resume, kept=HasRecords,
+                       legacy=("episodes.jsonl", "sweep.yaml")) as folder:
+        summary = _RunEval(args, folder, methods, distances, sweep, points, labels)
+    for eid, msg in summary["errors"]:
+        print(f"error in {eid}: {msg}", file=sys.stderr)
+    return 1 if summary["errors"] else 0
+
+
+def _RunEval(args, folder, methods, distances, sweep, points, labels) -> dict:
+    from lmap_drake.evaluation import tables as T
+    from lmap_drake.evaluation.run_eval import (EVAL_KINDS, EvalConflict, ResolveSpecs,
+                                                RunEvaluation, RunSweep)
+    from lmap_drake.scenario import RawYaml, ReadScenarioFile
+    out = folder.path
     if args.scenarios:
         from lmap_drake.evaluation.progress import Progress
         from lmap_drake.plants.suite import RandomSuite, SuiteYaml
@@ -288,9 +309,13 @@ def cmd_eval(args) -> int:
         text = SuiteYaml(suite, f"# RandomSuite({args.scenarios}, {args.seed})" +
                          (f", buildable with the overrides {' '.join(over.split())}"
                           if over else ""))
-        EnsureWritableFolder(out)         # after the draws: a suite that cannot be
-        suite_file = out / "suite.yaml"    # drawn leaves no folder behind
-        if not (args.resume and suite_file.exists() and suite_file.read_text() == text):
+        suite_file = out / "suite.yaml"        # never overwritten
+        if suite_file.exists() and suite_file.read_text() != text:
+            raise EvalConflict(f"{suite_file} differs from RandomSuite({args.scenarios}, "
+                               f"{args.seed}) drawn now: --resume would mix suites; use "
+                               "another --output")
+        folder.Start()                          # after the draws: a suite that cannot be
+        if not suite_file.exists():             # drawn leaves no folder behind
             suite_file.write_text(text)
     else:
         suite_file = Path(args.scenario_file)
@@ -313,16 +338,12 @@ def cmd_eval(args) -> int:
                     threshold=args.visibility_success)
     if sweep is not None:
         point_specs = _SweepSpecs(specs, sweep, points, labels, suite_file, args.sweep)
-        EnsureWritableFolder(out)
-        summary = RunSweep(point_specs, sweep, points, labels, args.sweep, suite_file, out,
-                           **run_args)
-    else:
-        ResolveSpecs(specs, suite_file)      # loads every episode's scenario: bad input fails now
-        EnsureWritableFolder(out)
-        summary = RunEvaluation(specs, suite_file, out, **run_args)
-    for eid, msg in summary["errors"]:
-        print(f"error in {eid}: {msg}", file=sys.stderr)
-    return 1 if summary["errors"] else 0
+        folder.Start()
+        return RunSweep(point_specs, sweep, points, labels, args.sweep, suite_file, out,
+                        **run_args)
+    ResolveSpecs(specs, suite_file, kinds=EVAL_KINDS)   # every episode's scenario: bad
+    folder.Start()                                       # input fails now
+    return RunEvaluation(specs, suite_file, out, **run_args)
 
 
 def main(argv=None) -> int:
