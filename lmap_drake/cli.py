@@ -127,7 +127,7 @@ def cmd_twin(args) -> int:
     import signal
     import threading
 
-    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
+    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder, WriteMarker
     from lmap_drake.twin.twin import Twin, TwinOptions, TwinRunOverrides, WriteTwinCalibration
     from lmap_drake.scenario import LoadScenario
 
@@ -172,6 +172,7 @@ def cmd_twin(args) -> int:
     finally:
         twin.Close()
     outcome = twin.Finish(out)
+    WriteMarker(out, "twin")                  # the folder is an lmap-drake output
     _stage(f"twin stopped after {twin.world.time:.1f} simulated s (largest lag "
            f"{twin.lag_max:.2f} s); outcome: " + json.dumps(
                {k: v for k, v in outcome.items() if k != "release_outcome"}))
@@ -361,7 +362,8 @@ def _main(argv=None) -> int:
                          "(default) or the real cell (--hardware)")
     _add_scenario_args(run)
     run.add_argument("--overwrite", action="store_true",
-                     help="replace an existing non-empty output folder")
+                     help="replace an existing lmap-drake output folder (one holding the "
+                          ".lmap_drake marker; never the input being read)")
     run.add_argument("--debug", action="store_true", help="show tracebacks")
     run.add_argument("--hardware", action="store_true",
                      help="use the hardware station instead of the simulation")
@@ -392,7 +394,8 @@ def _main(argv=None) -> int:
     rp.add_argument("--output", default=None,
                     help="output folder (default: out/replay-<timestamp>-<random>/)")
     rp.add_argument("--overwrite", action="store_true",
-                    help="replace an existing non-empty output folder")
+                    help="replace an existing lmap-drake output folder (one holding the "
+                          ".lmap_drake marker; never the input being read)")
     rp.add_argument("--debug", action="store_true", help="show tracebacks")
     rp.set_defaults(func=cmd_replay)
     tw = sub.add_parser("twin", help="the digital twin: the simulated plant world behind a UR "
