@@ -226,7 +226,8 @@ class InPlaceFolder:
     same ``command`` whose ``options`` (the marker's record of the command's
     identity, e.g. ``--seed``) equal these; the first differing option is
     named. Nothing is written until ``Start()`` (creates the folder, writes
-    the marker). Leaving the ``with`` block on an exception removes the
+    the marker; a folder of a version without markers gets it when the
+    command ends well). Leaving the ``with`` block on an exception removes the
     folder when this command created it and ``kept(folder)`` says nothing
     worth keeping is inside."""
 
@@ -279,11 +280,15 @@ class InPlaceFolder:
         it is when it already records the options)."""
         if not self.path.exists():
             self.created = True
+        legacy = _NonEmpty(self.path) and self.marker is None
         EnsureWritableFolder(self.path)
-        if not isinstance((self.marker or {}).get("options"), dict):
-            WriteMarker(self.path, self.command, options=self.options)
-            self.marker = ReadMarker(self.path)
+        if not legacy and not isinstance((self.marker or {}).get("options"), dict):
+            self._Mark()
         return self.path
+
+    def _Mark(self) -> None:
+        WriteMarker(self.path, self.command, options=self.options)
+        self.marker = ReadMarker(self.path)
 
     def __enter__(self) -> "InPlaceFolder":
         return self
@@ -292,6 +297,8 @@ class InPlaceFolder:
         try:
             if exc_type is not None and self.created and not self.kept(self.path):
                 shutil.rmtree(self.path, ignore_errors=True)
+            elif exc_type is None and self.path.is_dir() and self.marker is None:
+                self._Mark()        # a folder of a version without markers, continued
         finally:
             self.lock.Release()
         return False

@@ -226,3 +226,11 @@ def test_torn_line_that_is_not_utf8_is_set_aside_byte_for_byte(tmp_path):
     assert log.read_bytes() == good + b"\n"
     assert (tmp_path / "episodes.jsonl.torn").read_bytes() == torn + b"\n"
     assert T.RepairLog(log) == 0
+
+
+def test_a_log_that_is_a_folder_is_bad_input(tmp_path, capsys, inprocess_engine):
+    out = tmp_path / "e"
+    (out / "episodes.jsonl").mkdir(parents=True)
+    code, err = _eval(capsys, *BASE, "--output", str(out), "--resume")
+    assert code == EXIT_BAD_INPUT and "episodes.jsonl exists and is not a file" in err, err
+    assert inprocess_engine.calls == [] and not (out / MARKER).exists()
