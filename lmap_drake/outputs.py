@@ -150,7 +150,7 @@ class FolderLock:
                 holder = _ReadHolder(fd)
                 os.close(fd)
                 raise FolderBusy(f"output folder {folder} is in use by another lmap-drake "
-                                 f"command{holder} (lock {self.path}): wait for it or "
+                                 f"command ({holder}lock {self.path}): wait for it or "
                                  f"choose another --output") from None
             try:          # the previous holder may have removed the file meanwhile
                 same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
@@ -195,7 +195,7 @@ def _ReadHolder(fd: int) -> str:
         pid = os.pread(fd, 32, 0).decode().strip()
     except (OSError, UnicodeDecodeError):
         return ""
-    return f" (pid {pid})" if pid.isdigit() else ""
+    return f"pid {pid}, " if pid.isdigit() else ""
 
 
 # --------------------------------------------------------- in-place folders

@@ -247,8 +247,10 @@ def EvalOptions(scenarios: int, seed: int, scenario_file, scenario_names: str,
     return {"scenarios": int(scenarios), "seed": int(seed),
             "scenario_file": None if scenarios else str(Path(scenario_file).resolve()),
             "scenario_names": [n for n in scenario_names.split(",") if n],
-            "methods": sorted(methods), "distances": sorted(float(d) for d in distances),
-            "random_seeds": int(random_seeds), "scenario_text": _Parsed(scenario_text) or {},
+            "methods": sorted(methods),
+            "distances": sorted(float(d) for d in distances)         # baselines only
+            if set(methods) & set(T.BASELINES) else [],
+            "random_seeds": int(random_seeds) if "random" in methods else 0, "scenario_text": _Parsed(scenario_text) or {},
             "sweep": None if sweep_text is None else _Parsed(sweep_text)}
 
 
