@@ -69,7 +69,8 @@ def cmd_run(args) -> int:
     # On the real cell the operator confirms the action unless told otherwise.
     confirm = args.hardware if args.confirm is None else args.confirm
     final = Path(args.output) if args.output else DefaultOutputFolder()
-    folder = OutputFolder(final, overwrite=args.overwrite)
+    folder = OutputFolder(final, overwrite=args.overwrite, command="run",
+                          inputs=[args.scenario_file])
     _stage(f"scenario '{args.scenario_name}' from {args.scenario_file}; output {final}"
            + ("; hardware" if args.hardware else "") + ("; plan only" if plan_only else ""))
     t0 = time.time()
@@ -118,7 +119,7 @@ def cmd_replay(args) -> int:
     LoadRecording(run_dir)                       # bad recording: fail before building
     LoadScenario(scenario_text=args.scenario_text)
     final = Path(args.output) if args.output else DefaultOutputFolder(prefix="replay-")
-    folder = OutputFolder(final, overwrite=args.overwrite)
+    folder = OutputFolder(final, overwrite=args.overwrite, command="replay", inputs=[run_dir])
     t0 = time.time()
     with folder as out:
         from lmap_drake.episode import ReplayRun
@@ -169,7 +170,7 @@ def cmd_twin(args) -> int:
     import signal
     import threading
 
-    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
+    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder, WriteMarker
     from lmap_drake.twin.twin import Twin, TwinOptions, TwinRunOverrides, WriteTwinCalibration
     from lmap_drake.scenario import LoadScenario
 
@@ -214,6 +215,7 @@ def cmd_twin(args) -> int:
     finally:
         twin.Close()
     outcome = twin.Finish(out)
+    WriteMarker(out, "twin")                  # the folder is an lmap-drake output
     _stage(f"twin stopped after {twin.world.time:.1f} simulated s (largest lag "
            f"{twin.lag_max:.2f} s); outcome: " + json.dumps(
                {k: v for k, v in outcome.items() if k != "release_outcome"}))
@@ -233,6 +235,9 @@ def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
     if args.engine == "ray":
         from lmap_drake.evaluation.engines import ImportRay
         ImportRay(local=not args.address)        # a missing Ray fails now, in one line
+        if args.address:                          # no cluster there: before any folder
+            from lmap_drake.evaluation.engines import CheckAddress
+            CheckAddress(args.address)
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
     if not 0.0 < args.visibility_success <= 1.0:
@@ -267,14 +272,14 @@ def _SweepSpecs(specs: list[dict], sweep, points: list[dict], labels: list[str],
     override, resolved (a scenario that does not load with a point's values
     fails now, naming the point and the sweep file)."""
     from lmap_drake.evaluation import sweep as S
-    from lmap_drake.evaluation.run_eval import ResolveSpecs
+    from lmap_drake.evaluation.run_eval import EVAL_KINDS, ResolveSpecs
     from lmap_drake.scenario import ScenarioError
     out = []
     for p, label in zip(points, labels):
         text = S.OverrideText(p)
         group = [dict(s, sweep_text=text, sweep_point=label, sweep_values=p) for s in specs]
         try:
-            ResolveSpecs(group, suite_file)
+            ResolveSpecs(group, suite_file, kinds=EVAL_KINDS)
         except ScenarioError as err:
             raise S.SweepError(f"{sweep_file}: grid point {text}: "
                                f"{str(err).replace('--scenario_text', 'the sweep')}") from None
@@ -301,10 +306,8 @@ def _CheckOverride(text: str) -> None:
 
 
 def cmd_eval(args) -> int:
-    from lmap_drake.evaluation import tables as T
-    from lmap_drake.evaluation.run_eval import ResolveSpecs, RunEvaluation, RunSweep
-    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder
-    from lmap_drake.scenario import LoadScenario, RawYaml, ReadScenarioFile
+    from lmap_drake.evaluation.run_eval import EvalOptions, HasRecords
+    from lmap_drake.outputs import DefaultOutputFolder, InPlaceFolder
 
     methods, distances = _CheckEvalArgs(args)
     _CheckOverride(args.scenario_text)      # fail now on a bad override
@@ -315,6 +318,25 @@ def cmd_eval(args) -> int:
         points = S.CheckPoints(sweep, args.sweep, args.scenario_text)
         labels = [S.PointLabel(i, p) for i, p in enumerate(points)]
     out = Path(args.output) if args.output else DefaultOutputFolder(prefix="eval-")
+    options = EvalOptions(args.scenarios, args.seed, args.scenario_file, args.scenario_names,
+                          methods, distances, args.random_seeds, args.scenario_text,
+                          Path(args.sweep).read_text() if args.sweep else None)
+    # Claimed (locked, checked) before anything is written; a folder this
+    # eval made is removed again if it fails before its first record.
+    with InPlaceFolder(out, "eval", options, resume=args.resume, kept=HasRecords,
+                       legacy=("episodes.jsonl", "sweep.yaml")) as folder:
+        summary = _RunEval(args, folder, methods, distances, sweep, points, labels)
+    for eid, msg in summary["errors"]:
+        print(f"error in {eid}: {msg}", file=sys.stderr)
+    return 1 if summary["errors"] else 0
+
+
+def _RunEval(args, folder, methods, distances, sweep, points, labels) -> dict:
+    from lmap_drake.evaluation import tables as T
+    from lmap_drake.evaluation.run_eval import (EVAL_KINDS, EvalConflict, ResolveSpecs,
+                                                RunEvaluation, RunSweep)
+    from lmap_drake.scenario import RawYaml, ReadScenarioFile
+    out = folder.path
     if args.scenarios:
         from lmap_drake.evaluation.progress import Progress
         from lmap_drake.plants.suite import RandomSuite, SuiteYaml
@@ -331,9 +353,13 @@ def cmd_eval(args) -> int:
         text = SuiteYaml(suite, f"# RandomSuite({args.scenarios}, {args.seed})" +
                          (f", buildable with the overrides {' '.join(over.split())}"
                           if over else ""))
-        EnsureWritableFolder(out)         # after the draws: a suite that cannot be
-        suite_file = out / "suite.yaml"    # drawn leaves no folder behind
-        if not (args.resume and suite_file.exists() and suite_file.read_text() == text):
+        suite_file = out / "suite.yaml"        # never overwritten
+        if suite_file.exists() and suite_file.read_text() != text:
+            raise EvalConflict(f"{suite_file} differs from RandomSuite({args.scenarios}, "
+                               f"{args.seed}) drawn now: --resume would mix suites; use "
+                               "another --output")
+        folder.Start()                          # after the draws: a suite that cannot be
+        if not suite_file.exists():             # drawn leaves no folder behind
             suite_file.write_text(text)
     else:
         suite_file = Path(args.scenario_file)
@@ -356,16 +382,12 @@ def cmd_eval(args) -> int:
                     threshold=args.visibility_success)
     if sweep is not None:
         point_specs = _SweepSpecs(specs, sweep, points, labels, suite_file, args.sweep)
-        EnsureWritableFolder(out)
-        summary = RunSweep(point_specs, sweep, points, labels, args.sweep, suite_file, out,
-                           **run_args)
-    else:
-        ResolveSpecs(specs, suite_file)      # loads every episode's scenario: bad input fails now
-        EnsureWritableFolder(out)
-        summary = RunEvaluation(specs, suite_file, out, **run_args)
-    for eid, msg in summary["errors"]:
-        print(f"error in {eid}: {msg}", file=sys.stderr)
-    return 1 if summary["errors"] else 0
+        folder.Start()
+        return RunSweep(point_specs, sweep, points, labels, args.sweep, suite_file, out,
+                        **run_args)
+    ResolveSpecs(specs, suite_file, kinds=EVAL_KINDS)   # every episode's scenario: bad
+    folder.Start()                                       # input fails now
+    return RunEvaluation(specs, suite_file, out, **run_args)
 
 
 def main(argv=None) -> int:
@@ -383,7 +405,8 @@ def _main(argv=None) -> int:
                          "(default) or the real cell (--hardware)")
     _add_scenario_args(run)
     run.add_argument("--overwrite", action="store_true",
-                     help="replace an existing non-empty output folder")
+                     help="replace an existing lmap-drake output folder (one holding the "
+                          ".lmap_drake marker; never the input being read)")
     run.add_argument("--debug", action="store_true", help="show tracebacks")
     run.add_argument("--hardware", action="store_true",
                      help="use the hardware station instead of the simulation")
@@ -431,7 +454,8 @@ def _main(argv=None) -> int:
     rp.add_argument("--output", default=None,
                     help="output folder (default: out/replay-<timestamp>-<random>/)")
     rp.add_argument("--overwrite", action="store_true",
-                    help="replace an existing non-empty output folder")
+                    help="replace an existing lmap-drake output folder (one holding the "
+                          ".lmap_drake marker; never the input being read)")
     rp.add_argument("--debug", action="store_true", help="show tracebacks")
     rp.set_defaults(func=cmd_replay)
     tw = sub.add_parser("twin", help="the digital twin: the simulated plant world behind a UR "

@@ -47,6 +47,15 @@ class EvalExists(InputError, FileExistsError):
     """``episodes.jsonl`` exists and ``--resume`` was not given."""
 
 
+class PlantKindError(InputError):
+    """A suite scene whose plant an episode cannot run (the placeholder)."""
+
+
+# Plant kinds an episode runs on (``plant_scene.kind``); ``placeholder`` has
+# no leaf and no fruit to reveal.
+EVAL_KINDS = ("procedural", "multi")
+
+
 def ScenarioHash(scenario) -> str:
     """8 hex digits of the resolved scenario (all fields, YAML-dumped)."""
     from pydrake.common.yaml import yaml_dump_typed
@@ -99,11 +108,14 @@ def _LoadSpec(spec: dict, suite_file: str, suite_text: str | None = None):
                         scenario_text=texts)
 
 
-def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True) -> None:
+def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True,
+                 kinds: tuple | None = None) -> None:
     """Loads each spec's scenario and sets ``scenario_hash`` and the
     ``episode_id`` that includes it. ``strict``: a scenario that does not
-    load raises (ScenarioError); otherwise that spec is left as it is (its
-    worker records the error)."""
+    load raises (ScenarioError), and with ``kinds`` one whose
+    ``plant_scene.kind`` is not among them (PlantKindError naming the
+    scene); otherwise that spec is left as it is (its worker records the
+    error)."""
     try:
         suite_text = Path(suite_file).read_text()
     except (OSError, UnicodeDecodeError):
@@ -113,6 +125,12 @@ def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True)
             continue
         try:
             scenario = _LoadSpec(spec, str(suite_file), suite_text)
+            if kinds is not None and scenario.plant_scene.kind not in kinds:
+                raise PlantKindError(
+                    f"scenario {spec['scenario']} of {suite_file} has plant_scene.kind: "
+                    f"{scenario.plant_scene.kind}, which eval cannot run (a stand-in with "
+                    f"no leaf to move); eval needs plant_scene.kind "
+                    f"{' or '.join(kinds)}")
             spec["scenario_hash"] = ScenarioHash(scenario)
             if scenario.plant_scene.kind == "multi" and scenario.planner.targets == "all":
                 spec["targets"] = len(scenario.plant_scene.multi.fruits)   # for the estimate
@@ -181,33 +199,75 @@ def JsonDefault(x):
         return str(x)
 
 
-def _Prepare(specs: list[dict], out: Path, resume: bool,
-             progress: Callable[[str], None]) -> tuple[Path, list[dict], list[dict]]:
-    """One output folder before anything runs: refuses an existing log
-    without ``resume``; with it, sets torn lines aside and refuses mixed
-    settings. Returns (log, specs still to run, records already there)."""
-    out.mkdir(parents=True, exist_ok=True)
+def _Check(specs: list[dict], out: Path, resume: bool) -> tuple[Path, list[dict]]:
+    """Refuses, writing nothing, an existing log without ``resume``, a log
+    that is not a file, and with ``resume`` mixed settings. Returns the log
+    and its records."""
     log = out / "episodes.jsonl"
+    if (log.exists() or log.is_symlink()) and not log.is_file():
+        raise EvalExists(f"{log} exists and is not a file")
     if log.exists() and not resume:
         raise EvalExists(f"{log} exists: pass --resume to continue it, or choose "
                          "another --output")
-    records: list[dict] = []
+    records = T.ReadRecords(log) if resume else []
+    conflicts = T.ResumeConflicts(records, specs)
+    if conflicts:
+        raise EvalConflict(
+            f"--resume would mix results of different settings in {log}: "
+            f"{conflicts[0]}" + (f" (and {len(conflicts) - 1} more)"
+                                 if len(conflicts) > 1 else "")
+            + "; use another --output for these settings")
+    return log, records
+
+
+def _Prepare(specs: list[dict], log: Path, records: list[dict], resume: bool,
+             progress: Callable[[str], None]) -> tuple[list[dict], list[dict]]:
+    """One checked output folder before anything runs: creates it; with
+    ``resume`` sets torn lines aside. Returns (specs still to run, records
+    already there)."""
+    log.parent.mkdir(parents=True, exist_ok=True)
     done: set = set()
     if resume:
         torn = T.RepairLog(log)
         if torn:
-            progress(f"set aside {torn} torn line(s) of {log} to {log.name}.torn; "
-                     f"their episodes run again")
-        records = T.ReadRecords(log)
-        conflicts = T.ResumeConflicts(records, specs)
-        if conflicts:
-            raise EvalConflict(
-                f"--resume would mix results of different settings in {log}: "
-                f"{conflicts[0]}" + (f" (and {len(conflicts) - 1} more)"
-                                     if len(conflicts) > 1 else "")
-                + "; use another --output for these settings")
+            progress(f"set aside {torn} torn line(s) of {log} to {log.name}.torn (as they "
+                     f"were, byte for byte); their episodes run again")
+            records = T.ReadRecords(log)
         done = T.CompletedIds(records)
-    return log, [s for s in specs if s["episode_id"] not in done], records
+    return [s for s in specs if s["episode_id"] not in done], records
+
+
+def EvalOptions(scenarios: int, seed: int, scenario_file, scenario_names: str,
+                methods: list[str], distances: list[float], random_seeds: int,
+                scenario_text: str, sweep_text: str | None) -> dict:
+    """What an evaluation is (kept in its folder's marker; ``--resume`` with
+    other values is refused, naming the option): keys are the ``eval``
+    options. ``--workers``, ``--engine``, ``--address`` and
+    ``--visibility_success`` may change."""
+    return {"scenarios": int(scenarios), "seed": int(seed),
+            "scenario_file": None if scenarios else str(Path(scenario_file).resolve()),
+            "scenario_names": [n for n in scenario_names.split(",") if n],
+            "methods": sorted(methods),
+            "distances": sorted(float(d) for d in distances)         # baselines only
+            if set(methods) & set(T.BASELINES) else [],
+            "random_seeds": int(random_seeds) if "random" in methods else 0, "scenario_text": _Parsed(scenario_text) or {},
+            "sweep": None if sweep_text is None else _Parsed(sweep_text)}
+
+
+def _Parsed(text: str):
+    """YAML text as JSON-able data (the text itself when it does not parse)."""
+    import yaml
+    try:
+        return json.loads(json.dumps(yaml.safe_load(text), default=str))
+    except yaml.YAMLError:
+        return text
+
+
+def HasRecords(folder: Path) -> bool:
+    """Whether ``folder`` (or a sweep point folder in it) holds a record."""
+    return any(p.is_file() and p.stat().st_size > 0
+               for p in [Path(folder) / "episodes.jsonl",
+                         *Path(folder).glob("*/episodes.jsonl")])
 
 
 def _ProgressLine(k: int, n: int, spec: dict, rec: dict, eta: float | None) -> str:
@@ -223,19 +283,29 @@ def _ProgressLine(k: int, n: int, spec: dict, rec: dict, eta: float | None) -> s
             + ("" if eta is None else f"; eta {P.Duration(eta)}"))
 
 
+def _WriteOnce(path: Path, text: str) -> None:
+    if not path.exists():
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text(text)
+        os.replace(tmp, path)
+
+
 def _RunGroups(groups: list[tuple[Path, list[dict]]], suite_file: str | Path,
                engine: str, workers: int, address: str | None, threads: int,
                resume: bool, progress: Callable[[str], None],
-               bar: bool | None) -> dict:
+               bar: bool | None, before: Callable[[], None] = lambda: None) -> dict:
     """Runs the specs of every (output folder, specs) group on one engine,
     appending each record to its group's ``episodes.jsonl`` as it finishes
     (one write per line, flushed and synced). Everything that can be
-    refused is checked before the engine starts."""
+    refused is checked before the engine starts, and before ``before()``
+    (which writes the run's own files)."""
     all_specs = [s for _, g in groups for s in g]
     ResolveSpecs(all_specs, suite_file, strict=False)
     jobs, existing = [], []
-    for out, specs in groups:
-        log, todo, records = _Prepare(specs, Path(out), resume, progress)
+    prepared = [_Check(specs, Path(out), resume) for out, specs in groups]
+    before()
+    for (out, specs), (log, records) in zip(groups, prepared):
+        todo, records = _Prepare(specs, log, records, resume, progress)
         jobs += [(s, log) for s in todo]
         existing += records
     n_all = len(all_specs)
@@ -308,10 +378,13 @@ def RunSweep(point_specs: list[list[dict]], sweep, points: list[dict], labels: l
     out = Path(out)
     t_start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    (out / "sweep.yaml").write_text(Path(sweep_file).read_text())
+    grid, kept = Path(sweep_file).read_text(), out / "sweep.yaml"
+    if kept.exists() and kept.read_text() != grid:
+        raise EvalConflict(f"{kept} is another grid than {sweep_file}: --resume would mix "
+                           "sweeps; use another --output for this one")
     groups = [(out / lab, specs) for lab, specs in zip(labels, point_specs)]
     summary = _RunGroups(groups, suite_file, engine, workers, address, threads_per_worker,
-                         resume, progress, bar)
+                         resume, progress, bar, before=lambda: _WriteOnce(kept, grid))
     records = []
     for (folder, _), p in zip(groups, points):
         rs = T.ReadRecords(folder / "episodes.jsonl")

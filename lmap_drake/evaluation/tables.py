@@ -422,54 +422,60 @@ def AllTables(records: list[dict], threshold: float = VISIBILITY_SUCCESS) -> dic
 
 
 # ------------------------------------------------------------ record files
+def _Line(raw: bytes) -> dict | None:
+    """A complete record of an ``episodes.jsonl`` line (strict UTF-8 JSON
+    map with ``eval.episode_id``), else None."""
+    try:
+        rec = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    ok = isinstance(rec, dict) and isinstance(rec.get("eval"), dict) \
+        and "episode_id" in rec["eval"]
+    return rec if ok else None
+
+
 def RepairLog(path: Path) -> int:
     """Sets aside the lines of an ``episodes.jsonl`` that are not complete
-    JSON records (a torn last line of a killed run, or a record glued onto
-    one): they are appended to ``<name>.torn`` and the log is rewritten
-    (atomically) with the good lines, each ending in a newline, so their
+    JSON records (a torn last line of a killed run, a record glued onto
+    one, bytes that are not UTF-8): they are appended to ``<name>.torn``
+    byte for byte (nothing replaced) and the log is rewritten (atomically)
+    with the good lines, unchanged, each ending in a newline, so their
     episodes are re-run and nothing is appended to a torn line. Returns how
     many lines were set aside."""
     import os
     path = Path(path)
     if not path.exists():
         return 0
-    text = path.read_text(errors="replace")
+    data = path.read_bytes()
     good, bad = [], []
-    for line in text.splitlines():
+    for line in data.splitlines():
         if not line.strip():
             continue
-        try:
-            rec = json.loads(line)
-            ok = isinstance(rec, dict) and isinstance(rec.get("eval"), dict) \
-                and "episode_id" in rec["eval"]
-        except json.JSONDecodeError:
-            ok = False
-        (good if ok else bad).append(line)
-    if not bad and (not text or text.endswith("\n")):
+        (good if _Line(line) is not None else bad).append(line)
+    if not bad and (not data or data.endswith(b"\n")):
         return 0
     if bad:
-        with open(path.with_name(path.name + ".torn"), "a") as f:
-            f.write("".join(line + "\n" for line in bad))
+        with open(path.with_name(path.name + ".torn"), "ab") as f:
+            f.write(b"".join(line + b"\n" for line in bad))
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("".join(line + "\n" for line in good))
+    tmp.write_bytes(b"".join(line + b"\n" for line in good))
     os.replace(tmp, path)
     return len(bad)
 
 
 def ReadRecords(path: Path) -> list[dict]:
-    """Records of an ``episodes.jsonl`` (missing file: none; a torn last
-    line from an interrupted run is skipped here; ``RepairLog`` sets such
-    lines aside before a resumed run appends)."""
+    """Records of an ``episodes.jsonl`` (missing file: none; a torn line
+    from an interrupted run, JSON or UTF-8, is skipped here; ``RepairLog``
+    sets such lines aside before a resumed run appends)."""
     path = Path(path)
     if not path.exists():
         return []
     out = []
-    for line in path.read_text().splitlines():
-        line = line.strip()
-        if not line:
+    for line in path.read_bytes().splitlines():
+        if not line.strip():
             continue
         try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
+            out.append(json.loads(line.decode("utf-8")))
+        except (UnicodeDecodeError, json.JSONDecodeError):
             continue
     return out
