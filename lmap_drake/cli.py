@@ -104,10 +104,15 @@ def cmd_replay(args) -> int:
     from lmap_drake.perception.recording import LoadRecording
     from lmap_drake.scenario import LoadScenario
 
+    from lmap_drake.episode.replay import ReadRunPlan
+
     run_dir = Path(args.run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise UsageError(f"{run_dir} is a file, not a run folder")
     if not run_dir.is_dir():
         raise UsageError(f"run folder {run_dir} not found")
     LoadRecording(run_dir)                       # bad recording: fail before building
+    ReadRunPlan(run_dir)                         # a broken plan.json too
     LoadScenario(scenario_text=args.scenario_text)
     final = Path(args.output) if args.output else DefaultOutputFolder(prefix="replay-")
     folder = OutputFolder(final, overwrite=args.overwrite)

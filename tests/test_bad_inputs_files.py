@@ -108,3 +108,159 @@ def test_no_source_loads_pickles():
                     "allow_pickle=True" in line or "weights_only=False" in line:
                 bad.append(f"{f.relative_to(REPO_ROOT)}:{i}: {line.strip()}")
     assert not bad, bad
+
+
+# ------------------------------------------- 10, 15, 20. broken recordings
+W, H = 8, 6
+
+
+def _recording(tmp_path) -> Path:
+    """A run folder with a valid 1-view recording (8 x 6 px)."""
+    from lmap_drake.perception.recording import CapturedView, SaveRecording
+    run = tmp_path / "run"
+    view = CapturedView(0, 0.0, 0.0, np.zeros((H, W, 4), np.uint8),
+                        np.ones((H, W), np.float32), np.zeros((H, W), np.int16),
+                        np.zeros(6), np.zeros(6), np.array([0.08, 0.0, np.nan]))
+    cam = {"width": W, "height": H, "fx": 10.0, "fy": 10.0, "cx": 4.0, "cy": 3.0,
+           "serial": "sim"}
+    SaveRecording(run, [view], cam, np.eye(4), "simulation")
+    return run
+
+
+def _edit_manifest(run: Path, edit) -> Path:
+    f = run / "recording" / "recording.json"
+    m = json.loads(f.read_text())
+    edit(m)
+    f.write_text(json.dumps(m))
+    return f
+
+
+def _refused(run, *needles):
+    from lmap_drake.perception.recording import LoadRecording, RecordingError
+    with pytest.raises(RecordingError) as err:
+        LoadRecording(run)
+    msg = str(err.value)
+    assert "\n" not in msg
+    for n in needles:
+        assert str(n) in msg, msg
+    return msg
+
+
+def test_the_valid_recording_loads(tmp_path):
+    from lmap_drake.perception.recording import LoadRecording
+    rec = LoadRecording(_recording(tmp_path))
+    assert rec.views[0].rgb.shape == (H, W, 4) and rec.views[0].label.shape == (H, W)
+
+
+@pytest.mark.parametrize("name", ["../../../etc/passwd", "/etc/passwd",
+                                  "../../other/recording/view0_rgb.png", "sub/../../x.png"])
+def test_recording_file_names_stay_in_the_folder(tmp_path, name):
+    run = _recording(tmp_path)
+    other = tmp_path / "other" / "recording"
+    other.mkdir(parents=True)
+    (other / "view0_rgb.png").write_bytes((run / "recording" / "view0_rgb.png").read_bytes())
+    f = _edit_manifest(run, lambda m: m["views"][0].update(rgb=name))
+    _refused(run, f, name, "outside the recording folder")
+
+
+def test_a_symlink_out_of_the_recording_folder_is_refused(tmp_path):
+    run = _recording(tmp_path)
+    outside = tmp_path / "elsewhere.npy"
+    np.save(outside, np.ones((H, W), np.float32))
+    link = run / "recording" / "view0_depth.npy"
+    link.unlink()
+    link.symlink_to(outside)
+    _refused(run, link, "outside the recording folder")
+
+
+def test_truncated_png_names_the_file(tmp_path):
+    run = _recording(tmp_path)
+    png = run / "recording" / "view0_rgb.png"
+    png.write_bytes(png.read_bytes()[:40])
+    _refused(run, png)
+
+
+def test_huge_png_is_refused_from_its_header(tmp_path):
+    """A 20000 x 20000 PNG: the size is read from the header; nothing is
+    decoded (the file itself is small)."""
+    import struct
+    import zlib
+    run = _recording(tmp_path)
+    png = run / "recording" / "view0_rgb.png"
+
+    def chunk(kind, data):
+        return (struct.pack(">I", len(data)) + kind + data
+                + struct.pack(">I", zlib.crc32(kind + data) & 0xffffffff))
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(
+        ">IIBBBBB", 20000, 20000, 8, 6, 0, 0, 0)) + chunk(b"IDAT", zlib.compress(b"\0" * 100))
+        + chunk(b"IEND", b""))
+    _refused(run, png, "20000 x 20000")
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"[1, 2, 3]", "JSON object"),
+    (b"\xff\xfe\x00garbage", "not UTF-8"),
+    (None, "not a file"),
+])
+def test_recording_json_that_is_not_an_object(tmp_path, content, needle):
+    run = _recording(tmp_path)
+    f = run / "recording" / "recording.json"
+    f.unlink()
+    if content is None:
+        f.mkdir()
+        (run / "recording" / "x").write_text("")
+    else:
+        f.write_bytes(content)
+    _refused(run, f, needle)
+
+
+@pytest.mark.parametrize("key, value", [("fx", 0.0), ("fy", -5.0), ("fx", None),
+                                        ("width", 100000), ("height", 0), ("cx", "a")])
+def test_recorded_intrinsics_are_checked(tmp_path, key, value):
+    run = _recording(tmp_path)
+    f = _edit_manifest(run, lambda m: m["camera"].update({key: value}))
+    _refused(run, f, f"camera.{key}")
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"this is a PNG, not an array", "not a NumPy .npy"),
+    ("pickle", "Python objects"),
+    ("shape", "shape (3, 3)"),
+])
+def test_a_depth_file_that_is_not_a_depth_image_says_what_it_is(tmp_path, content, needle):
+    run = _recording(tmp_path)
+    depth = run / "recording" / "view0_depth.npy"
+    if content == "pickle":
+        np.save(depth, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    elif content == "shape":
+        np.save(depth, np.ones((3, 3), np.float32))
+    else:
+        depth.write_bytes(content)
+    msg = _refused(run, depth, needle)
+    assert "pickled data" not in msg
+
+
+def test_replay_on_a_file_says_it_is_not_a_run_folder(capsys, tmp_path):
+    f = tmp_path / "episode.json"
+    f.write_text("{}")
+    code, err = _run(capsys, "replay", str(f), "--output", str(tmp_path / "o"))
+    assert code == EXIT_BAD_INPUT and "not a run folder" in _one_line(err) and str(f) in err
+    from lmap_drake.perception.recording import LoadRecording, RecordingError
+    with pytest.raises(RecordingError, match="not a run folder"):
+        LoadRecording(f)
+
+
+@pytest.mark.parametrize("content", ["{not json", "[1]", '{"chosen_action": 3}'])
+def test_replay_checks_the_runs_plan_before_planning(capsys, tmp_path, monkeypatch, content):
+    import lmap_drake.episode.replay as replay
+    run = _recording(tmp_path)
+    (run / "plan.json").write_text(content)
+    (run / "scenario.yaml").write_text("{}")
+    monkeypatch.setattr(replay.EpisodeResources, "Make",
+                        lambda *a, **k: pytest.fail("planning started"))
+    out = tmp_path / "o"
+    code, err = _run(capsys, "replay", str(run), "--output", str(out))
+    assert code == EXIT_BAD_INPUT and str(run / "plan.json") in _one_line(err), err
+    assert not out.exists()
+    with pytest.raises(replay.RecordingError, match="plan.json"):
+        replay.ReplayRun(run, tmp_path / "o2")
