@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 
 from lmap_drake.errors import EXIT_ABORTED, EXIT_BAD_INPUT, InputError, RunMain
+from lmap_drake.limits import MAX_SCENARIOS
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
 
 
@@ -185,9 +186,9 @@ def cmd_twin(args) -> int:
 
 def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
     from lmap_drake.evaluation import tables as T
-    if args.scenarios < 0:
-        raise UsageError(f"--scenarios must be >= 1 (0: use --scenario_file), got "
-                         f"{args.scenarios}")
+    if not 0 <= args.scenarios <= MAX_SCENARIOS:
+        raise UsageError(f"--scenarios must be in [1, {MAX_SCENARIOS}] (0: use "
+                         f"--scenario_file), got {args.scenarios}")
     if args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
     if args.address and args.engine != "ray":

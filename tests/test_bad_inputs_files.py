@@ -264,3 +264,160 @@ def test_replay_checks_the_runs_plan_before_planning(capsys, tmp_path, monkeypat
     assert not out.exists()
     with pytest.raises(replay.RecordingError, match="plan.json"):
         replay.ReplayRun(run, tmp_path / "o2")
+
+
+# ------------------------------------------------------------- 12. size limits
+def test_a_huge_camera_is_refused_at_load():
+    from lmap_drake.limits import MAX_IMAGE_SIDE
+    with pytest.raises(ScenarioError, match=rf"cameras.camera0 .*at most {MAX_IMAGE_SIDE}"):
+        LoadScenario(scenario_text="{cameras: {camera0: {width: 100000, height: 100000}}}")
+
+
+def test_scenario_file_from_dev_zero_is_bounded(capsys, tmp_path):
+    code, err = _run(capsys, "run", "--scenario_file", "/dev/zero",
+                     "--output", str(tmp_path / "o"))
+    assert code == EXIT_BAD_INPUT and "/dev/zero" in _one_line(err) and "limit" in err
+
+
+def test_scenario_file_from_an_endless_fifo_is_bounded(tmp_path):
+    import threading
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+
+    def writer():
+        try:
+            with open(fifo, "wb") as f:
+                while True:
+                    f.write(b"# comment line\n" * 4096)
+        except (BrokenPipeError, OSError):
+            pass
+    t = threading.Thread(target=writer, daemon=True)
+    t.start()
+    with pytest.raises(ScenarioError, match=f"{fifo}.*larger than the limit"):
+        LoadScenario(filename=fifo)
+    t.join(5)
+
+
+def test_big_scenario_file_and_text_are_refused(tmp_path):
+    from lmap_drake.limits import MAX_SCENARIO_BYTES
+    f = tmp_path / "big.yaml"
+    f.write_text("Defaults: {}\n" + "# padding\n" * (MAX_SCENARIO_BYTES // 10 + 1))
+    with pytest.raises(ScenarioError, match=f"{f}.*limit of {MAX_SCENARIO_BYTES} bytes"):
+        LoadScenario(filename=f)
+    with pytest.raises(ScenarioError, match="--scenario_text is larger than the limit"):
+        LoadScenario(scenario_text="{random_seed: 1}" + " " * MAX_SCENARIO_BYTES)
+
+
+def _stl_header(path: Path, faces: int) -> Path:
+    path.write_bytes(b"\0" * 80 + faces.to_bytes(4, "little") + b"\0" * 50)
+    return path
+
+
+def _ply_header(path: Path, faces: int) -> Path:
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                     b"property float x\nproperty float y\nproperty float z\n"
+                     b"element face %d\nproperty list uchar int vertex_indices\nend_header\n"
+                     % faces)
+    return path
+
+
+@pytest.mark.parametrize("make", [_stl_header, _ply_header])
+def test_mesh_face_count_is_read_from_the_header_before_loading(tmp_path, monkeypatch, make):
+    import lmap_drake.plants.fruit_mesh as fm
+    monkeypatch.setattr(fm.trimesh, "load", lambda *a, **k: pytest.fail("mesh loaded"))
+    f = make(tmp_path / f"big{'.stl' if make is _stl_header else '.ply'}", 5_200_000)
+    with pytest.raises(fm.FruitMeshError, match=f"plant_scene.fruit.mesh_file {f} declares "
+                                                f"5200000 faces"):
+        fm.LoadFruitMesh(str(f))
+
+
+def test_obj_face_count_is_bounded(tmp_path, monkeypatch):
+    import trimesh
+
+    import lmap_drake.plants.fruit_mesh as fm
+    f = tmp_path / "sphere.obj"
+    trimesh.creation.icosphere(subdivisions=3, radius=0.035).export(f)
+    fm.LoadFruitMesh(str(f))
+    monkeypatch.setattr(fm, "MAX_MESH_FACES", 100)
+    fm._Cached.cache_clear()
+    with pytest.raises(fm.FruitMeshError, match="declares 1280 faces, more than the limit of 100"):
+        fm.LoadFruitMesh(str(f))
+
+
+def test_eval_scenarios_is_bounded(capsys, tmp_path):
+    code, err = _run(capsys, "eval", "--scenarios", "100000000", "--output",
+                     str(tmp_path / "o"))
+    assert code == EXIT_BAD_INPUT and "--scenarios must be in [1, 10000]" in _one_line(err)
+    assert not (tmp_path / "o").exists()
+
+
+# ---------------------------------------------- 13. Drake-side settings at load
+@pytest.mark.parametrize("text, key", [
+    ("{plant_config: {time_step: .nan}}", "plant_config.time_step"),
+    ("{plant_config: {time_step: -0.01}}", "plant_config.time_step"),
+    ("{plant_config: {contact_model: magic}}", "plant_config.contact_model"),
+    ("{plant_config: {discrete_contact_approximation: x}}",
+     "plant_config.discrete_contact_approximation"),
+    ("{cameras: {camera0: {X_PB: {base_frame: nowhere}}}}", "cameras.camera0.X_PB.base_frame"),
+    ("{cameras: {camera0: {renderer_class: RenderEngineMagic}}}",
+     "cameras.camera0.renderer_class"),
+    ("{lights: [{type: laser}]}", "lights[0].type"),
+    ("{lights: [{type: point, frame: moon}]}", "lights[0].frame"),
+    ("{lights: [{type: spot, cone_angle: 120}]}", "lights[0].cone_angle"),
+    ("{simulator_config: {max_step_size: -1}}", "simulator_config.max_step_size"),
+    ("{simulator_config: {integration_scheme: magic}}", "simulator_config.integration_scheme"),
+    ("{simulator_config: {accuracy: 0}}", "simulator_config.accuracy"),
+    ("{scene_graph_config: {default_proximity_properties: {compliance_type: jelly}}}",
+     "scene_graph_config.default_proximity_properties.compliance_type"),
+])
+def test_drake_settings_are_checked_at_load(text, key):
+    with pytest.raises(ScenarioError) as err:
+        LoadScenario(scenario_text=text)
+    assert str(err.value).startswith(key + " ") and "--scenario_text" in str(err.value)
+
+
+def test_the_shipped_scenarios_pass_the_drake_checks():
+    from lmap_drake.scenario import RawYaml
+    for name in ("default.yaml", "suite.yaml", "multi_suite.yaml"):
+        f = REPO_ROOT / "diagrams" / name
+        for scenario in RawYaml(f.read_text()):
+            if not scenario.startswith("_"):
+                LoadScenario(filename=f, scenario_name=scenario)
+
+
+# ------------------------------------------------ 14, 20. hostile YAML
+_BOMB = ("{planner: {distances: [&b [1,1,1,1,1,1,1,1,1], &c [*b,*b,*b,*b,*b,*b,*b,*b,*b], "
+         "&d [*c,*c,*c,*c,*c,*c,*c,*c,*c], &e [*d,*d,*d,*d,*d,*d,*d,*d,*d], "
+         "&f [*e,*e,*e,*e,*e,*e,*e,*e,*e], &g [*f,*f,*f,*f,*f,*f,*f,*f,*f]]}}")
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("{plant_scene: " + "[" * 200 + "]" * 200 + "}", "plant_scene[0][0]"),
+    ("[" * 100000 + "]" * 100000, "--scenario_text"),
+    ("{random_seed: 18446744073709551616}", "random_seed = 18446744073709551616"),
+    ("{random_seed: -99999999999999999999999}", "random_seed"),
+    ("{planner: {num_grasps: 0x1FFFFFFFFFFFFFFFF}}", "planner.num_grasps"),
+    (_BOMB, "planner.distances"),
+])
+def test_hostile_yaml_is_one_line_naming_the_key(capsys, tmp_path, text, needle):
+    with pytest.raises(ScenarioError, match=None) as err:
+        LoadScenario(scenario_text=text)
+    assert needle in str(err.value) and "\n" not in str(err.value)
+    code, msg = _run(capsys, "run", "--scenario_text", text, "--output", str(tmp_path / "o"))
+    assert code == EXIT_BAD_INPUT and needle in _one_line(msg)
+
+
+def test_hostile_yaml_in_a_file_names_the_file(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("Defaults:\n  random_seed: 18446744073709551616\n")
+    with pytest.raises(ScenarioError, match=f"{f}: Defaults.random_seed = 1844"):
+        LoadScenario(filename=f, scenario_name="Defaults")
+
+
+def test_an_out_of_range_colour_names_its_key():
+    with pytest.raises(ScenarioError) as err:
+        LoadScenario(scenario_text="{plant_scene: {leaf: {color: {rgba: [2.0, 0.5, 0.2]}}}}")
+    assert "plant_scene.leaf.color = " in str(err.value), err.value
+    with pytest.raises(ScenarioError, match="plant_scene.fruit.color = "):
+        LoadScenario(scenario_text="{plant_scene: {fruit: {color: [0.2, 0.5, 0.2]}}}")
+    LoadScenario(scenario_text="{plant_scene: {leaf: {color: {rgba: [0.2, 0.5, 0.2]}}}}")
