@@ -24,7 +24,8 @@ import sys
 import time
 from pathlib import Path
 
-from lmap_drake.errors import EXIT_ABORTED, EXIT_BAD_INPUT, InputError, RunMain
+from lmap_drake.errors import (EXIT_ABORTED, EXIT_BAD_INPUT, InputError, OneLineArgumentParser,
+                               RunMain)
 from lmap_drake.limits import MAX_SCENARIOS
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
 
@@ -338,7 +339,7 @@ def main(argv=None) -> int:
 
 
 def _main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="lmap-drake", description=__doc__,
+    parser = OneLineArgumentParser(prog="lmap-drake", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", required=True)

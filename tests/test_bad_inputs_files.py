@@ -421,3 +421,65 @@ def test_an_out_of_range_colour_names_its_key():
     with pytest.raises(ScenarioError, match="plant_scene.fruit.color = "):
         LoadScenario(scenario_text="{plant_scene: {fruit: {color: [0.2, 0.5, 0.2]}}}")
     LoadScenario(scenario_text="{plant_scene: {leaf: {color: {rgba: [0.2, 0.5, 0.2]}}}}")
+
+
+# ------------------------------------------------------------------ 19. disk full
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 64 KB tmpfs (needs root), else None."""
+    d = tmp_path / "tiny"
+    d.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(d)],
+                       capture_output=True)
+    if r.returncode != 0:
+        yield None
+        return
+    try:
+        yield d
+    finally:
+        subprocess.run(["umount", str(d)], capture_output=True)
+
+
+def test_disk_full_names_the_file_being_written(capsys, tmp_path, monkeypatch, tiny_disk):
+    """ENOSPC is exit 1 (a device failure, not bad input), one line naming the
+    file being written; the output folder is absent."""
+    import lmap_drake.episode as E
+
+    def snapshot(scenario, out, hardware=False, progress=print):
+        with open(Path(out) / "rgb.png", "wb") as f:
+            if tiny_disk is None:        # not root: the write fails as a full disk would
+                raise OSError(errno.ENOSPC, "No space left on device")
+            for _ in range(64):
+                f.write(os.urandom(4096))
+                f.flush()
+        return ["rgb.png"]
+    monkeypatch.setattr(E, "RunStationSnapshot", snapshot)
+    out = (tiny_disk or tmp_path) / "o"
+    code, err = _run(capsys, "run", "--output", str(out), "--scenario_text",
+                     "{plant_scene: {kind: placeholder}, simulation_duration: 0.05}")
+    line = _one_line(err)
+    assert code == EXIT_ERROR and "No space left on device" in line, line
+    assert "rgb.png" in line and str(out.parent) in line, line
+    assert not out.exists() and not list(out.parent.glob(".o.*"))
+
+
+# ------------------------------------------------------- 24. one-line usage errors
+@pytest.mark.parametrize("argv, needle", [
+    (["run", "--speed_scale", "fast"], "argument --speed_scale: invalid float value"),
+    (["frobnicate"], "invalid choice: 'frobnicate'"),
+    (["eval", "--workers", "many"], "argument --workers: invalid int value"),
+    (["replay"], "the following arguments are required: run_dir"),
+    (["run", "--no_such_flag"], "unrecognized arguments: --no_such_flag"),
+])
+def test_argparse_errors_are_one_line(capsys, argv, needle):
+    code, err = _run(capsys, *argv)
+    line = _one_line(err)
+    assert code == EXIT_BAD_INPUT and needle in line and "usage:" not in err, err
+
+
+def test_script_argparse_errors_are_one_line():
+    r = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "make_suite.py"),
+                        "--no_such_flag"], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(REPO_ROOT)})
+    assert r.returncode == EXIT_BAD_INPUT and "usage:" not in r.stderr
+    assert "unrecognized arguments: --no_such_flag" in _one_line(r.stderr)
