@@ -483,3 +483,11 @@ def test_script_argparse_errors_are_one_line():
                        env={**os.environ, "PYTHONPATH": str(REPO_ROOT)})
     assert r.returncode == EXIT_BAD_INPUT and "usage:" not in r.stderr
     assert "unrecognized arguments: --no_such_flag" in _one_line(r.stderr)
+
+
+def test_sweep_file_read_is_bounded(tmp_path):
+    from lmap_drake.evaluation.sweep import LoadSweep, SweepError
+    f = tmp_path / "sweep.yaml"
+    f.write_text("planner.energy_weight: [0, 1]\n" + "#\n" * 600_000)
+    with pytest.raises(SweepError, match=f"{f} is larger than the limit"):
+        LoadSweep(f)
