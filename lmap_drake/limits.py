@@ -2,7 +2,7 @@
 (documented in docs/reference/exit-codes.md). Exceeding one is bad input
 (exit 2) with a one-line message naming the key or file.
 
-Floor module: imports only PyYAML and ``lmap_drake.errors``.
+Just above the floor: imports only PyYAML and ``lmap_drake.errors``.
 """
 from __future__ import annotations
 
