@@ -354,9 +354,10 @@ def LoadScenario(*, filename: str | Path | None = None,
     if filename is not None:
         path = Path(filename)
         text = ReadScenarioFile(path)
-        RawYaml(text, str(path))  # duplicate keys, bad YAML: named as written
-        text = MigrateScenarioText(text, str(path), named=not bare)
-        raw_all = RawYaml(text, str(path))
+        raw_all = RawYaml(text, str(path))  # duplicate keys, bad YAML: named as written
+        migrated = MigrateScenarioText(text, str(path), named=not bare)
+        if migrated is not text:
+            text, raw_all = migrated, RawYaml(migrated, str(path))
         if raw_all is None:
             raw_all = {}
         if not isinstance(raw_all, dict):
@@ -385,9 +386,10 @@ def LoadScenario(*, filename: str | Path | None = None,
     for text in texts:
         if IsEmptyOverride(text):
             continue
-        RawYaml(text, "--scenario_text")
-        text = MigrateScenarioText(text, "--scenario_text", named=False)
         raw = RawYaml(text, "--scenario_text")
+        migrated = MigrateScenarioText(text, "--scenario_text", named=False)
+        if migrated is not text:
+            text, raw = migrated, RawYaml(migrated, "--scenario_text")
         if not isinstance(raw, dict):
             raise ScenarioError(f"--scenario_text must be a YAML map such as "
                                 f"\"{{planner: {{energy_weight: 0.5}}}}\", got {text!r}")
