@@ -26,7 +26,9 @@ import sys
 import time
 from pathlib import Path
 
-from lmap_drake.errors import EXIT_ABORTED, EXIT_BAD_INPUT, InputError, RunMain
+from lmap_drake.errors import (EXIT_ABORTED, EXIT_BAD_INPUT, InputError, OneLineArgumentParser,
+                               RunMain)
+from lmap_drake.limits import MAX_SCENARIOS
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
 
 
@@ -108,15 +110,20 @@ def cmd_replay(args) -> int:
     from lmap_drake.perception.recording import LoadRecording
     from lmap_drake.scenario import LoadScenario
 
+    from lmap_drake.episode.replay import ReadRunPlan
+
     run_dir = Path(args.run_dir)
     if IsBag(run_dir):
         return _ReplayBag(args)
     if args.time is not None or args.index is not None or args.topics or args.calibration:
         raise UsageError("--time, --index, --topics and --calibration are for replaying a bag; "
                          f"{run_dir} is not a .bag file or a ROS 2 bag folder")
+    if run_dir.exists() and not run_dir.is_dir():
+        raise UsageError(f"{run_dir} is a file, not a run folder")
     if not run_dir.is_dir():
         raise UsageError(f"run folder {run_dir} not found")
     LoadRecording(run_dir)                       # bad recording: fail before building
+    ReadRunPlan(run_dir)                         # a broken plan.json too
     LoadScenario(scenario_text=args.scenario_text)
     final = Path(args.output) if args.output else DefaultOutputFolder(prefix="replay-")
     folder = OutputFolder(final, overwrite=args.overwrite, command="replay", inputs=[run_dir])
@@ -225,9 +232,9 @@ def cmd_twin(args) -> int:
 
 def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
     from lmap_drake.evaluation import tables as T
-    if args.scenarios < 0:
-        raise UsageError(f"--scenarios must be >= 1 (0: use --scenario_file), got "
-                         f"{args.scenarios}")
+    if not 0 <= args.scenarios <= MAX_SCENARIOS:
+        raise UsageError(f"--scenarios must be in [1, {MAX_SCENARIOS}] (0: use "
+                         f"--scenario_file), got {args.scenarios}")
     if args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
     if args.address and args.engine != "ray":
@@ -397,7 +404,7 @@ def main(argv=None) -> int:
 
 
 def _main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="lmap-drake", description=__doc__,
+    parser = OneLineArgumentParser(prog="lmap-drake", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", required=True)

@@ -11,6 +11,10 @@ No imports from the rest of the package: every layer may use this module.
 """
 from __future__ import annotations
 
+import argparse
+import errno
+import os
+
 EXIT_OK = 0
 EXIT_ERROR = 1
 EXIT_BAD_INPUT = 2
@@ -40,6 +44,16 @@ class ConfigError(InputError, ValueError):
         self.key, self.detail = key, detail
 
 
+class OneLineArgumentParser(argparse.ArgumentParser):
+    """``argparse.ArgumentParser`` whose usage errors are one line on stderr
+    (``prog: error: message (see prog --help)``, no usage block), exit 2.
+    Its sub-parsers are of the same class."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {' '.join(message.split())} "
+                                  f"(see {self.prog} --help)\n")
+
+
 class HardwareStationUnavailable(RuntimeError):
     """Raised when the hardware station is requested but not available."""
 
@@ -53,6 +67,26 @@ def OneLine(err: BaseException) -> str:
     if isinstance(err, InputError) or name in ("RuntimeError", "ValueError"):
         return text
     return f"{name}: {text}"
+
+
+_hook_installed = False
+_last_written: list = [None]   # the file most recently opened for writing
+
+
+def _TrackWrites(event: str, args) -> None:
+    """Audit hook: remembers the last file opened for writing, so a full
+    disk (whose ``OSError`` from ``write`` names no file) can be named."""
+    if event == "open" and len(args) == 3 and isinstance(args[2], int) \
+            and args[2] & (os.O_WRONLY | os.O_RDWR) and isinstance(args[0], (str, bytes)):
+        _last_written[0] = os.fsdecode(args[0])
+
+
+def _DiskFull(err: BaseException) -> str:
+    """' (writing PATH)' for a full disk or quota whose error names no file."""
+    if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT) \
+            and not err.filename and _last_written[0]:
+        return f" (writing {_last_written[0]})"
+    return ""
 
 
 def ExitCode(err: BaseException) -> int:
@@ -89,6 +123,9 @@ def RunMain(main, argv=None, prog: str = "", strip_debug: bool = False) -> int:
     except ValueError:        # not the main thread
         old = None
     prefix = f"{prog}: " if prog else ""
+    if not _hook_installed:
+        sys.addaudithook(_TrackWrites)
+        globals()["_hook_installed"] = True
     try:
         code = main() if (argv is None and strip_debug) else main(argv)
         return int(code or 0)
@@ -105,7 +142,8 @@ def RunMain(main, argv=None, prog: str = "", strip_debug: bool = False) -> int:
         if debug:
             traceback.print_exc()
         hint = "" if debug or isinstance(err, InputError) else " (--debug shows the traceback)"
-        print(f"{prefix}error: {OneLine(err)}{hint}", file=sys.stderr, flush=True)
+        print(f"{prefix}error: {OneLine(err)}{_DiskFull(err)}{hint}", file=sys.stderr,
+              flush=True)
         return ExitCode(err)
     finally:
         if old is not None:

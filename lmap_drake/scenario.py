@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 from pydrake.common.schema import Transform
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
-from pydrake.geometry import LightParameter, SceneGraphConfig
+from pydrake.geometry import LightParameter, Rgba, SceneGraphConfig
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import SimulatorConfig
@@ -33,6 +33,7 @@ from pydrake.systems.sensors import CameraConfig
 from lmap_drake.config_checks import CheckRules
 from lmap_drake.deformation.config import DeformationConfig, ValidateDeformationConfig
 from lmap_drake.errors import ConfigError, InputError
+from lmap_drake.limits import MAX_SCENARIO_BYTES, CheckYamlLimits, ReadBounded, TooLargeError
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
 from lmap_drake.perception.config import PerceptionConfig, ValidatePerceptionConfig
 from lmap_drake.planning.config import PlannerConfig, ValidatePlannerConfig
@@ -40,7 +41,7 @@ from lmap_drake.plants.config import PlantSceneConfig, ValidatePlantSceneConfig
 from lmap_drake.shape.config import ShapeConfig, ValidateShapeConfig
 from lmap_drake.station.config import (CameraNoiseConfig, DefaultCameraConfig, RobotConfig,
                                        ValidateCameraNoiseConfig, ValidateCameras,
-                                       ValidateRobotConfig)
+                                       ValidateDrakeConfigs, ValidateRobotConfig)
 from lmap_drake.station.hardware_config import HardwareConfig, ValidateHardwareConfig
 
 
@@ -130,6 +131,13 @@ def _bad_scalars(schema, data, path: str) -> list[str]:
             return []
         if len(args) == 1:
             schema = args[0]
+    if schema is Rgba and data is not None:      # Drake's message names no key
+        rgba = data.get("rgba") if isinstance(data, dict) else None
+        ok = (isinstance(rgba, list) and len(rgba) in (3, 4) and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and 0 <= c <= 1
+            for c in rgba))
+        return [] if ok else [f"{path} = {data!r} (expected {{rgba: [r, g, b, a]}}, each "
+                              f"in [0, 1])"]
     origin = typing.get_origin(schema)
     if origin in (list, typing.List, collections.abc.Sequence) and isinstance(data, list):
         item_type = typing.get_args(schema)[0] if typing.get_args(schema) else None
@@ -190,7 +198,10 @@ def RawYaml(text: str, where: str = "the YAML text"):
 
     _Loader.add_multi_constructor("!", _tagged)
     try:
+        CheckYamlLimits(text, where)     # size, depth, alias expansion, huge integers
         return yaml.load(text, Loader=_Loader)
+    except TooLargeError as err:
+        raise ScenarioError(str(err)) from None
     except yaml.YAMLError as err:
         detail = " ".join(str(err).replace('in "<unicode string>", ', "").split())
         raise ScenarioError(f"{where} is not valid YAML: {detail}") from None
@@ -223,7 +234,9 @@ def ReadScenarioFile(path: Path) -> str:
     if path.is_dir():
         raise ScenarioError(f"scenario file {path} is a directory, not a YAML file")
     try:
-        return path.read_text()
+        return ReadBounded(path, MAX_SCENARIO_BYTES, "scenario file").decode("utf-8")
+    except TooLargeError as err:
+        raise ScenarioError(f"{err} (lmap_drake.limits.MAX_SCENARIO_BYTES)") from None
     except UnicodeDecodeError:
         raise ScenarioError(f"scenario file {path} is not a UTF-8 text file") from None
     except OSError as err:
@@ -341,9 +354,10 @@ def LoadScenario(*, filename: str | Path | None = None,
     if filename is not None:
         path = Path(filename)
         text = ReadScenarioFile(path)
-        RawYaml(text, str(path))  # duplicate keys, bad YAML: named as written
-        text = MigrateScenarioText(text, str(path), named=not bare)
-        raw_all = RawYaml(text, str(path))
+        raw_all = RawYaml(text, str(path))  # duplicate keys, bad YAML: named as written
+        migrated = MigrateScenarioText(text, str(path), named=not bare)
+        if migrated is not text:
+            text, raw_all = migrated, RawYaml(migrated, str(path))
         if raw_all is None:
             raw_all = {}
         if not isinstance(raw_all, dict):
@@ -372,9 +386,10 @@ def LoadScenario(*, filename: str | Path | None = None,
     for text in texts:
         if IsEmptyOverride(text):
             continue
-        RawYaml(text, "--scenario_text")
-        text = MigrateScenarioText(text, "--scenario_text", named=False)
         raw = RawYaml(text, "--scenario_text")
+        migrated = MigrateScenarioText(text, "--scenario_text", named=False)
+        if migrated is not text:
+            text, raw = migrated, RawYaml(migrated, "--scenario_text")
         if not isinstance(raw, dict):
             raise ScenarioError(f"--scenario_text must be a YAML map such as "
                                 f"\"{{planner: {{energy_weight: 0.5}}}}\", got {text!r}")
@@ -444,6 +459,8 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
         CheckRules(s, "", _RULES, _ENUMS)   # every number of every section finite, too
         ValidateRobotConfig(s.robot, "robot")
         ValidateCameras(s.cameras, "cameras")
+        ValidateDrakeConfigs(s.simulator_config, s.plant_config, s.scene_graph_config,
+                             s.lights)
         ValidateCameraNoiseConfig(s.camera_noise, "camera_noise")
         ValidatePlantSceneConfig(s.plant_scene, "plant_scene")
         ValidatePerceptionConfig(s.perception, "perception")

@@ -14,11 +14,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.action_oracle import SUITE, RunOracle
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__,
+    p = OneLineArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, help="JSON file to write")
     p.add_argument("--scenario_file", default=str(SUITE))

@@ -22,15 +22,15 @@ The benchmark is ``lmap_drake.studies.deformation_benchmark``.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.deformation_benchmark import BenchDeformation
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = OneLineArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", required=True, help="JSON file to write")
     ap.add_argument("--leaf-npz", default=None,
                     help="npz with leaf_points_W and branch_points_W (W, m)")

@@ -28,12 +28,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lmap_drake.errors import RunMain
+from lmap_drake.errors import OneLineArgumentParser, RunMain
 from lmap_drake.studies.engines_benchmark import SCENES, BenchEngines, Reanalyse
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
+    ap = OneLineArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True, help="JSON file to write")
     ap.add_argument("--repeats", type=int, default=3)

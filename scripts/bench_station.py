@@ -14,11 +14,12 @@ import argparse
 import json
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.station_benchmark import BenchStation
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__,
+    p = OneLineArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True)
     p.add_argument("--scenario_name", default="Defaults")

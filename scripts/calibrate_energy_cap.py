@@ -10,16 +10,16 @@ how the shipped cap was found).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.energy_cap import Calibrate, LoadRecords
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = OneLineArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("records", nargs="+", help="episodes.jsonl / episode.json files")
     ap.add_argument("--out", required=True, help="JSON file to write")
     args = ap.parse_args(argv)

@@ -18,13 +18,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.deformation_vs_fem import (DEFAULT_CORR, DeformationVsFemOptions,
                                                    RunDeformationVsFem)
 
 
 def main(argv=None) -> int:
     d = DeformationVsFemOptions()
-    p = argparse.ArgumentParser(description=__doc__,
+    p = OneLineArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True)
     p.add_argument("--scenario_file", type=Path, default=d.scenario_file)

@@ -19,12 +19,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lmap_drake.errors import InputError
+from lmap_drake.errors import InputError, OneLineArgumentParser
 from lmap_drake.studies.fruit_detection import EvalFruitDetection
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    ap = OneLineArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario_file", nargs="+", required=True, help="scenario YAML(s)")
     ap.add_argument("--scenario_names", nargs="*", help="only these scenarios")

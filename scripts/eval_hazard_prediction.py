@@ -18,16 +18,16 @@ JSON it writes after every scenario).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.hazard import HazardStudyOptions, RunHazardStudy
 
 
 def main(argv=None) -> int:
     d = HazardStudyOptions()
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = OneLineArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True)
     p.add_argument("--scenario_file", type=Path, default=d.scenario_file)
     p.add_argument("--scenarios", nargs="*", default=d.scenarios)

@@ -12,16 +12,15 @@ JSON it writes).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
-from lmap_drake.errors import InputError
+from lmap_drake.errors import InputError, OneLineArgumentParser
 from lmap_drake.studies.held_leaf import EvalHeldLeaf
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", nargs="+", required=True, type=Path,
                     help="episode output folders (each with scenario.yaml and recording/)")
     ap.add_argument("--weights", nargs="+", default=None,

@@ -11,17 +11,17 @@ scenarios, the JSON it writes).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.paths import REPO_ROOT
 from lmap_drake.studies.segmentation import DefaultScenarios, EvalSegmentation
 
 
 def main(argv=None) -> int:
     file_default, _ = DefaultScenarios()
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="output JSON file")
     ap.add_argument("--scenario_file", type=Path, default=None,
                     help=f"scenario YAML (default {file_default.relative_to(REPO_ROOT)})")

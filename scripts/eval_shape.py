@@ -13,15 +13,15 @@ evaluated (exit code 2, the file named).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.shape_table import CONDITIONS, RunShapeTable, ShapeTableOptions
 
 
 def main(argv=None):
     d = ShapeTableOptions()
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True)
     ap.add_argument("--md", default=d.md, help="Markdown file (default: --out with .md)")
     ap.add_argument("--methods", default=d.methods)

@@ -9,11 +9,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.robot_models import WriteRobotModels
 
 
 def main(argv=None) -> None:
-    argparse.ArgumentParser(description=__doc__,
+    OneLineArgumentParser(description=__doc__,
                             formatter_class=argparse.RawDescriptionHelpFormatter
                             ).parse_args(argv)
     ur5, robotiq = WriteRobotModels()

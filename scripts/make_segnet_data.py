@@ -13,15 +13,14 @@ existing files are kept). The renders are ``lmap_drake.studies.segnet_data``
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
-from lmap_drake.errors import InputError
+from lmap_drake.errors import InputError, OneLineArgumentParser
 from lmap_drake.studies.segnet_data import MakeSegNetData
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--count", type=int, default=400)
     ap.add_argument("--seed", type=int, default=10000, help="first sample seed")

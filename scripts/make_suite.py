@@ -11,11 +11,12 @@
 import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.plants.suite import WriteSuiteFile
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__,
+    p = OneLineArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--random", type=int, default=0, help="number of random scenes")
     p.add_argument("--seed", type=int, default=0)

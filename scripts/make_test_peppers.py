@@ -10,14 +10,14 @@ tube peduncle unless ``--no_peduncle``; see
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.plants.pepper_meshes import KINDS, WriteTestPeppers
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--count", type=int, default=6)
     ap.add_argument("--seed", type=int, default=0)

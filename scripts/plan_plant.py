@@ -18,11 +18,12 @@ The study is ``lmap_drake.studies.plant_plans``.
 import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.plant_plans import PlanPlants
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__,
+    p = OneLineArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario_file", required=True)
     p.add_argument("--scenario_name", action="append", default=[],

@@ -14,12 +14,13 @@ The study is ``lmap_drake.studies.multi_suite`` (``RenderScenePng`` and
 import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.paths import DIAGRAMS_DIR
 from lmap_drake.studies.multi_suite import MeasureSuite
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__,
+    p = OneLineArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--suite", default=str(DIAGRAMS_DIR / "multi_suite.yaml"))
     p.add_argument("--out", default="out/multi_suite")

@@ -14,15 +14,15 @@ held-out errors, how the shipped weights were made).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
+from lmap_drake.errors import OneLineArgumentParser
 from lmap_drake.studies.template_training import DeepSdfTrainingOptions, TrainDeepSdf
 
 
 def main(argv=None):
     d = DeepSdfTrainingOptions()
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out_dir", default=d.out_dir)
     ap.add_argument("--family", choices=("mixed", "wide", "v1"), default=d.family,
                     help="procedural family: wide (SampleWidePepperShape), v1 (the original "

@@ -10,16 +10,15 @@ held-out IoU in the weights' ``meta`` and ``OUT.json``).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
-from lmap_drake.errors import InputError
+from lmap_drake.errors import InputError, OneLineArgumentParser
 from lmap_drake.perception.training import SegNetTrainingOptions, TrainSegNet
 
 
 def main(argv=None) -> int:
     d = SegNetTrainingOptions()
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="folder of make_segnet_data.py samples")
     ap.add_argument("--out", default=d.out)
     ap.add_argument("--steps", type=int, default=d.steps)

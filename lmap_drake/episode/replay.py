@@ -12,12 +12,34 @@ from typing import Callable
 from lmap_drake.diagram import EpisodeResources, MakeReplayDiagram
 from lmap_drake.episode.figures import Overlay, PlanOnImage
 from lmap_drake.episode.records import DescribePlan, PlanRecord
+from lmap_drake.limits import MAX_PLAN_JSON_BYTES, ReadBounded
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording, RecordingError
 from lmap_drake.perception.segmentation import MakeSegmenter
 from lmap_drake.scenario import DumpScenario, LoadScenario, Scenario, ScenarioWithCamera
 from lmap_drake.systems.view_recorder import RecordedViews
 from lmap_drake.viz import SavePng
+
+
+def ReadRunPlan(run_dir: Path) -> dict | None:
+    """The chosen action of the run's ``plan.json`` (None: no file, or the
+    run chose nothing); ``RecordingError`` naming the file when it is not a
+    plan (checked before anything is planned)."""
+    plan_file = Path(run_dir) / "plan.json"
+    if not plan_file.exists():
+        return None
+    try:
+        plan = json.loads(ReadBounded(plan_file, MAX_PLAN_JSON_BYTES, "plan file").decode())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RecordingError(f"the run's {plan_file} cannot be read: "
+                             f"{' '.join(str(err).split())[:160]}") from None
+    chosen = plan.get("chosen_action") if isinstance(plan, dict) else None
+    if not isinstance(plan, dict) or not (chosen is None or (
+            isinstance(chosen, dict)
+            and all(k in chosen for k in ("grasp_id", "direction_id", "distance")))):
+        raise RecordingError(f"the run's {plan_file} is not a plan: expected an object whose "
+                             f"chosen_action is null or has grasp_id, direction_id, distance")
+    return chosen
 
 
 def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
@@ -30,6 +52,10 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
     ``plan_on_image.png``. Returns (files, replay record)."""
     run_dir, out = Path(run_dir), Path(out)
     recording = LoadRecording(run_dir)
+    # the run's plan, read before this replay writes its own (a bag is
+    # converted into the replay's own folder); no plan.json: nothing to compare
+    had_plan = (run_dir / "plan.json").exists()
+    original = ReadRunPlan(run_dir)
     out.mkdir(parents=True, exist_ok=True)
     scenario_file = run_dir / "scenario.yaml"
     if not scenario_file.exists():
@@ -61,11 +87,6 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
     plan, plan_s = timed("action_selection")
     stage_seconds = {"segmentation_s": seg_s, "shape_completion_s": ssc_s,
                      "planning_s": plan_s, **plan.timings}
-    # the run's plan, read before this replay writes its own (a bag is
-    # converted into the replay's own folder); no plan.json: nothing to compare
-    had_plan = (run_dir / "plan.json").exists()
-    original = (json.loads((run_dir / "plan.json").read_text()).get("chosen_action")
-                if had_plan else None)
     files = ["scenario.yaml", "plan.json", "replay.json"]
     (out / "plan.json").write_text(json.dumps(PlanRecord(plan, stage_seconds), indent=1,
                                               default=float))

@@ -24,6 +24,7 @@ import numpy as np
 from lmap_drake.errors import InputError
 from lmap_drake.evaluation import tables as T
 from lmap_drake.evaluation.report import SaveFigure
+from lmap_drake.limits import MAX_SCENARIO_BYTES, ReadBounded, TooLargeError
 
 # Keys the method labels own: sweeping them would mislabel the tables.
 RESERVED = {"planner.method": "choose methods with --methods"}
@@ -75,8 +76,8 @@ def LoadSweep(path: str | Path) -> list[tuple[str, list]]:
     if not path.is_file():
         raise SweepError(f"sweep file not found: {path}")
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
+        text = ReadBounded(path, MAX_SCENARIO_BYTES, "sweep file").decode("utf-8")
+    except (OSError, UnicodeDecodeError, TooLargeError) as err:
         raise SweepError(f"cannot read sweep file {path}: {err}") from None
     return ParseSweep(text, str(path))
 

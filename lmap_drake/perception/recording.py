@@ -24,11 +24,13 @@ from __future__ import annotations
 
 import dataclasses as dc
 import json
+import struct
 from pathlib import Path
 
 import numpy as np
 
 from lmap_drake.errors import InputError
+from lmap_drake.limits import MAX_IMAGE_SIDE, MAX_RECORDING_JSON_BYTES, ReadBounded
 
 RECORDING_FORMAT = "lmap_drake.recording/1"
 RECORDING_DIR = "recording"
@@ -100,39 +102,140 @@ def SaveRecording(folder: Path, views, camera: dict, X_WC: np.ndarray,
     return [f"{RECORDING_DIR}/{f}" for f in ["recording.json"] + files]
 
 
+def _FileIn(folder: Path, name, manifest_file: Path, what: str) -> Path:
+    """``folder/name`` when ``name`` is a plain relative file name that stays
+    inside ``folder`` (no ``..``, no absolute path, no symlink out of it)."""
+    if not isinstance(name, str) or not name:
+        raise RecordingError(f"{manifest_file}: {what} file name must be a string, got {name!r}")
+    p = Path(name)
+    if p.is_absolute() or ".." in p.parts:
+        raise RecordingError(f"{manifest_file}: {what} file {name!r} is outside the recording "
+                             f"folder (file names must be relative, without '..')")
+    path = folder / p
+    if not path.exists():
+        raise RecordingError(f"{manifest_file}: {what} file {path} is missing")
+    if not path.resolve().is_relative_to(folder.resolve()):
+        raise RecordingError(f"{manifest_file}: {what} file {path} is a link to "
+                             f"{path.resolve()}, outside the recording folder")
+    if not path.is_file():
+        raise RecordingError(f"{manifest_file}: {what} file {path} is not a file")
+    return path
+
+
+def _ReadNpy(path: Path, shape: tuple, kinds: str, what: str) -> np.ndarray:
+    """A ``.npy`` array of ``shape`` whose dtype kind is in ``kinds``,
+    checked from its header before the data is read; no pickles."""
+    try:
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+            if read_header is None:
+                raise ValueError(f".npy format version {version} is not supported")
+            arr_shape, _, dtype = read_header(f)
+            if dtype.hasobject:
+                raise RecordingError(f"{what} {path} holds Python objects (a pickle), not "
+                                     f"an image; it is not loaded")
+            if tuple(arr_shape) != shape or dtype.kind not in kinds:
+                raise RecordingError(f"{what} {path} is a {dtype} array of shape "
+                                     f"{tuple(arr_shape)}, expected {shape}")
+            f.seek(0)
+            return np.load(f, allow_pickle=False)
+    except RecordingError:
+        raise
+    except (ValueError, OSError, EOFError) as err:
+        raise RecordingError(f"{what} {path} is not a NumPy .npy array file "
+                             f"({' '.join(str(err).split())[:120]})") from None
+
+
+def _ReadPng(path: Path, w: int, h: int) -> np.ndarray:
+    """An RGBA image of ``w`` x ``h``; the size is checked from the header
+    before the pixels are decoded."""
+    from PIL import Image
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        size = struct.unpack(">II", head[16:24])   # IHDR: width, height
+        if size != (w, h):
+            raise RecordingError(f"colour image {path} is {size[0]} x {size[1]} (PNG header), "
+                                 f"the camera is {w} x {h}")
+    try:
+        with Image.open(path) as im:
+            if im.size != (w, h):
+                raise RecordingError(f"colour image {path} is {im.size[0]} x {im.size[1]}, "
+                                     f"the camera is {w} x {h}")
+            return np.asarray(im.convert("RGBA"))
+    except RecordingError:
+        raise
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as err:
+        raise RecordingError(f"colour image {path} cannot be read: "
+                             f"{' '.join(str(err).split())[:120]}") from None
+
+
+def _CheckCamera(cam, manifest_file: Path) -> tuple[int, int]:
+    """(width, height) of a recorded camera with sane intrinsics."""
+    if not isinstance(cam, dict):
+        raise RecordingError(f"{manifest_file}: camera must be a map, got {cam!r}")
+    for key in ("width", "height", "fx", "fy", "cx", "cy"):
+        v = cam.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            raise RecordingError(f"{manifest_file}: camera.{key} must be a finite number, "
+                                 f"got {v!r}")
+    w, h = cam["width"], cam["height"]
+    for key, v in (("width", w), ("height", h)):
+        if v != int(v) or not 1 <= v <= MAX_IMAGE_SIDE:
+            raise RecordingError(f"{manifest_file}: camera.{key} must be an integer in "
+                                 f"[1, {MAX_IMAGE_SIDE}], got {v}")
+    for key in ("fx", "fy"):
+        if cam[key] <= 0:
+            raise RecordingError(f"{manifest_file}: camera.{key} must be > 0, got {cam[key]}")
+    return int(w), int(h)
+
+
 def LoadRecording(run_dir) -> Recording:
     """Reads ``run_dir/recording/`` (or ``run_dir`` itself when it holds
-    ``recording.json``); raises RecordingError naming the file."""
-    from PIL import Image
+    ``recording.json``); raises RecordingError naming the file. File names
+    stay inside the folder; sizes are checked before images are decoded."""
     run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise RecordingError(f"{run_dir} is a file, not a run folder (give the output "
+                             f"folder of a run, which holds recording/)")
     folder = run_dir if (run_dir / "recording.json").exists() else run_dir / RECORDING_DIR
     manifest_file = folder / "recording.json"
     if not manifest_file.exists():
         raise RecordingError(f"no recording in {run_dir}: {manifest_file} not found (a run "
                              f"records what the planner saw in its recording/ folder)")
+    if not manifest_file.is_file():
+        raise RecordingError(f"{manifest_file} is not a file")
     try:
-        m = json.loads(manifest_file.read_text())
+        m = json.loads(ReadBounded(manifest_file, MAX_RECORDING_JSON_BYTES, "recording file")
+                       .decode("utf-8"))
+    except UnicodeDecodeError:
+        raise RecordingError(f"{manifest_file} is not UTF-8 text") from None
     except json.JSONDecodeError as err:
         raise RecordingError(f"{manifest_file} is not valid JSON: {err}") from None
+    except OSError as err:
+        raise RecordingError(f"cannot read {manifest_file}: {err.strerror or err}") from None
+    if not isinstance(m, dict):
+        raise RecordingError(f"{manifest_file} must hold a JSON object, got a "
+                             f"{type(m).__name__}")
     if m.get("format") != RECORDING_FORMAT:
         raise RecordingError(f"{manifest_file}: format {m.get('format')!r} is not "
                              f"{RECORDING_FORMAT!r}")
     try:
         cam = m["camera"]
-        w, h = int(cam["width"]), int(cam["height"])
+        w, h = _CheckCamera(cam, manifest_file)
         X_WC = np.asarray(m["X_WC"], float).reshape(4, 4)
         views = []
+        if not isinstance(m["views"], list):
+            raise RecordingError(f"{manifest_file}: views must be a list")
         for e in m["views"]:
-            for key in ("rgb", "depth") + (("label",) if "label" in e else ()):
-                if not (folder / e[key]).exists():
-                    raise RecordingError(f"{manifest_file}: view {e['index']}'s {key} file "
-                                         f"{folder / e[key]} is missing")
-            rgb = np.asarray(Image.open(folder / e["rgb"]).convert("RGBA"))
-            depth = np.load(folder / e["depth"])
-            label = np.load(folder / e["label"]) if "label" in e else None
-            if rgb.shape != (h, w, 4) or depth.shape != (h, w):
-                raise RecordingError(f"{manifest_file}: view {e['index']} images are "
-                                     f"{rgb.shape[:2]} / {depth.shape}, the camera is {h}x{w}")
+            files = {key: _FileIn(folder, e[key], manifest_file, f"view {e['index']}'s {key}")
+                     for key in ("rgb", "depth") + (("label",) if "label" in e else ())}
+            rgb = _ReadPng(files["rgb"], w, h)
+            depth = _ReadNpy(files["depth"], (h, w), "fiu", "depth image")
+            label = (_ReadNpy(files["label"], (h, w), "iu", "label image")
+                     if "label" in files else None)
             views.append(CapturedView(int(e["index"]), float(e["t"]), float(e["wall_time"]),
                                       rgb, depth.astype(np.float32), label,
                                       np.asarray(e["ur5_q"], float), np.asarray(e["ur5_v"], float),

@@ -16,6 +16,7 @@ Device-agnostic (torch, CPU by default); one intra-op thread as set by
 """
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ import torch
 from scipy import ndimage
 from torch import nn
 
+from lmap_drake.errors import WeightsError
 from lmap_drake.perception.points import DepthNormals
 
 NUM_CLASSES = 4  # background, branch, leaf, fruit (lmap_drake.labels ids 0..3)
@@ -100,7 +102,7 @@ def SaveSegNet(net: SegNet, path: str | Path, meta: dict) -> None:
                str(path))
 
 
-class SegNetWeightsError(FileNotFoundError):
+class SegNetWeightsError(WeightsError):
     """The segmentation network's weights file is missing or unreadable."""
 
 
@@ -113,9 +115,14 @@ def LoadSegNet(path: str | Path, device: str = "cpu") -> SegNet:
             f"segmentation network weights not found: {path} (perception.segnet_weights); "
             f"make them with 'python scripts/train_segnet.py'")
     try:
-        blob = torch.load(str(path), map_location=device, weights_only=False)
+        blob = torch.load(str(path), map_location=device, weights_only=True)
         net = SegNet(tuple(blob["widths"]))
         net.load_state_dict(blob["state_dict"])
+    except pickle.UnpicklingError as err:   # never executed: weights_only=True
+        first = " ".join(str(err).split("\n\n")[-1].split())[:160]
+        raise SegNetWeightsError(
+            f"refusing {path} (perception.segnet_weights): it holds pickled Python objects "
+            f"other than tensors, which are never loaded (weights_only=True; {first})") from None
     except Exception as err:
         raise SegNetWeightsError(f"could not read segmentation network weights {path}: "
                                  f"{type(err).__name__}: {err}") from err

@@ -48,7 +48,7 @@ def LoadSamples(folder: Path) -> list[dict]:
     for f in sorted(folder.glob("[0-9]*.npz")):
         if ".tmp" in f.name:
             continue
-        d = np.load(f)
+        d = np.load(f, allow_pickle=False)
         out.append({"seed": int(f.stem), "x": d["inputs"], "y": d["truth"].astype(np.int64),
                     "kind": str(d["fruit_kind"]),
                     "multi": bool(d["multi"]) if "multi" in d.files else False,

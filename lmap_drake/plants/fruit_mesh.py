@@ -30,6 +30,7 @@ import numpy as np
 import trimesh
 
 from lmap_drake.errors import InputError
+from lmap_drake.limits import MAX_MESH_BYTES, MAX_MESH_FACES
 
 SUFFIXES = (".obj", ".ply", ".stl")
 # A pepper's largest extent (m): 3-20 cm real fruits, with margin.
@@ -90,6 +91,42 @@ def ResolveMeshPath(name: str) -> Path:
     return q if q.exists() else p
 
 
+def _FaceCount(path: Path) -> int | None:
+    """The number of faces a mesh file declares (binary STL, PLY header) or
+    holds (OBJ ``f`` lines, ASCII STL facets), read without loading it; None
+    when it cannot tell (the loader then names the problem)."""
+    suffix = path.suffix.lower()
+    with open(path, "rb") as f:
+        head = f.read(84)
+        if suffix == ".stl" and not head.startswith(b"solid") and len(head) == 84:
+            return int.from_bytes(head[80:84], "little")
+        f.seek(0)
+        if suffix == ".ply":
+            for _ in range(200):                       # header lines
+                line = f.readline(1000).strip()
+                if line.startswith(b"element face"):
+                    parts = line.split()
+                    return int(parts[2]) if len(parts) > 2 and parts[2].isdigit() else None
+                if line == b"end_header" or not line:
+                    return None
+            return None
+        marker = b"f" if suffix == ".obj" else b"facet"
+        return sum(1 for line in f if line.lstrip().split(b" ", 1)[0] == marker)
+
+
+def _CheckMeshSize(key: str, path: Path) -> None:
+    """The file's size and face count within ``lmap_drake.limits`` before
+    it is loaded."""
+    size = path.stat().st_size
+    if size > MAX_MESH_BYTES:
+        raise FruitMeshError(key, f"{path} is {size} bytes, more than the limit of "
+                                  f"{MAX_MESH_BYTES}; decimate it")
+    faces = _FaceCount(path)
+    if faces is not None and faces > MAX_MESH_FACES:
+        raise FruitMeshError(key, f"{path} declares {faces} faces, more than the limit of "
+                                  f"{MAX_MESH_FACES}; decimate it")
+
+
 def _read(key: str, name: str) -> trimesh.Trimesh:
     path = ResolveMeshPath(name)
     if not path.exists():
@@ -100,11 +137,15 @@ def _read(key: str, name: str) -> trimesh.Trimesh:
     if path.suffix.lower() not in SUFFIXES:
         raise FruitMeshError(key, f"{path}: unsupported format '{path.suffix}'; use "
                                   f"{', '.join(s[1:].upper() for s in SUFFIXES)}")
+    _CheckMeshSize(key, path)
     try:
         loaded = trimesh.load(str(path), force="mesh", process=False)
     except Exception as err:  # noqa: BLE001 - any parser failure is a bad file
         raise FruitMeshError(key, f"{path} could not be read as a mesh: "
                                   f"{type(err).__name__}: {' '.join(str(err).split())}") from None
+    if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces) > MAX_MESH_FACES:
+        raise FruitMeshError(key, f"{path} has {len(loaded.faces)} faces, more than the limit "
+                                  f"of {MAX_MESH_FACES}; decimate it")
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 \
             or len(loaded.vertices) < 4:
         raise FruitMeshError(key, f"{path} holds no triangles (an empty mesh)")

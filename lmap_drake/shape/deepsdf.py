@@ -17,6 +17,7 @@ norm is folded into plain weights, scales are 1 (metric in, metric out).
 from __future__ import annotations
 
 import json
+import pickle
 import re
 import time
 from pathlib import Path
@@ -164,8 +165,22 @@ def _from_hortimapping(state: dict) -> tuple[DeepSDFDecoder, dict]:
     return dec, {"source": "hortimapping"}
 
 
+def _TensorLoad(path: Path, key: str):
+    """``torch.load`` of tensors, numbers, strings, lists and dicts only
+    (``weights_only=True``): a file holding any other pickled object is
+    refused, never executed (``MissingWeightsError`` naming the file and
+    ``key``)."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        first = " ".join(str(err).split("\n\n")[-1].split())[:160]
+        raise MissingWeightsError(
+            f"refusing {path} ({key}): it holds pickled Python objects other than tensors, "
+            f"which are never loaded (weights_only=True; {first})") from None
+
+
 def _DecoderFromFile(path: Path, mean_latent_file) -> tuple:
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    ckpt = _TensorLoad(path, "shape.weights_file")
     if isinstance(ckpt, dict) and ckpt.get("format") == FORMAT:
         cfg = ckpt["config"]
         dec = DeepSDFDecoder(cfg["latent_size"], cfg["width"], cfg["depth"],
@@ -180,9 +195,9 @@ def _DecoderFromFile(path: Path, mean_latent_file) -> tuple:
         if mean_latent_file is not None:
             mp = ResolveWeightsPath(mean_latent_file)
             if mp.suffix == ".npy":
-                mean = np.load(mp).astype(np.float32).reshape(-1)
+                mean = np.load(mp, allow_pickle=False).astype(np.float32).reshape(-1)
             else:
-                lat = torch.load(mp, map_location="cpu", weights_only=False)
+                lat = _TensorLoad(mp, "shape.mean_latent_file")
                 if isinstance(lat, dict):
                     lat = lat.get("latent_codes", {}).get("weight", lat)
                 mean = torch.as_tensor(lat).float().reshape(-1, dec.latent_size).mean(0).numpy()

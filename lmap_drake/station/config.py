@@ -16,7 +16,8 @@ from pydrake.geometry import Rgba
 from pydrake.math import RollPitchYaw
 from pydrake.systems.sensors import CameraConfig
 
-from lmap_drake.config_checks import CheckRules, FiniteTransform, Join, Need
+from lmap_drake.config_checks import CheckRules, FiniteTransform, Join, Need, RuleError
+from lmap_drake.limits import MAX_IMAGE_SIDE
 
 
 def _transform(xyz, rpy_deg, base_frame: str | None = None) -> Transform:
@@ -190,6 +191,9 @@ def ValidateCameras(cameras: typing.Mapping[str, CameraConfig], path: str = "cam
         Need(cam.depth and cam.rgb, p, "needs rgb and depth enabled")
         Need(cam.width >= 1 and cam.height >= 1, p,
              f"width and height must be >= 1, got {cam.width} x {cam.height}")
+        Need(cam.width <= MAX_IMAGE_SIDE and cam.height <= MAX_IMAGE_SIDE, p,
+             f"width and height must be at most {MAX_IMAGE_SIDE} px (lmap_drake.limits), "
+             f"got {cam.width} x {cam.height}")
         Need(np.isfinite(cam.fps) and cam.fps > 0, f"{p}.fps", f"must be > 0, got {cam.fps}")
         Need(0 < cam.clipping_near < cam.clipping_far, p,
              f"needs 0 < clipping_near < clipping_far, got {cam.clipping_near}, "
@@ -200,3 +204,71 @@ def ValidateCameras(cameras: typing.Mapping[str, CameraConfig], path: str = "cam
         Need(np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0, f"{p}.focal",
              f"must be > 0, got {fx}, {fy}")
         Need(FiniteTransform(cam.X_PB), f"{p}.X_PB", "must be a finite pose")
+        Need(cam.X_PB.base_frame in (None, "", "world"), f"{p}.X_PB.base_frame",
+             f"must be 'world' (the pipeline's cameras are posed in the world), got "
+             f"'{cam.X_PB.base_frame}'")
+        for key in ("X_BC", "X_BD"):
+            Need(FiniteTransform(getattr(cam, key)), f"{p}.{key}", "must be a finite pose")
+        Need(not isinstance(cam.renderer_class, str) or cam.renderer_class in RENDERER_CLASSES,
+             f"{p}.renderer_class", f"'{cam.renderer_class}' unknown; choose one of "
+             f"{', '.join(repr(r) for r in RENDERER_CLASSES)}")
+        for key in ("capture_offset", "output_delay"):
+            v = getattr(cam, key)
+            Need(np.isfinite(v) and v >= 0, f"{p}.{key}", f"must be >= 0, got {v}")
+
+
+# Drake's settings (simulator, plant, scene graph, lights): checked at load,
+# before Drake builds anything (it would fail late or accept them).
+RENDERER_CLASSES = ("", "RenderEngineVtk", "RenderEngineGl", "RenderEngineGltfClient")
+_PLANT_RULES = {"time_step": ">0", "penetration_allowance": ">0",
+                "stiction_tolerance": ">0", "sap_near_rigid_threshold": ">=0"}
+_PLANT_ENUMS = {
+    "contact_model": ("point", "hydroelastic", "hydroelastic_with_fallback"),
+    "discrete_contact_approximation": ("", "tamsi", "sap", "similar", "lagged"),
+    "contact_surface_representation": ("triangle", "polygon"),
+}
+_SIMULATOR_RULES = {"max_step_size": ">0", "accuracy": ">0", "start_time": ">=0",
+                    "target_realtime_rate": ">=0"}
+_LIGHT_TYPES = ("point", "spot", "directional")
+_LIGHT_FRAMES = ("world", "camera")
+_PROXIMITY_RULES = {"hydroelastic_modulus": ">0", "resolution_hint": ">0",
+                    "dynamic_friction": ">=0", "static_friction": ">=0",
+                    "hunt_crossley_dissipation": ">=0", "relaxation_time": ">=0",
+                    "point_stiffness": ">0", "slab_thickness": ">0", "margin": ">=0"}
+
+
+def _CheckStruct(cfg, path: str, rules: dict, enums: dict = {}) -> None:
+    """``rules`` / ``enums`` on a Drake-bound struct (optional fields may be None)."""
+    for key, rule in rules.items():
+        v = getattr(cfg, key)
+        if v is not None:
+            err = RuleError(v, rule)
+            Need(not err, Join(path, key), err)
+    for key, choices in enums.items():
+        v = getattr(cfg, key)
+        Need(v in choices, Join(path, key), f"'{v}' unknown; choose one of "
+             f"{', '.join(repr(c) for c in choices)}")
+
+
+def ValidateDrakeConfigs(simulator_config, plant_config, scene_graph_config, lights) -> None:
+    """``simulator_config``, ``plant_config`` (a discrete plant: the leaves
+    are deformable), ``scene_graph_config`` and ``lights`` hold values Drake
+    accepts; raises ``ConfigError`` naming the key."""
+    from pydrake.systems.analysis import GetIntegrationSchemes
+    _CheckStruct(simulator_config, "simulator_config", _SIMULATOR_RULES,
+                 {"integration_scheme": tuple(GetIntegrationSchemes())})
+    _CheckStruct(plant_config, "plant_config", _PLANT_RULES, _PLANT_ENUMS)
+    props = scene_graph_config.default_proximity_properties
+    _CheckStruct(props, "scene_graph_config.default_proximity_properties", _PROXIMITY_RULES,
+                 {"compliance_type": ("undefined", "rigid", "compliant")})
+    for i, light in enumerate(lights):
+        p = f"lights[{i}]"
+        _CheckStruct(light, p, {"intensity": ">=0", "cone_angle": "[0,90]"},
+                     {"type": _LIGHT_TYPES, "frame": _LIGHT_FRAMES})
+        for key in ("attenuation_values", "position", "direction"):
+            v = np.asarray(getattr(light, key), float)
+            Need(np.all(np.isfinite(v)), Join(p, key), f"must be finite, got {v.tolist()}")
+        Need(np.any(np.asarray(light.attenuation_values) != 0), Join(p, "attenuation_values"),
+             "must not be all zero")
+        Need(light.type != "directional" or np.linalg.norm(light.direction) > 0,
+             Join(p, "direction"), "must not be zero for a directional light")

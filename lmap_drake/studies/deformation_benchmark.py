@@ -51,7 +51,7 @@ def BenchDeformation(leaf_npz: str | None = None, factorization: str = "inverse"
     leaf; ``repeats`` runs (the first also pays numba's start-up), then the
     dense interpolation unless ``dense`` is False. The result JSON's fields."""
     if leaf_npz:
-        data = np.load(leaf_npz)
+        data = np.load(leaf_npz, allow_pickle=False)
         leaf, branch = data["leaf_points_W"], data["branch_points_W"]
     else:
         leaf, branch = OvateLeaf(spacing=0.001, noise=0.002, p_WL=[0.5, -0.1, 0.35])

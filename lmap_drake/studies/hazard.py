@@ -425,7 +425,7 @@ def Repredict(path: str, deformation_text: str, hinge_bending_weight: float) -> 
     cfg = dc.replace(DeformationConfig(), **(yaml.safe_load(deformation_text) or {}))
     pooled, out = [], {}
     for name, sc in d["scenarios"].items():
-        z = np.load(Path(path).with_suffix(f".{name}.npz"))
+        z = np.load(Path(path).with_suffix(f".{name}.npz"), allow_pickle=False)
         acts = []
         for r in sc["rows"]:
             if r["family"] == "twist":
