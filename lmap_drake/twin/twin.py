@@ -66,7 +66,9 @@ class TwinOptions:
     camera_port: int = 50410
     gripper_port: int = 63352
     rate: float = 0.5                 # simulated s per wall s
-    frame_period: float = 0.1         # re-render at most every this many simulated s
+    # re-render at most every this many simulated s (the run command's camera fps 5:
+    # a twin behind its clock got requests faster and rendered more, falling further behind)
+    frame_period: float = 0.2
     # The plant's time step (s) while the pads hold the leaf (the station with the
     # grasp constraint; 0: the scenario's plant_config.time_step): the FEM leaf's
     # step is most of the twin's work then. The free station keeps the scenario's.
