@@ -25,10 +25,11 @@ The plant world advances at ``rate`` simulated seconds per wall second
 (default 0.5; it cannot run in real time on 2 cores while it holds the
 leaf); the camera tells the episode runner that pace so both share one
 clock. A frame is rendered again only when the arm, the fingers or the leaf
-moved; while the leaf is held the plant steps ``held_time_step``. Ground-truth samples are taken as in
-simulation; ``Finish`` writes ``outcome.json`` (up to the release, and
-``release_outcome`` after it) and ``twin_log.json`` (events, pacing, the
-emulator's loop statistics).
+moved; while the leaf is held the plant steps ``held_time_step``.
+Ground-truth samples are taken as in simulation; ``Finish`` writes
+``outcome.json`` (up to the release, and ``release_outcome`` after it) and
+``twin_log.json`` (events, pacing: ``pace``, ``max_lag_s`` and ``timing``,
+wall s by phase and kind of work; the emulator's loop statistics).
 """
 from __future__ import annotations
 
