@@ -473,7 +473,7 @@ def _main(argv=None) -> int:
                     help="loopback address to listen on (default: %(default)s)")
     tw.add_argument("--camera_port", type=int, default=50410, help="camera socket port")
     tw.add_argument("--gripper_port", type=int, default=63352, help="Robotiq URCap port")
-    tw.add_argument("--rate", type=float, default=0.25,
+    tw.add_argument("--rate", type=float, default=0.5,
                     help="simulated seconds per wall second (default: %(default)s)")
     tw.add_argument("--duration", type=float, default=0.0,
                     help="stop after this many wall seconds (0: until Ctrl-C or 'quit')")

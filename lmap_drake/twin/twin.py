@@ -9,7 +9,10 @@ GIL while it waits for its controller):
 - the UR controller EMULATOR (``twin.ur_emulator``, in a child
   process so its 500 Hz loop never waits for the simulation) on ``host``
   (dashboard 29999, RTDE 30004, script 30003): the real ur_rtde client
-  connects to it; its emulated joints drive the simulated UR5;
+  connects to it; its servo model's joints are the simulated UR5's command,
+  and the simulated UR5's measured joints are what it reports as
+  ``actual_q`` (``getActualQ``: a blocked simulated arm shows), both
+  through shared memory every 20 ms simulated step;
 - the Robotiq URCap socket (``twin.robotiq_server``, ``gripper_port``)
   over a register model whose fingers are the simulated 2F-85's (they stall
   on the FEM leaf);
@@ -18,15 +21,19 @@ GIL while it waits for its controller):
 - the grasp as in simulation: when the pads close on the leaf the station is
   rebuilt with the leaf fixed between them, and undone when they open.
 
-The plant world advances at ``rate`` simulated seconds per wall second (it
-cannot run in real time on 2 cores); the camera tells the episode runner
-that pace so both share one clock. Ground-truth samples are taken as in
-simulation; ``Finish`` writes ``outcome.json`` (up to the release, and
-``release_outcome`` after it) and ``twin_log.json`` (events, pacing, the
-emulator's loop statistics).
+The plant world advances at ``rate`` simulated seconds per wall second
+(default 0.5; it cannot run in real time on 2 cores while it holds the
+leaf); the camera tells the episode runner that pace so both share one
+clock. A frame is rendered again only when the arm, the fingers or the leaf
+moved; while the leaf is held the plant steps ``held_time_step``.
+Ground-truth samples are taken as in simulation; ``Finish`` writes
+``outcome.json`` (up to the release, and ``release_outcome`` after it) and
+``twin_log.json`` (events, pacing: ``pace``, ``max_lag_s`` and ``timing``,
+wall s by phase and kind of work; the emulator's loop statistics).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses as dc
 import json
 import queue
@@ -41,6 +48,7 @@ from lmap_drake.errors import InputError
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.plants.outcome import Summarize
 from lmap_drake.plants.plant_sim import PlantWorldSim
+from lmap_drake.plants.plant_station import MakePlantStation
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.hardware.robotiq_client import OpeningToPos, PosToOpening
 from lmap_drake.station.hardware_config import CameraCalibration
@@ -49,14 +57,23 @@ from lmap_drake.twin.robotiq_server import RobotiqSocketServer
 from lmap_drake.twin.ur_emulator import EmulatorProcess
 
 
+STILL = 1e-4     # m or rad: a scene that moved less is rendered again only as a copy
+
+
 @dc.dataclass
 class TwinOptions:
     """Where the twin listens and how fast it runs."""
     host: str = "127.0.0.1"
     camera_port: int = 50410
     gripper_port: int = 63352
-    rate: float = 0.25                # simulated s per wall s
-    frame_period: float = 0.1         # re-render at most every this many simulated s
+    rate: float = 0.5                 # simulated s per wall s
+    # re-render at most every this many simulated s (the run command's camera fps 5:
+    # a twin behind its clock got requests faster and rendered more, falling further behind)
+    frame_period: float = 0.2
+    # The plant's time step (s) while the pads hold the leaf (the station with the
+    # grasp constraint; 0: the scenario's plant_config.time_step): the FEM leaf's
+    # step is most of the twin's work then. The free station keeps the scenario's.
+    held_time_step: float = 0.02
     fault: str = "protective_stop"       # protective_stop | emergency_stop | drop
     fault_after_grasp_move: float = 0.0  # > 0: inject ``fault`` once the held leaf moved (m)
     # The plant settles to this time (when a simulated episode captures its
@@ -133,26 +150,42 @@ class TwinGripper:
 class _EmulatorChild:
     """The UR controller emulator in a child process (``EmulatorProcess``):
     its 500 Hz loop then never waits for the simulation's Python work (the
-    GIL). ``Poll`` refreshes the state the twin reads."""
+    GIL). The arm's state crosses in shared memory (``SharedArmState``, no
+    pipe round trip per step): ``Exchange`` hands the emulator the
+    simulated arm's measured joints (its ``getActualQ``) and reads its servo
+    model's joints (the command) and stop flags; ``Poll`` refreshes the full
+    state (statistics, fault log) over the control pipe."""
 
     def __init__(self, host: str, q0):
-        self.proc = EmulatorProcess(host, q0=q0)
+        self.proc = EmulatorProcess(host, q0=q0, shared_state=True)
         self.state = self.proc.State()
+        self._servo = (np.asarray(self.state["q_servo"], float), False, False)
+        self.Exchange()
 
     def Poll(self) -> None:
         self.state = self.proc.State()
 
+    def Exchange(self, q_measured=None, v_measured=None) -> None:
+        """Writes the simulated arm's joints (rad, rad/s; None: none yet) and
+        reads the emulator's servo joints and stop flags."""
+        if q_measured is not None:
+            self.proc.shared.WriteMeasured(q_measured, v_measured)
+        servo = self.proc.shared.ReadServo()
+        if servo is not None:
+            self._servo = servo
+
     @property
-    def q_actual(self) -> np.ndarray:
-        return np.asarray(self.state["q_actual"], float)
+    def q_servo(self) -> np.ndarray:
+        """The emulator's servo model joints (rad): the simulated arm's command."""
+        return np.array(self._servo[0], float)
 
     @property
     def protective_stopped(self) -> bool:
-        return bool(self.state["protective_stopped"])
+        return self._servo[1]
 
     @property
     def emergency_stopped(self) -> bool:
-        return bool(self.state["emergency_stopped"])
+        return self._servo[2]
 
     @property
     def stats(self) -> dict:
@@ -185,7 +218,8 @@ class Twin:
                  progress: Callable[[str], None] | None = None):
         self.scenario, self.options = scenario, options or TwinOptions()
         self.progress = progress or (lambda m: None)
-        self.world = PlantWorldSim(scenario, None, self.progress)
+        self.world = PlantWorldSim(scenario, None, self.progress,
+                                   make_diagram=self._StationMaker())
         self.gripper = TwinGripper(scenario.hardware.gripper, scenario.robot.initial_gripper_width)
         K = Intrinsics.FromCameraConfig(scenario.cameras["camera0"])
         self.camera_info = {"width": K.width, "height": K.height, "fx": K.fx, "fy": K.fy,
@@ -197,6 +231,10 @@ class Twin:
         self.frames: list[dict] = []           # t, visibility of every rendered frame
         self.trace: list[dict] = []            # every 0.1 simulated s: commands and the world
         self.lag_max = 0.0
+        self.paced = {"simulated_s": 0.0, "wall_s": 0.0}   # from the first motion on
+        # wall s by phase (leaf held or not) and kind of work, from the first motion on
+        self.timing = {p: dict.fromkeys(("simulated_s", "advance", "render", "other", "idle"),
+                                        0.0) for p in ("free", "held")}
         self.vis_initial = None
         self.release_sample = None
         self.vis_at_release = None
@@ -208,7 +246,23 @@ class Twin:
         self._grasp_tried_at = None
         self._grasp_opening = None      # where the pads met the leaf
         self.stopped_by_twin = False
+        self._timing_on, self._booked = False, 0.0
+        self._frame_pose = None        # arm, fingers, leaf of the last rendered frame
         self.emulator = self.camera = self.gripper_server = None
+
+    def _StationMaker(self):
+        """``make_diagram`` for the plant world: the scenario's station, with
+        ``held_time_step`` while a leaf is held."""
+        held = self.scenario
+        if self.options.held_time_step > 0:
+            held = copy.deepcopy(self.scenario)
+            held.plant_config.time_step = float(self.options.held_time_step)
+
+        def make(scenario, meshcat, grasp):
+            station = MakePlantStation(scenario if grasp is None else held, meshcat,
+                                       leaf_grasp=grasp)
+            return station, station
+        return make
 
     # --- servers ------------------------------------------------------------
     def Start(self) -> "Twin":
@@ -225,8 +279,15 @@ class Twin:
                              f"UR emulator may be running there: use --host 127.0.0.2 or other "
                              f"ports") from None
         self.world.AdvanceTo(self.options.start_time)
+        self._Measure()
         self.vis_initial = self.world.Visibility()
         return self
+
+    def _Measure(self) -> None:
+        """The simulated arm's joints to the emulator (its ``getActualQ``)."""
+        state = self.world.station.GetOutputPort("ur5.state_estimated").Eval(
+            self.world.station_context)
+        self.emulator.Exchange(state[:6], state[6:])
 
     def _FrameRequest(self):
         """Called by the camera server's threads: the main loop renders."""
@@ -247,7 +308,10 @@ class Twin:
                 return
             try:
                 t = self.world.time
-                if self._frame is None or t - self._frame[0] >= self.options.frame_period - 1e-9:
+                if self._frame is None or (t - self._frame[0] >= self.options.frame_period
+                                           - 1e-9 and not self._Still()):
+                    t_render = time.perf_counter()
+                    self._frame_pose = self._Pose()
                     images = self.world.Images()
                     rgba = np.array(images["rgb_image"].data, np.uint8)
                     depth = np.array(images["depth_image"].data[..., 0], np.float32)
@@ -259,50 +323,92 @@ class Twin:
                                                      - self._grasp_tcp))
                         if moved >= self._held_moved - 1e-4:
                             self._held_moved, self.vis_held = moved, vis
+                    self._Spent("render", time.perf_counter() - t_render)
                 box["frame"] = self._frame
             except Exception as err:  # noqa: BLE001 - reported to the camera client
                 box["error"] = f"{type(err).__name__}: {err}"
             done.set()
+
+    def _Still(self) -> bool:
+        """True when the arm, the fingers and the leaf moved less than
+        ``STILL`` (m or rad) since the last rendered frame: that frame is
+        served again (rendering with the camera model costs 0.1-0.3 s)."""
+        last, pose = self._frame_pose, self._Pose()
+        return last is not None and last.shape == pose.shape and \
+            np.abs(pose - last).max() < STILL
+
+    def _Pose(self) -> np.ndarray:
+        w = self.world
+        return np.concatenate([w.q(), [w.GripperWidth()], w.LeafVertices(0).ravel()])
 
     # --- the loop -----------------------------------------------------------
     def Run(self, stop: threading.Event, step: float = 0.02) -> None:
         """Advances the plant world at ``rate`` until ``stop`` is set."""
         w, o = self.world, self.options
         last_width = w.GripperWidth()
-        q0 = self.emulator.q_actual
+        self.emulator.Exchange()
+        q0 = self.emulator.q_servo
         while not stop.is_set():       # the clock starts with the first motion
             self._ServeFrames()
-            self.emulator.Poll()
-            if np.abs(self.emulator.q_actual - q0).max() > 1e-4 or (
+            self.emulator.Exchange()
+            if np.abs(self.emulator.q_servo - q0).max() > 1e-4 or (
                     self.gripper.RequestedOpening() not in (None, w.width_cmd)):
                 self.events.append({"t": w.time, "event": "first_motion"})
                 break
             time.sleep(0.02)
         t0, wall0 = w.time, time.monotonic()
+        self._timing_on = True
         while not stop.is_set():
+            self.paced = {"simulated_s": w.time - t0, "wall_s": time.monotonic() - wall0}
             self._ServeFrames()
             ahead = t0 + (time.monotonic() - wall0) * o.rate - w.time
             if ahead < step:
+                t_idle = time.perf_counter()
                 time.sleep(min(0.02, (step - ahead) / o.rate))
+                self._Spent("idle", time.perf_counter() - t_idle)
                 continue
             self.lag_max = max(self.lag_max, ahead - step)
-            self.emulator.Poll()
-            w.q_cmd = self.emulator.q_actual
+            t_step = time.perf_counter()
+            self.emulator.Exchange()
+            w.q_cmd = self._ArmCommand()
             opening = self.gripper.RequestedOpening()
             if opening is not None:
                 w.width_cmd = float(opening)
             w.ApplyCommands()
+            t_advance = time.perf_counter()
             w.AdvanceTo(w.time + step)
+            self._Spent("advance", time.perf_counter() - t_advance)
+            self.timing["held" if w.grasp_state is not None else "free"]["simulated_s"] += step
+            self._Measure()
             width = w.GripperWidth()
             rate = (width - last_width) / step
             self.gripper.SetMeasured(width, rate, w.time)
             last_width = width
             if not self.trace or w.time - self.trace[-1]["t"] >= 0.1 - 1e-9:
-                self.trace.append({"t": w.time, "q_command": w.q_cmd.tolist(),
+                self.trace.append({"t": w.time, "wall": time.monotonic() - wall0,
+                                   "q_command": w.q_cmd.tolist(),
                                    "q": w.q().tolist(), "p_WT": w.X_WT().translation().tolist(),
                                    "opening_command": w.width_cmd, "opening": width})
             self._GraspAndRelease(width, rate)
             self._WatchFaults()
+            self._Spent("other", time.perf_counter() - t_step)
+
+    def _Spent(self, kind: str, seconds: float) -> None:
+        """Books wall seconds (``other``: a whole step, less what was booked
+        inside it)."""
+        if not self._timing_on:
+            return
+        phase = self.timing["held" if self.world.grasp_state is not None else "free"]
+        if kind == "other":
+            seconds -= self._booked
+            self._booked = 0.0
+        elif kind == "advance":       # inside the step
+            self._booked += seconds
+        phase[kind] += seconds
+
+    def _ArmCommand(self) -> np.ndarray:
+        """The simulated arm's joint command (rad): the emulator's servo joints."""
+        return self.emulator.q_servo
 
     def _GraspAndRelease(self, width: float, rate: float) -> None:
         """The pads hold the leaf once they close to ``grasp_attach_opening``
@@ -389,7 +495,9 @@ class Twin:
         log = {"events": self.events, "frames": self.frames, "trace": self.trace,
                "simulated_seconds": w.time,
                "rate": self.options.rate, "max_lag_s": self.lag_max,
-               "fault_stop": self.fault_stop,
+               "pace": dict(self.paced, ratio=self.paced["simulated_s"]
+                            / max(self.paced["wall_s"], 1e-9)),
+               "fault_stop": self.fault_stop, "timing": self.timing,
                "emulator": stats,
                "emulator_faults": list(getattr(self.emulator, "fault_log", []))}
         (out / "twin_log.json").write_text(json.dumps(log, indent=1, default=float))

@@ -68,7 +68,11 @@ Implemented:
   (dashboard ``unlock protective stop``) and ``ReleaseEmergencyStop`` then
   dashboard ``power on`` / ``brake release`` recover.
 - Digital-twin hook: ``q_actual`` / ``qd_actual`` / ``q_command``
-  (thread-safe copies), ``SetActual`` and a replaceable ``servo_model``.
+  (thread-safe copies), ``SetActual`` and a replaceable ``servo_model``;
+  ``SetMeasured`` (or a ``SharedArmState`` in shared memory, ``--shared-state``)
+  makes ``actual_q`` / ``actual_qd`` / the actual TCP pose a simulated arm's
+  measured joints, while the servo model's joints (``q_servo``) become the
+  command that arm tracks: a blocked simulated arm shows in ``getActualQ``.
 
 Not emulated: the primary/secondary/realtime state streams (30001/30002,
 and 30003's outgoing data), URScript itself (only ur_rtde's control script's
@@ -622,13 +626,13 @@ class ControlScript:
         elif cmd == 40:  # get_tcp_offset
             self._WriteFloats(0, arm.tcp_offset)
         elif cmd in (43, 44):  # get_forward_kin default / args
-            q, tcp = (arm.q, arm.tcp_offset) if cmd == 43 else (self._Floats(0),
+            q, tcp = (self.emu.actual[0], arm.tcp_offset) if cmd == 43 else (self._Floats(0),
                                                                  self._Floats(6))
             self._WriteFloats(0, TransformToPose(TcpTransform(q, tcp)))
         elif cmd == 47:  # is_steady
             self._WriteInt(1, int(not np.any(np.abs(arm.qd) > 1e-4)))
         elif cmd == 58:  # get_actual_tool_flange_pose
-            self._WriteFloats(0, TransformToPose(Ur5DhForwardKinematics(arm.q)))
+            self._WriteFloats(0, TransformToPose(Ur5DhForwardKinematics(self.emu.actual[0])))
         elif cmd in CMD_NAMES and cmd not in (17, 35):
             LOG.warning("control script: command %d (%s) is not emulated; answered done",
                         cmd, CMD_NAMES[cmd])
@@ -794,6 +798,8 @@ class UrEmulator:
         self._stop = threading.Event()
         self._refuse_until = 0.0
         self._t_start = time.monotonic()
+        self._measured: tuple[np.ndarray, np.ndarray] | None = None  # a simulated arm's (q, qd)
+        self._shared: SharedArmState | None = None
         self.stats = {"ticks": 0, "late_ticks": 0, "max_late_s": 0.0, "packages_sent": 0,
                       "packages_received": 0}
 
@@ -826,6 +832,9 @@ class UrEmulator:
         self._CloseConnections()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
+        if self._shared is not None and (self._thread is None or not self._thread.is_alive()):
+            self._shared.Close()
+            self._shared = None
 
     def __enter__(self) -> "UrEmulator":
         return self.Start()
@@ -835,14 +844,39 @@ class UrEmulator:
 
     # ---- digital-twin hook ---------------------------------------------------
     @property
+    def actual(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q, qd) the controller reports: a simulated arm's measured joints
+        once ``SetMeasured`` (or the shared state) gave them, else the servo
+        model's."""
+        return self._measured if self._measured is not None else (self.arm.q, self.arm.qd)
+
+    @property
     def q_actual(self) -> np.ndarray:
         with self._lock:
-            return self.arm.q.copy()
+            return self.actual[0].copy()
 
     @property
     def qd_actual(self) -> np.ndarray:
         with self._lock:
-            return self.arm.qd.copy()
+            return self.actual[1].copy()
+
+    @property
+    def q_servo(self) -> np.ndarray:
+        """The servo model's joints: the command a simulated arm tracks."""
+        with self._lock:
+            return self.arm.q.copy()
+
+    def SetMeasured(self, q, qd=None) -> None:
+        """A simulated arm's measured joints (rad, rad/s): reported from now
+        on as ``actual_q`` / ``actual_qd`` (None: the servo model's again)."""
+        with self._lock:
+            self._measured = None if q is None else (
+                np.array(q, float), np.zeros(6) if qd is None else np.array(qd, float))
+
+    def AttachSharedState(self, name: str) -> None:
+        """Exchanges the arm's state with a twin through the shared memory
+        block ``name`` (see ``SharedArmState``) every controller cycle."""
+        self._shared = SharedArmState(name)
 
     @property
     def q_command(self) -> np.ndarray:
@@ -961,16 +995,17 @@ class UrEmulator:
     def _Snapshot(self, now: float) -> dict:
         """Values of the computed outputs at this cycle."""
         arm = self.arm
+        q, qd = self.actual
         running = self.script is not None and self.script.running
-        T = TcpTransform(arm.q, arm.tcp_offset)
+        T = TcpTransform(q, arm.tcp_offset)
         T_ref = TcpTransform(arm.q_ref, arm.tcp_offset)
-        tcp_speed = TcpJacobian(arm.q, arm.tcp_offset) @ arm.qd
-        frames = Ur5DhFrames(arm.q)
+        tcp_speed = TcpJacobian(q, arm.tcp_offset) @ qd
+        frames = Ur5DhFrames(q)
         joint_mode = JOINT_MODE_RUNNING if self.powered else JOINT_MODE_POWER_OFF
         snap = {
             "timestamp": now - self._t_start,
             "target_q": tuple(arm.q_ref), "target_qd": tuple(arm.qd), "target_qdd": tuple(arm.qdd),
-            "actual_q": tuple(arm.q), "actual_qd": tuple(arm.qd), "actual_qdd": tuple(arm.qdd),
+            "actual_q": tuple(q), "actual_qd": tuple(qd), "actual_qdd": tuple(arm.qdd),
             "actual_TCP_pose": tuple(TransformToPose(T)),
             "target_TCP_pose": tuple(TransformToPose(T_ref)),
             "actual_TCP_speed": tuple(tcp_speed), "target_TCP_speed": tuple(tcp_speed),
@@ -1027,6 +1062,12 @@ class UrEmulator:
                 if self.arm.motion.kind != "halted":
                     self.arm.Hold("halted")
             self.arm.Step(dt)
+            if self._shared is not None:
+                measured = self._shared.ReadMeasured()
+                if measured is not None:
+                    self._measured = measured
+                self._shared.WriteServo(self.arm.q, self.protective_stopped,
+                                        self.emergency_stopped)
             conns = [c for c in self._connections
                      if isinstance(c, _RtdeConnection) and c.started and c.outputs is not None]
             if not conns and self.latency <= 0:  # nobody reads: skip the outputs
@@ -1385,6 +1426,77 @@ def _ScriptInt(program: str, name: str) -> int:
     return int(m.group(1))
 
 
+# ------------------------------------------------------------------ shared state
+class SharedArmState:
+    """The arm's state shared by the emulator's process and a digital
+    twin's (``multiprocessing.shared_memory``: no pipe round trip per
+    step). The emulator writes, every controller cycle, its servo model's
+    joints (rad: the command the simulated arm tracks) and its stop flags;
+    the twin writes the simulated arm's measured joints (rad, rad/s), which
+    the emulator then reports as ``actual_q`` / ``actual_qd``. Each side's
+    block starts with a sequence counter, odd while it is being written
+    (a seqlock: a reader retries a torn read). ``name=None`` creates the
+    block (its owner unlinks it on ``Close``); a name attaches to it."""
+    SIZE = 32                      # float64 slots
+    _SERVO, _MEASURED = 0, 16      # [seq, q(6), protective, estop] / [seq, q(6), qd(6)]
+
+    def __init__(self, name: str | None = None):
+        from multiprocessing import resource_tracker, shared_memory
+        self.owner = name is None
+        self.shm = shared_memory.SharedMemory(name=name, create=self.owner, size=self.SIZE * 8)
+        if not self.owner:         # the creator unlinks it, not this process's tracker
+            resource_tracker.unregister(self.shm._name, "shared_memory")
+        self.a = np.ndarray((self.SIZE,), np.float64, buffer=self.shm.buf)
+        if self.owner:
+            self.a[:] = 0.0
+
+    @property
+    def name(self) -> str:
+        return self.shm.name
+
+    def _Write(self, base: int, values) -> None:
+        a = self.a
+        a[base] += 1.0
+        a[base + 1:base + 1 + len(values)] = values
+        a[base] += 1.0
+
+    def _Read(self, base: int, n: int) -> tuple[float, np.ndarray]:
+        a = self.a
+        for _ in range(10000):
+            seq = a[base]
+            if seq % 2 == 0:
+                values = a[base + 1:base + 1 + n].copy()
+                if a[base] == seq:
+                    return seq, values
+            time.sleep(0)
+        raise RuntimeError("shared arm state: no consistent read")
+
+    def WriteServo(self, q, protective_stopped: bool, emergency_stopped: bool) -> None:
+        self._Write(self._SERVO, [*q, float(protective_stopped), float(emergency_stopped)])
+
+    def ReadServo(self) -> tuple[np.ndarray, bool, bool] | None:
+        """(servo joints, protective stop, emergency stop); None before the
+        emulator's first cycle."""
+        seq, v = self._Read(self._SERVO, 8)
+        return None if seq == 0 else (v[:6], bool(v[6]), bool(v[7]))
+
+    def WriteMeasured(self, q, qd) -> None:
+        self._Write(self._MEASURED, [*q, *qd])
+
+    def ReadMeasured(self) -> tuple[np.ndarray, np.ndarray] | None:
+        seq, v = self._Read(self._MEASURED, 12)
+        return None if seq == 0 else (v[:6], v[6:])
+
+    def Close(self) -> None:
+        self.a = None
+        self.shm.close()
+        if self.owner:
+            try:
+                self.shm.unlink()
+            except FileNotFoundError:
+                pass
+
+
 # ------------------------------------------------------------------ control
 def EmulatorState(emu: UrEmulator) -> dict:
     """JSON-ready view of the emulator (arm, faults, script, statistics)."""
@@ -1392,9 +1504,10 @@ def EmulatorState(emu: UrEmulator) -> dict:
         script = emu.script
         return {
             "host": emu.host, "ports": emu.ports, "frequency": emu.frequency,
-            "q_actual": emu.arm.q.tolist(), "qd_actual": emu.arm.qd.tolist(),
+            "q_actual": emu.actual[0].tolist(), "qd_actual": emu.actual[1].tolist(),
+            "q_servo": emu.arm.q.tolist(), "measured": emu._measured is not None,
             "q_command": emu.arm.q_ref.tolist(), "motion": emu.arm.motion.kind,
-            "tcp_pose": TransformToPose(TcpTransform(emu.arm.q, emu.arm.tcp_offset)).tolist(),
+            "tcp_pose": TransformToPose(TcpTransform(emu.actual[0], emu.arm.tcp_offset)).tolist(),
             "script_running": bool(script is not None and script.running),
             "commands_seen": {CMD_NAMES.get(k, str(k)): v
                               for k, v in (script.commands_seen.items() if script else [])},
@@ -1451,8 +1564,10 @@ class EmulatorProcess:
 
     def __init__(self, host: str = "127.0.0.1", *, latency: float = 0.0, cb3: bool = False,
                  q0=None, verbose: bool = False, log_path: str | None = None,
-                 startup_timeout: float = 30.0):
+                 startup_timeout: float = 30.0, shared_state: bool = False):
         self.host = host
+        # the arm's state in shared memory (a twin's): ``shared`` reads and writes it
+        self.shared = SharedArmState() if shared_state else None
         self._own_log = log_path is None  # a temporary log, removed by Close
         if log_path is None:
             fd, log_path = tempfile.mkstemp(prefix="ur_emulator_", suffix=".log")
@@ -1466,6 +1581,8 @@ class EmulatorProcess:
             cmd += ["--q0", *[repr(float(v)) for v in q0]]
         if verbose:
             cmd.append("--verbose")
+        if self.shared is not None:
+            cmd += ["--shared-state", self.shared.name]
         self._log = open(log_path, "w")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=self._log, text=True, bufsize=1)
@@ -1558,6 +1675,9 @@ class EmulatorProcess:
                 os.remove(self.log_path)
             except OSError:
                 pass
+        if self.shared is not None:
+            self.shared.Close()
+            self.shared = None
 
     def __enter__(self) -> "EmulatorProcess":
         return self
@@ -1596,6 +1716,10 @@ def main(argv=None) -> int:
                         "commands read from stdin (state, protective_stop, "
                         "unlock_protective_stop, estop, release_estop, drop [REFUSE_S], latency S, "
                         "set_actual q1..q6) with one JSON line each; exit at end of stdin")
+    p.add_argument("--shared-state", metavar="NAME",
+                   help="exchange the arm's state with a digital twin through this shared "
+                        "memory block (SharedArmState): report its measured joints as "
+                        "actual_q")
     p.add_argument("--verbose", "-v", action="store_true", help="log every protocol exchange")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
@@ -1609,6 +1733,8 @@ def main(argv=None) -> int:
                      controller_version=CB3_VERSION if args.cb3 else E_SERIES_VERSION,
                      latency=args.latency)
     try:
+        if args.shared_state:
+            emu.AttachSharedState(args.shared_state)
         emu.Start()
     except OSError as err:
         print(f"error: {err.strerror}", file=sys.stderr, flush=True)

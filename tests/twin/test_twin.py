@@ -8,6 +8,7 @@ import random
 import socket
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -17,7 +18,7 @@ pytest.importorskip("rtde_control", reason="the twin test needs ur_rtde (the tes
 
 from lmap_drake.episode import RunLmapEpisode, RunSimEpisode  # noqa: E402
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE  # noqa: E402
-from lmap_drake.twin.twin import TwinOptions, TwinRunOverrides  # noqa: E402
+from lmap_drake.twin.twin import Twin, TwinOptions, TwinRunOverrides  # noqa: E402
 from lmap_drake.scenario import LoadScenario  # noqa: E402
 
 PORTS = (29999, 30003, 30004, 63352, 50410)
@@ -161,3 +162,63 @@ def test_the_twin_gripper_reports_a_held_leaf_as_an_object():
     g.holding = False
     g.SetMeasured(0.0015, 0.0, 1.3)
     assert g.Get("OBJ") == 3                                 # at the request: nothing held
+
+
+class _BlockedArmTwin(Twin):
+    """TEST DOUBLE: a twin whose simulated arm is blocked (it stands for an
+    arm held by an obstacle): its joint command stays ``blocked_q`` whatever
+    the emulator commands; the simulation, the emulator and the shared
+    state are the real ones."""
+    blocked_q = None
+
+    def _ArmCommand(self):
+        return self.blocked_q
+
+
+# The real ur_rtde client, in its own process (it holds the GIL while it waits).
+_CLIENT = r"""
+import json, sys, time
+import rtde_control, rtde_receive
+host, goal = sys.argv[1], json.loads(sys.argv[2])
+receive = rtde_receive.RTDEReceiveInterface(host)
+control = rtde_control.RTDEControlInterface(host)
+before = receive.getActualQ()
+ok = control.moveJ(goal, 0.5, 1.0)
+time.sleep(1.5)
+print(json.dumps({"ok": ok, "before": before, "after": receive.getActualQ(),
+                  "target": receive.getTargetQ()}))
+control.stopScript()
+"""
+
+
+def test_a_blocked_simulated_arm_shows_in_getactualq():
+    """getActualQ follows the simulated arm, not the emulator's servo model:
+    with the twin's simulated UR5 blocked at its start pose, a moveJ of the
+    real ur_rtde client runs to its goal in the emulator (getTargetQ) while
+    getActualQ stays at the simulated arm's blocked joints."""
+    host = _FreeHost()
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    twin = _BlockedArmTwin(scenario, TwinOptions(host=host))
+    twin.blocked_q = np.asarray(scenario.robot.initial_q, float)
+    stop, thread = threading.Event(), None
+    try:
+        twin.Start()
+        thread = threading.Thread(target=twin.Run, args=(stop,), daemon=True)
+        thread.start()
+        goal = twin.blocked_q + np.array([0.15, -0.1, 0.1, 0.0, 0.0, 0.1])
+        run = subprocess.run([sys.executable, "-c", _CLIENT, host, json.dumps(goal.tolist())],
+                             capture_output=True, text=True, timeout=180)
+        assert run.returncode == 0, run.stderr[-2000:]
+        got = json.loads(run.stdout.strip().splitlines()[-1])
+    finally:
+        stop.set()
+        if thread is not None:
+            thread.join(timeout=30)
+        twin.Close()
+    q_sim = twin.world.q()          # (the loop stopped: its context is free)
+    assert got["ok"] and np.abs(np.subtract(got["target"], goal)).max() < 1e-3
+    assert twin.world.time > twin.options.start_time + 0.5     # the simulation ran
+    # the simulated arm stayed where it was blocked, and getActualQ with it
+    assert np.abs(q_sim - twin.blocked_q).max() < 0.01
+    assert np.abs(np.subtract(got["after"], q_sim)).max() < 0.005
+    assert np.abs(np.subtract(got["after"], goal)).max() > 0.09

@@ -21,7 +21,7 @@ from lmap_drake.station.hardware.ur_client import ConnectUr
 from lmap_drake.twin.ur_emulator import (DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT,
                                                      EmulatorProcess, InverseKinematics,
                                                      RotationToRotvec, TcpTransform,
-                                                     UrEmulator)
+                                                     TransformToPose, UrEmulator)
 from lmap_drake.station.hardware_config import UrConfig
 from lmap_drake.robot import Ur5DhForwardKinematics
 
@@ -396,3 +396,38 @@ def test_ur_client_streams_and_aborts_on_a_protective_stop(emu):
         assert np.allclose(emu.State()["qd_actual"], 0.0)
     finally:
         client.Close()
+
+
+@needs_ur_rtde
+def test_getactualq_reports_a_twins_measured_arm_from_shared_memory():
+    """With the arm's state in shared memory (a digital twin's), getActualQ
+    and the actual TCP pose are the joints the twin measured on its
+    simulated arm, not the emulator's servo model: an arm the twin reports
+    blocked stays blocked for the client while the servo model (the command
+    the twin's arm tracks, read back from shared memory) runs the moveJ."""
+    emu = _StartEmulator(shared_state=True)
+    receive = rtde_receive.RTDEReceiveInterface(emu.host, FREQUENCY)
+    control = rtde_control.RTDEControlInterface(emu.host, FREQUENCY)
+    try:
+        blocked = Q0 + np.array([0.01, -0.01, 0.0, 0.0, 0.0, 0.0])
+        emu.shared.WriteMeasured(blocked, np.zeros(6))
+        goal = Q0 + np.array([0.2, -0.1, 0.1, 0.0, 0.0, 0.1])
+        assert control.moveJ(goal.tolist(), 1.0, 2.0)
+        servo, protective, estop = emu.shared.ReadServo()
+        assert np.abs(servo - goal).max() < 1e-3 and not (protective or estop)
+        assert np.abs(np.asarray(receive.getActualQ()) - blocked).max() < 1e-9
+        assert _SamePose(receive.getActualTCPPose(), TransformToPose(TcpTransform(blocked)))
+        assert np.abs(np.asarray(receive.getTargetQ()) - goal).max() < 1e-3
+        # the twin's arm gets free and follows: so does getActualQ
+        emu.shared.WriteMeasured(goal, np.zeros(6))
+        assert _Wait(lambda: np.abs(np.asarray(receive.getActualQ()) - goal).max() < 1e-9)
+        # a protective stop reaches the twin through the shared state too
+        emu.ProtectiveStop()
+        assert _Wait(lambda: emu.shared.ReadServo()[1])
+    finally:
+        threads = [threading.Thread(target=iface.disconnect) for iface in (control, receive)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=10.0)
+        emu.Close()
