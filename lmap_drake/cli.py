@@ -64,6 +64,9 @@ def cmd_run(args) -> int:
     if args.scripted and (args.hardware or plan_only):
         raise UsageError("--scripted runs the simulated scripted pull; it does not combine "
                          "with --hardware, --plan-only or --dry-run")
+    if args.hardware:       # the device-free part of the pre-motion gate, before any output
+        from lmap_drake.station.hardware.station import CheckHardwareScenario
+        CheckHardwareScenario(scenario)
     # On the real cell the operator confirms the action unless told otherwise.
     confirm = args.hardware if args.confirm is None else args.confirm
     final = Path(args.output) if args.output else DefaultOutputFolder()
