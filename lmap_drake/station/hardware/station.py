@@ -16,6 +16,9 @@ exported ports as the simulated station (``lmap_drake.station.STATION_PORTS``).
 
 The camera pose comes from ``hardware.camera.calibration_file``, the
 intrinsics from the device: ``HardwareCamera(station)`` returns them.
+Devices are opened through the pre-motion gate ``OpenCheckedHardware``:
+every check (scenario, calibration, camera serial, start pose) before
+``EnableMotion`` (control script upload, gripper activation).
 Call ``StopHardwareStation(station)`` when done (also registered with
 ``atexit``): it stops the servo, the control script, the gripper socket and
 the camera pipeline.
@@ -189,9 +192,10 @@ def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = No
     (tests, or a caller that connected first) are used as given; otherwise
     the real devices are connected (read-only with ``read_only``). With
     ``read_only`` the station only reads: no joint or gripper command is
-    sent whatever its inputs say. Raises HardwareStationUnavailable when a
-    library or a device is missing, CalibrationError (bad input) for a bad
-    calibration file or one made for another camera."""
+    sent whatever its inputs say. Goes through ``OpenCheckedHardware``.
+    Raises HardwareStationUnavailable when a library or a device is missing,
+    CalibrationError / ConfigError (bad input) for a bad calibration file,
+    one made for another camera, or a start pose outside the limits."""
     config = scenario.hardware
     clients, X_WC, own_clients = OpenCheckedHardware(scenario, clients, read_only)
     try:
