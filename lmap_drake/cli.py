@@ -68,6 +68,9 @@ def cmd_run(args) -> int:
     if args.scripted and (args.hardware or plan_only):
         raise UsageError("--scripted runs the simulated scripted pull; it does not combine "
                          "with --hardware, --plan-only or --dry-run")
+    if args.hardware:       # the device-free part of the pre-motion gate, before any output
+        from lmap_drake.station.hardware.station import CheckHardwareScenario
+        CheckHardwareScenario(scenario)
     # On the real cell the operator confirms the action unless told otherwise.
     confirm = args.hardware if args.confirm is None else args.confirm
     final = Path(args.output) if args.output else DefaultOutputFolder()
@@ -187,12 +190,16 @@ def cmd_twin(args) -> int:
         raise UsageError("the twin needs plant_scene.kind: procedural (the FEM plant world)")
     if not 0.0 < args.rate <= 1.0:
         raise UsageError(f"--rate must be in (0, 1] simulated s per wall s, got {args.rate}")
+    warning = _CheckTwinArgs(args)
     out = EnsureWritableFolder(Path(args.output) if args.output
                                else DefaultOutputFolder(prefix="twin-"))
     calibration = (out / "calibration.yaml").resolve()
     options = TwinOptions(host=args.host, camera_port=args.camera_port,
                           gripper_port=args.gripper_port, rate=args.rate,
-                          fault=args.fault, fault_after_grasp_move=args.fault_after_grasp_move)
+                          fault=args.fault, fault_after_grasp_move=args.fault_after_grasp_move,
+                          allow_remote=args.allow_remote, log_dir=str(out))
+    if warning:
+        _stage(warning)
     _stage("building the plant world")
     twin = Twin(scenario, options, progress=_stage)
     WriteTwinCalibration(scenario, calibration)
@@ -226,8 +233,28 @@ def cmd_twin(args) -> int:
     _stage(f"twin stopped after {twin.world.time:.1f} simulated s (largest lag "
            f"{twin.lag_max:.2f} s); outcome: " + json.dumps(
                {k: v for k, v in outcome.items() if k != "release_outcome"}))
-    _stage(f"wrote {out}/: outcome.json, twin_log.json, calibration.yaml")
+    _stage(f"wrote {out}/: outcome.json, twin_log.json, calibration.yaml, ur_emulator.log")
     return 0
+
+
+def _CheckTwinArgs(args) -> str:
+    """The twin's options, before anything is built or written: ports
+    1..65535, a loopback --host unless --allow_remote (then the returned
+    warning), finite --duration and --fault_after_grasp_move >= 0."""
+    import math
+
+    from lmap_drake.twin.listen import CheckPort, ListenError, ListenHostWarning
+    try:
+        CheckPort(args.camera_port, "--camera_port")
+        CheckPort(args.gripper_port, "--gripper_port")
+        warning = ListenHostWarning(args.host, args.allow_remote)
+    except ListenError as err:
+        raise UsageError(str(err)) from None
+    for option in ("duration", "fault_after_grasp_move"):
+        value = getattr(args, option)
+        if not (math.isfinite(value) and value >= 0):
+            raise UsageError(f"--{option} must be a finite number >= 0, got {value}")
+    return warning
 
 
 def _CheckEvalArgs(args) -> tuple[list[str], list[float]]:
@@ -470,7 +497,11 @@ def _main(argv=None) -> int:
                         "lmap-drake run --hardware with the real ur_rtde client")
     _add_scenario_args(tw)
     tw.add_argument("--host", default="127.0.0.1",
-                    help="loopback address to listen on (default: %(default)s)")
+                    help="loopback address to listen on (default: %(default)s; another "
+                         "address needs --allow_remote)")
+    tw.add_argument("--allow_remote", action="store_true",
+                    help="allow a --host that is not loopback: the robot-control ports have "
+                         "no authentication (a warning is printed)")
     tw.add_argument("--camera_port", type=int, default=50410, help="camera socket port")
     tw.add_argument("--gripper_port", type=int, default=63352, help="Robotiq URCap port")
     tw.add_argument("--rate", type=float, default=0.5,

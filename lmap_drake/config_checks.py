@@ -3,7 +3,9 @@ beside each config dataclass): rules per key, enumerations, finiteness.
 
 Rules: ">0", ">=0", ">=1", "(lo,hi)" / "[lo,hi]" (open / closed ends),
 "finite"; "Nx<rule>" = a list of N values each obeying <rule>, "+x<rule>" =
-a non-empty list. Failures raise ``ConfigError(key, detail)``; the scenario
+a non-empty list. Poses: ``CheckTransform`` / ``TransformError`` (finite,
+rotation orthonormal with det +1), the one check for every pose (scenario,
+calibration file, recording). Failures raise ``ConfigError(key, detail)``; the scenario
 loader adds where the key was set.
 
 Floor module: imports only numpy, pydrake and ``lmap_drake.errors``.
@@ -62,13 +64,65 @@ def RuleError(v, rule: str) -> str:
     return "" if ok else f"must be in {rule}, got {v}"
 
 
-def FiniteTransform(X) -> bool:
+# How far a pose's rotation may be from orthonormal (max |R^T R - I|, |det R - 1|).
+RIGID_TOLERANCE = 1e-6
+
+
+def RigidMatrixError(M) -> str:
+    """'' when ``M`` (a 4x4 homogeneous matrix) is a rigid transform: finite,
+    rotation orthonormal with det +1 within ``RIGID_TOLERANCE``, bottom row
+    [0, 0, 0, 1]; else what is wrong (one phrase)."""
     try:
+        M = np.asarray(M, dtype=float)
+    except (TypeError, ValueError):
+        return "must be a 4x4 matrix of numbers"
+    if M.shape != (4, 4):
+        return f"must be a 4x4 matrix, got shape {M.shape}"
+    if not np.all(np.isfinite(M)):
+        return "must be finite (translation and rotation)"
+    if np.abs(M[3] - [0.0, 0.0, 0.0, 1.0]).max() > RIGID_TOLERANCE:
+        return f"must have the bottom row [0, 0, 0, 1], got {M[3].tolist()}"
+    R = M[:3, :3]
+    off = float(np.abs(R.T @ R - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if off > RIGID_TOLERANCE or abs(det - 1.0) > RIGID_TOLERANCE:
+        return (f"must be a rigid pose: its rotation is not orthonormal with det +1 "
+                f"(max |R^T R - I| = {off:.3g}, det = {det:.3g}; an AngleAxis needs a "
+                f"non-zero axis)")
+    return ""
+
+
+def TransformError(X) -> str:
+    """'' when ``X`` (a ``pydrake.common.schema.Transform``, a
+    ``RigidTransform`` or a 4x4 matrix) is a rigid pose (see
+    ``RigidMatrixError``); a random schema Transform is checked for a zero
+    AngleAxis axis only. Else what is wrong."""
+    if isinstance(X, Transform):
         if not X.IsDeterministic():
-            return True
-        return bool(np.all(np.isfinite(X.GetDeterministicValue().GetAsMatrix4())))
-    except Exception:  # noqa: BLE001 - Drake refuses a non-finite rotation
-        return False
+            axis = getattr(X.rotation.value, "axis", None)
+            if isinstance(axis, np.ndarray) and axis.shape == (3,) and (
+                    not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9):
+                return "must be a rigid pose: its AngleAxis axis must be finite and non-zero"
+            return ""
+        try:
+            X = X.GetDeterministicValue()
+        except Exception:  # noqa: BLE001 - Drake refuses a non-finite rotation
+            return "must be finite (translation and rotation)"
+    if hasattr(X, "GetAsMatrix4"):
+        X = X.GetAsMatrix4()
+    return RigidMatrixError(X)
+
+
+def FiniteTransform(X) -> bool:
+    """``X`` is a rigid pose (finite, orthonormal rotation; see ``TransformError``)."""
+    return not TransformError(X)
+
+
+def CheckTransform(X, key: str) -> None:
+    """Raises ``ConfigError(key, ...)`` unless ``X`` is a rigid pose."""
+    err = TransformError(X)
+    if err:
+        raise ConfigError(key, err)
 
 
 def CheckFinite(obj, path: str = "") -> None:
@@ -85,8 +139,8 @@ def CheckFinite(obj, path: str = "") -> None:
             for i, x in enumerate(v):
                 if IsNumber(x) and not np.isfinite(x):
                     raise ConfigError(p, f"must be finite, got {list(v)} (item {i})")
-        elif isinstance(v, Transform) and not FiniteTransform(v):
-            raise ConfigError(p, "must be a finite pose (translation and rotation)")
+        elif isinstance(v, Transform):
+            CheckTransform(v, p)
 
 
 def CheckRules(cfg, path: str, rules: typing.Mapping[str, str],

@@ -472,7 +472,7 @@ def Validate(s: Scenario, sources: typing.Sequence[tuple[dict, str]] = ()) -> No
     try:
         ValidateHardwareConfig(s.hardware)
     except ValueError as err:
-        fail("hardware", str(err).replace("hardware config: ", ""))
+        fail(*("hardware." + str(err).replace("hardware config: ", "")).split(" ", 1))
 
 
 def DumpScenario(s: Scenario, filename: str | Path) -> None:

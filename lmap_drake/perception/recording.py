@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lmap_drake.config_checks import TransformError
 from lmap_drake.errors import InputError
 from lmap_drake.limits import MAX_IMAGE_SIDE, MAX_RECORDING_JSON_BYTES, ReadBounded
 
@@ -245,6 +246,6 @@ def LoadRecording(run_dir) -> Recording:
         raise RecordingError(f"{manifest_file} is malformed: {type(err).__name__}: {err}") from None
     if not views:
         raise RecordingError(f"{manifest_file} holds no views")
-    if not np.all(np.isfinite(X_WC)):
-        raise RecordingError(f"{manifest_file}: X_WC is not finite")
+    if TransformError(X_WC):      # finite and rigid (config_checks.RigidMatrixError)
+        raise RecordingError(f"{manifest_file}: X_WC {TransformError(X_WC)}")
     return Recording(views, cam, X_WC, str(m.get("station", "")), folder)

@@ -16,7 +16,7 @@ from pydrake.geometry import Rgba
 from pydrake.math import RollPitchYaw
 from pydrake.systems.sensors import CameraConfig
 
-from lmap_drake.config_checks import CheckRules, FiniteTransform, Join, Need, RuleError
+from lmap_drake.config_checks import CheckRules, CheckTransform, FiniteTransform, Join, Need, RuleError
 from lmap_drake.limits import MAX_IMAGE_SIDE
 
 
@@ -170,7 +170,7 @@ _CAMERA_NOISE_RULES = {
 def ValidateRobotConfig(cfg: RobotConfig, path: str = "robot") -> None:
     """Raises ``ConfigError`` (key path, what is wrong) on a bad value."""
     CheckRules(cfg, path, _ROBOT_RULES)
-    Need(FiniteTransform(cfg.X_WB), Join(path, "X_WB"), "must be a finite pose")
+    CheckTransform(cfg.X_WB, Join(path, "X_WB"))
 
 
 def ValidateCameraNoiseConfig(cfg: CameraNoiseConfig, path: str = "camera_noise") -> None:
@@ -203,7 +203,7 @@ def ValidateCameras(cameras: typing.Mapping[str, CameraConfig], path: str = "cam
         fx, fy = cam.focal_x(), cam.focal_y()
         Need(np.isfinite(fx) and np.isfinite(fy) and fx > 0 and fy > 0, f"{p}.focal",
              f"must be > 0, got {fx}, {fy}")
-        Need(FiniteTransform(cam.X_PB), f"{p}.X_PB", "must be a finite pose")
+        CheckTransform(cam.X_PB, f"{p}.X_PB")
         Need(cam.X_PB.base_frame in (None, "", "world"), f"{p}.X_PB.base_frame",
              f"must be 'world' (the pipeline's cameras are posed in the world), got "
              f"'{cam.X_PB.base_frame}'")

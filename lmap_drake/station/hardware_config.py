@@ -12,6 +12,8 @@ re-calibration does not touch the scenario.
 """
 
 import dataclasses as dc
+import ipaddress
+import re
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,7 @@ from pydrake.common.schema import Transform
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.math import RigidTransform
 
+from lmap_drake.config_checks import TransformError
 from lmap_drake.errors import InputError
 from lmap_drake.paths import REPO_ROOT
 
@@ -168,14 +171,12 @@ def LoadCameraCalibration(filename: str) -> CameraCalibration:
         raise CalibrationError(
             f"{path}: X_WC.base_frame must be 'world' or 'robot_base', "
             f"got '{calib.X_WC.base_frame}'")
-    try:
-        ok = (not calib.X_WC.IsDeterministic()) or bool(np.all(np.isfinite(
-            calib.X_WC.GetDeterministicValue().GetAsMatrix4())))
-    except Exception:  # noqa: BLE001 - Drake refuses a non-finite rotation
-        ok = False
-    if not ok or not calib.X_WC.IsDeterministic():
-        raise CalibrationError(f"{path}: X_WC must be a fixed, finite pose (translation and "
-                               f"rotation); got a non-finite or random one")
+    if not calib.X_WC.IsDeterministic():
+        raise CalibrationError(f"{path}: X_WC must be a fixed, finite pose; got a random one")
+    err = TransformError(calib.X_WC)
+    if err:
+        raise CalibrationError(f"{path}: X_WC {err} (a calibration must be a fixed, finite "
+                               f"pose)")
     return calib
 
 
@@ -196,6 +197,26 @@ def CalibrationX_WC(calib: CameraCalibration, X_WB: RigidTransform) -> RigidTran
     return X
 
 
+# A host name (RFC 1123 labels) or an IPv4 / IPv6 address.
+_HOSTNAME = re.compile(r"(?=.{1,253}$)([A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)"
+                       r"(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*\.?")
+
+
+def HostError(host) -> str:
+    """'' when ``host`` is an IPv4 / IPv6 address or a host name (checked
+    as text: nothing is looked up or connected), else what is wrong."""
+    if not isinstance(host, str) or not host.strip():
+        return f"must be an IP address or a host name, got {host!r}"
+    try:
+        ipaddress.ip_address(host.strip("[]"))
+        return ""
+    except ValueError:
+        pass
+    if re.fullmatch(r"[0-9.]+", host) or not _HOSTNAME.fullmatch(host):
+        return f"must be an IPv4 / IPv6 address or a host name, got {host!r}"
+    return ""
+
+
 def ValidateHardwareConfig(config: HardwareConfig) -> None:
     """Checks values the type system cannot; raises ValueError."""
     ur, grip, cam = config.ur, config.gripper, config.camera
@@ -203,6 +224,9 @@ def ValidateHardwareConfig(config: HardwareConfig) -> None:
     def need(cond, msg):
         if not cond:
             raise ValueError(f"hardware config: {msg}")
+    for key, host in (("ur.robot_ip", ur.robot_ip), ("gripper.host", grip.host or "x")):
+        err = HostError(host)
+        need(not err, f"{key} {err}")
     need(0.0 < ur.joint_speed_limit <= np.pi,
          f"ur.joint_speed_limit {ur.joint_speed_limit} must be in (0, pi] rad/s")
     need(ur.joint_acceleration_limit > 0, "ur.joint_acceleration_limit must be > 0")
@@ -238,5 +262,5 @@ def ValidateHardwareConfig(config: HardwareConfig) -> None:
     need(cam.frame_timeout > 0, "camera.frame_timeout must be > 0 s")
     if cam.twin_address:
         host, _, port = cam.twin_address.rpartition(":")
-        need(bool(host) and port.isdigit() and 0 < int(port) < 65536,
+        need(not HostError(host) and port.isdigit() and 0 < int(port) < 65536,
              f"camera.twin_address must be 'host:port', got {cam.twin_address!r}")

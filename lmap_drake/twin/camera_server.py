@@ -12,6 +12,8 @@ import threading
 
 import numpy as np
 
+from lmap_drake.twin.listen import ListenHostWarning
+
 
 class _Handler(socketserver.StreamRequestHandler):
     def handle(self):
@@ -42,7 +44,9 @@ class TwinCameraServer(socketserver.ThreadingTCPServer):
     daemon_threads = True
     allow_reuse_address = True
 
-    def __init__(self, info: dict, frame, host: str = "127.0.0.1", port: int = 0):
+    def __init__(self, info: dict, frame, host: str = "127.0.0.1", port: int = 0,
+                 allow_remote: bool = False):
+        ListenHostWarning(host, allow_remote)     # loopback only unless allowed
         super().__init__((host, port), _Handler)
         self.info, self.frame = dict(info), frame
         self._thread = threading.Thread(target=self.serve_forever,

@@ -10,6 +10,8 @@ import socket
 import socketserver
 import threading
 
+from lmap_drake.twin.listen import ListenHostWarning
+
 
 class _RobotiqHandler(socketserver.StreamRequestHandler):
     def handle(self):
@@ -45,7 +47,9 @@ class RobotiqSocketServer(socketserver.ThreadingTCPServer):
     daemon_threads = True
     allow_reuse_address = True
 
-    def __init__(self, gripper, host: str = "127.0.0.1", port: int = 0):
+    def __init__(self, gripper, host: str = "127.0.0.1", port: int = 0,
+                 allow_remote: bool = False):
+        ListenHostWarning(host, allow_remote)     # loopback only unless allowed
         super().__init__((host, port), _RobotiqHandler)
         self.gripper = gripper
         self.received: list[str] = []

@@ -80,6 +80,8 @@ class TwinOptions:
     # first view), then the clock waits for the arm's first motion: the
     # frames the planner sees are those of the simulated run.
     start_time: float = 0.31
+    allow_remote: bool = False        # listen on a host that is not loopback (a warning)
+    log_dir: str = ""                 # the UR emulator's log goes here ("": a temp file)
 
 
 class TwinGripper:
@@ -101,8 +103,9 @@ class TwinGripper:
 
     def Set(self, values: dict) -> bool:
         with self.lock:
-            if any(k not in self.regs for k in values):
-                return False
+            if any(k not in self.regs for k in values) or any(
+                    not 0 <= int(v) <= 255 for v in values.values()):
+                return False       # one-byte registers: out of range is not acknowledged
             values = dict(values)
             requested = values.pop("POS", None)
             self.regs.update(values)
@@ -156,8 +159,9 @@ class _EmulatorChild:
     model's joints (the command) and stop flags; ``Poll`` refreshes the full
     state (statistics, fault log) over the control pipe."""
 
-    def __init__(self, host: str, q0):
-        self.proc = EmulatorProcess(host, q0=q0, shared_state=True)
+    def __init__(self, host: str, q0, log_path: str | None = None, allow_remote: bool = False):
+        self.proc = EmulatorProcess(host, q0=q0, shared_state=True, log_path=log_path,
+                                    allow_remote=allow_remote)
         self.state = self.proc.State()
         self._servo = (np.asarray(self.state["q_servo"], float), False, False)
         self.Exchange()
@@ -268,11 +272,14 @@ class Twin:
     def Start(self) -> "Twin":
         o = self.options
         try:
-            self.emulator = _EmulatorChild(o.host, tuple(self.scenario.robot.initial_q))
-            self.gripper_server = RobotiqSocketServer(self.gripper, o.host, o.gripper_port)
+            log = str(Path(o.log_dir) / "ur_emulator.log") if o.log_dir else None
+            self.emulator = _EmulatorChild(o.host, tuple(self.scenario.robot.initial_q), log,
+                                           o.allow_remote)
+            self.gripper_server = RobotiqSocketServer(self.gripper, o.host, o.gripper_port,
+                                                      o.allow_remote)
             self.gripper_server.__enter__()
             self.camera = TwinCameraServer(self.camera_info, self._FrameRequest, o.host,
-                                           o.camera_port).Start()
+                                           o.camera_port, o.allow_remote).Start()
         except OSError as err:
             self.Close()
             raise InputError(f"twin: cannot listen on {o.host} ({err}); another twin or a "

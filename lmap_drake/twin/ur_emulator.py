@@ -104,6 +104,7 @@ from typing import Callable
 
 import numpy as np
 
+from lmap_drake.twin.listen import CheckPort, ListenError, ListenHostWarning
 from lmap_drake.robot import (UR5_VELOCITY_LIMIT, Ur5DhForwardKinematics,
                                       Ur5DhFrames)
 
@@ -756,7 +757,8 @@ class UrEmulator:
     an emulated UR5; see the module docstring. Use as a context manager or
     call ``Start`` / ``Close``.
 
-    ``host`` is a loopback address; ``frequency`` the controller loop and the
+    ``host`` is a loopback address (another one only with ``allow_remote``:
+    these ports control the arm without authentication); ``frequency`` the controller loop and the
     highest RTDE output rate (default 500 Hz for an e-Series version, 125 Hz
     for a CB3 ``controller_version`` such as ``CB3_VERSION``); ``latency``
     (s) delays every input and output; ``servo_model`` replaces
@@ -767,7 +769,8 @@ class UrEmulator:
                  script_port: int = SCRIPT_PORT, controller_version=E_SERIES_VERSION,
                  frequency: float | None = None, latency: float = 0.0,
                  servo_model: ServoModel = FirstOrderServo, robot_model: str = "UR5",
-                 serial_number: str = SERIAL_NUMBER):
+                 serial_number: str = SERIAL_NUMBER, allow_remote: bool = False):
+        self.listen_warning = ListenHostWarning(host, allow_remote)   # ListenError first
         self.host = host
         self.ports = {"dashboard": dashboard_port, "rtde": rtde_port, "script": script_port}
         self.controller_version = tuple(int(v) for v in controller_version)
@@ -1564,7 +1567,9 @@ class EmulatorProcess:
 
     def __init__(self, host: str = "127.0.0.1", *, latency: float = 0.0, cb3: bool = False,
                  q0=None, verbose: bool = False, log_path: str | None = None,
-                 startup_timeout: float = 30.0, shared_state: bool = False):
+                 startup_timeout: float = 30.0, shared_state: bool = False,
+                 allow_remote: bool = False):
+        ListenHostWarning(host, allow_remote)    # ListenError before any child or file
         self.host = host
         # the arm's state in shared memory (a twin's): ``shared`` reads and writes it
         self.shared = SharedArmState() if shared_state else None
@@ -1577,6 +1582,8 @@ class EmulatorProcess:
                "--latency", str(latency), "--control-stdin"]
         if cb3:
             cmd.append("--cb3")
+        if allow_remote:
+            cmd.append("--allow_remote")
         if q0 is not None:
             cmd += ["--q0", *[repr(float(v)) for v in q0]]
         if verbose:
@@ -1695,7 +1702,11 @@ def main(argv=None) -> int:
         description="Loopback EMULATOR of a UR controller (dashboard, RTDE, script port) for "
                     "ur_rtde; not a robot. Connect with rtde_control.RTDEControlInterface(HOST) "
                     "and rtde_receive.RTDEReceiveInterface(HOST) from another process.")
-    p.add_argument("--host", default="127.0.0.1", help="loopback address to bind (127.x.y.z)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="loopback address to bind (127.x.y.z; another one needs --allow_remote)")
+    p.add_argument("--allow_remote", action="store_true",
+                   help="allow a --host that is not loopback (the ports control the emulated "
+                        "arm without authentication; a warning is printed)")
     p.add_argument("--dashboard-port", type=int, default=DASHBOARD_PORT)
     p.add_argument("--rtde-port", type=int, default=RTDE_PORT)
     p.add_argument("--script-port", type=int, default=SCRIPT_PORT)
@@ -1728,10 +1739,18 @@ def main(argv=None) -> int:
         value = getattr(args, option)
         if value is not None and not (math.isfinite(value) and value >= 0):
             p.error(f"--{option.replace('_', '-')} must be a finite number >= 0, got {value}")
+    try:
+        for option in ("dashboard_port", "rtde_port", "script_port"):
+            CheckPort(getattr(args, option), f"--{option.replace('_', '-')}")
+        warning = ListenHostWarning(args.host, args.allow_remote)
+    except ListenError as err:
+        p.error(str(err))
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     emu = UrEmulator(args.host, args.q0, dashboard_port=args.dashboard_port,
                      rtde_port=args.rtde_port, script_port=args.script_port,
                      controller_version=CB3_VERSION if args.cb3 else E_SERIES_VERSION,
-                     latency=args.latency)
+                     latency=args.latency, allow_remote=args.allow_remote)
     try:
         if args.shared_state:
             emu.AttachSharedState(args.shared_state)

@@ -1,18 +1,21 @@
 """Getting the real cell ready for an episode (``lmap-drake run --hardware``).
 
-``PrepareHardware`` does, before anything can move:
+``PrepareHardware`` goes through the pre-motion gate
+(``station.hardware.station.OpenCheckedHardware``): every check runs before
+the first byte that can move anything:
 
-1. checks the client libraries (when it connects itself), the ``hardware``
-   config and the calibration file (present, well-formed, a fixed finite
-   ``X_WC``);
-2. connects the UR5, the gripper and the camera (``read_only`` for
-   ``--plan-only`` / ``--dry-run``: RTDE receive only, no control script, no
-   gripper activation, so nothing can move);
-3. refuses a calibration made for another camera serial;
+1. the scenario (``CheckHardwareScenario``): not the ``label`` segmenter (a
+   real camera has no labels), the client libraries (when it connects
+   itself), the ``hardware`` config and the calibration file (present,
+   well-formed, a fixed rigid ``X_WC``);
+2. connects read-only (RTDE receive, the gripper's socket, the camera),
+   refuses a calibration made for another camera serial and a start pose
+   the safety checks would refuse (joint limits, workspace box);
+3. only then uploads ur_rtde's control script and activates the gripper
+   (never with ``read_only``: ``--plan-only`` / ``--dry-run``);
 4. returns the scenario as the hardware sees it: camera0 with the device's
    intrinsics and the calibrated pose, ``perception.no_return_free_range``
-   0 (a real camera's missing returns say nothing about free space), and
-   refuses the ``label`` segmenter (a real camera has no labels).
+   0 (a real camera's missing returns say nothing about free space).
 
 The episode itself is ``lmap_drake.episode.RunLmapEpisode(hardware=True)``.
 """
@@ -21,15 +24,8 @@ from __future__ import annotations
 import copy
 from typing import Callable
 
-from lmap_drake.errors import HardwareStationUnavailable
 from lmap_drake.scenario import Scenario, ScenarioWithCamera
-from lmap_drake.station.hardware.station import (CheckHardwareSetup, ConnectHardwareClients,
-                                                 HardwareClients)
-from lmap_drake.station.hardware_config import CalibrationError, CheckCalibrationSerial
-
-
-def _Unavailable(msg: str) -> Exception:
-    return HardwareStationUnavailable(msg)
+from lmap_drake.station.hardware.station import HardwareClients, OpenCheckedHardware
 
 
 def HardwareScenario(scenario: Scenario, clients: HardwareClients, X_WC) -> Scenario:
@@ -46,25 +42,15 @@ def HardwareScenario(scenario: Scenario, clients: HardwareClients, X_WC) -> Scen
 def PrepareHardware(scenario: Scenario, clients: HardwareClients | None = None,
                     read_only: bool = False, progress: Callable[[str], None] = print
                     ) -> tuple[Scenario, HardwareClients, bool]:
-    """Checks, connects (unless ``clients`` are given, e.g. the project's
-    fakes) and returns (hardware scenario, clients, whether we connected
-    them). Raises HardwareStationUnavailable (exit code 1) or
-    CalibrationError (bad input, exit code 2) before anything moves."""
-    config = scenario.hardware
-    if scenario.perception.segmenter == "label":
-        raise _Unavailable("hardware station: perception.segmenter 'label' reads simulator "
-                           "labels, which a real camera does not have; use segnet (the "
-                           "default) or color_depth")
-    own = clients is None
-    calib, X_WC = CheckHardwareSetup(scenario, own)
-    if own:
-        progress(f"connecting to the UR5 at {config.ur.robot_ip}"
-                 + (" (read-only: nothing can move)" if read_only else ""))
-        clients = ConnectHardwareClients(config, read_only=read_only)
+    """The pre-motion gate (see the module docstring), connecting unless
+    ``clients`` are given (e.g. the project's fakes); returns (hardware
+    scenario, clients, whether we connected them). Raises
+    HardwareStationUnavailable (exit code 1), or ConfigError /
+    CalibrationError (bad input, exit code 2) before anything can move."""
+    clients, X_WC, own = OpenCheckedHardware(scenario, clients, read_only, progress)
     try:
-        serial = str(getattr(clients.camera, "serial", ""))
-        CheckCalibrationSerial(calib, serial, config.camera.calibration_file)
         q, _ = clients.ur.ReadState()
+        serial = str(getattr(clients.camera, "serial", ""))
         progress(f"UR5 at q = {[round(float(x), 4) for x in q]} rad; gripper opening "
                  f"{clients.gripper.Opening() * 1000:.1f} mm; camera {serial or '(no serial)'}")
         return HardwareScenario(scenario, clients, X_WC), clients, own

@@ -18,6 +18,9 @@ exported ports as the simulated station (``lmap_drake.station.STATION_PORTS``).
 
 The camera pose comes from ``hardware.camera.calibration_file``, the
 intrinsics from the device: ``HardwareCamera(station)`` returns them.
+Devices are opened through the pre-motion gate ``OpenCheckedHardware``:
+every check (scenario, calibration, camera serial, start pose) before
+``EnableMotion`` (control script upload, gripper activation).
 Call ``StopHardwareStation(station)`` when done (also registered with
 ``atexit``): it stops the servo, the control script, the gripper socket and
 the camera pipeline.
@@ -27,20 +30,23 @@ from __future__ import annotations
 import atexit
 import dataclasses as dc
 
+import numpy as np
+
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
-from lmap_drake.errors import HardwareStationUnavailable
+from lmap_drake.errors import ConfigError, HardwareStationUnavailable
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.hardware.realsense_client import ConnectRealSense, ImportPyrealsense2
 from lmap_drake.station.hardware.robotiq_client import RobotiqClient
 from lmap_drake.station.hardware.robotiq_modbus_client import ImportPymodbus, RobotiqModbusClient
+from lmap_drake.station.hardware.safety import SafetyChecker, SafetyRefusal
 from lmap_drake.station.hardware.systems import RealSenseCamera, RobotiqDriver, Ur5Driver
 from lmap_drake.station.hardware.twin_camera_client import TwinCameraClient
 from lmap_drake.station.hardware.ur_client import ConnectUr, ImportUrRtde
 from lmap_drake.station.hardware_config import (CalibrationError, CalibrationX_WC,
                                                 CheckCalibrationSerial,
                                                 HardwareConfig, LoadCameraCalibration,
-                                                ValidateHardwareConfig)
+                                                UrConfig, ValidateHardwareConfig)
 
 
 @dc.dataclass
@@ -74,9 +80,11 @@ def ConnectGripper(config: HardwareConfig):
 
 
 def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> HardwareClients:
-    """Connects UR5, gripper and camera (libraries checked first, before
-    anything is touched). ``read_only``: no RTDE control interface (the arm
-    cannot move) and no gripper activation (activation moves the fingers)."""
+    """Connects UR5, gripper and camera (libraries checked first). Nothing
+    sent here can move anything: the RTDE receive interface only, the
+    gripper's socket without activation, the camera. Unless ``read_only``,
+    ``EnableMotion`` follows (``OpenCheckedHardware`` runs its checks in
+    between)."""
     ImportUrRtde()
     if config.gripper.link == "modbus_rtu":
         ImportPymodbus()
@@ -84,18 +92,47 @@ def ConnectHardwareClients(config: HardwareConfig, read_only: bool = False) -> H
         ImportPyrealsense2()
     ur = gripper = camera = None
     try:
-        ur = ConnectUr(config.ur, read_only=read_only)
+        ur = ConnectUr(config.ur, read_only=True)
         gripper = ConnectGripper(config)
-        if config.gripper.activate and not read_only:
-            gripper.Activate(timeout=config.gripper.activation_timeout)
         if config.camera.twin_address:     # a digital twin's frames (lmap-drake twin)
             camera = TwinCameraClient(config.camera.twin_address, config.camera.frame_timeout)
         else:
             camera = ConnectRealSense(config.camera)
+        if not read_only:
+            EnableMotion(HardwareClients(ur, gripper, camera), config)
     except BaseException:
         HardwareClients(ur, gripper, camera).Close()
         raise
     return HardwareClients(ur, gripper, camera)
+
+
+def EnableMotion(clients: HardwareClients, config: HardwareConfig) -> None:
+    """The first bytes that can move anything: ur_rtde's control script
+    upload (RTDE control interface) and the gripper's activation (an
+    inactive 2F-85 strokes its fingers to calibrate)."""
+    clients.ur.OpenControl()
+    if config.gripper.activate:
+        clients.gripper.Activate(timeout=config.gripper.activation_timeout)
+
+
+class StartPoseError(ConfigError):
+    """The arm stands where the safety checks refuse every command (outside
+    its joint limits or ``hardware.ur.workspace_min/max``): bad input."""
+
+
+def CheckStartPose(q, config: UrConfig) -> None:
+    """Refuses a measured start pose that the safety checks would refuse
+    (joint limits, every link in the workspace box): raises StartPoseError."""
+    checker = SafetyChecker(config)
+    try:
+        checker.CheckJointLimits(q)
+        checker.CheckWorkspace(q)
+    except SafetyRefusal as err:
+        raise StartPoseError(
+            "hardware.ur.workspace_min/max",
+            f"do not hold the arm where it stands (q = {np.round(q, 4).tolist()} rad), so "
+            f"every command would be refused: {str(err).replace('refused UR5 command: ', '')}"
+            f"; move the arm or change the box") from None
 
 
 def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
@@ -118,23 +155,64 @@ def CheckHardwareSetup(scenario: Scenario, own_clients: bool):
     return calib, CalibrationX_WC(calib, scenario.robot.X_WB.GetDeterministicValue())
 
 
+def CheckHardwareScenario(scenario: Scenario, own_clients: bool = True):
+    """The checks of ``OpenCheckedHardware`` that need no device (``lmap-drake
+    run --hardware`` runs them before it makes its output folder): the
+    segmenter, the client libraries (when we connect ourselves), the
+    ``hardware`` config and the calibration file. Returns (calibration,
+    X_WC). Raises ConfigError / CalibrationError (bad input) or
+    HardwareStationUnavailable."""
+    if scenario.perception.segmenter == "label":
+        raise ConfigError("perception.segmenter",
+                          "'label' reads simulator labels, which a real camera does not have; "
+                          "use segnet (the default) or color_depth with --hardware")
+    return CheckHardwareSetup(scenario, own_clients)
+
+
+def OpenCheckedHardware(scenario: Scenario, clients: HardwareClients | None = None,
+                        read_only: bool = False, progress=None):
+    """The pre-motion gate. Every check runs before the first byte that can
+    move anything: ``CheckHardwareScenario``; then (connecting read-only
+    unless ``clients`` are given) the calibration's camera serial against
+    the connected camera and the measured start pose (``CheckStartPose``);
+    only then ``EnableMotion`` (not with ``read_only``). Returns (clients,
+    calibration X_WC, whether we connected them); on any error the clients
+    we connected are closed."""
+    config = scenario.hardware
+    own = clients is None
+    calib, X_WC = CheckHardwareScenario(scenario, own)
+    if own:
+        if progress is not None:
+            progress(f"connecting to the UR5 at {config.ur.robot_ip} (read-only until every "
+                     f"check passed" + (": nothing can move)" if read_only else ")"))
+        clients = ConnectHardwareClients(config, read_only=True)
+    try:
+        CheckCalibrationSerial(calib, str(getattr(clients.camera, "serial", "")),
+                               config.camera.calibration_file)
+        q, _ = clients.ur.ReadState()
+        CheckStartPose(q, config.ur)
+        if own and not read_only:
+            EnableMotion(clients, config)
+    except BaseException:
+        if own:
+            clients.Close()
+        raise
+    return clients, X_WC, own
+
+
 def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = None,
                         read_only: bool = False) -> Diagram:
     """The hardware station Diagram for ``scenario.hardware``. ``clients``
     (tests, or a caller that connected first) are used as given; otherwise
     the real devices are connected (read-only with ``read_only``). With
     ``read_only`` the station only reads: no joint or gripper command is
-    sent whatever its inputs say. Raises HardwareStationUnavailable when a
-    library or a device is missing, CalibrationError (bad input) for a bad
-    calibration file or one made for another camera."""
+    sent whatever its inputs say. Goes through ``OpenCheckedHardware``.
+    Raises HardwareStationUnavailable when a library or a device is missing,
+    CalibrationError / ConfigError (bad input) for a bad calibration file,
+    one made for another camera, or a start pose outside the limits."""
     config = scenario.hardware
-    own_clients = clients is None
-    calib, X_WC = CheckHardwareSetup(scenario, own_clients)
-    if own_clients:
-        clients = ConnectHardwareClients(config, read_only=read_only)
+    clients, X_WC, own_clients = OpenCheckedHardware(scenario, clients, read_only)
     try:
-        CheckCalibrationSerial(calib, getattr(clients.camera, "serial", ""),
-                               config.camera.calibration_file)
         builder = DiagramBuilder()
         ur5 = builder.AddNamedSystem("ur5_driver", Ur5Driver(
             clients.ur, config.ur.command_period, command=not read_only))

@@ -53,10 +53,11 @@ def ImportUrRtde():
 
 
 def ConnectUr(config: UrConfig, read_only: bool = False) -> "UrClient":
-    """Connects to the UR5 at ``config.robot_ip``. With ``read_only`` only
-    the receive interface is opened (no control script is uploaded and the
-    arm cannot be commanded: used by ``--dry-run``)."""
-    rtde_control, rtde_receive = ImportUrRtde()
+    """Connects to the UR5 at ``config.robot_ip``: the receive interface,
+    then (unless ``read_only``) ``UrClient.OpenControl``, which uploads
+    ur_rtde's control script. A read-only client cannot command the arm
+    (``--dry-run``, and the pre-motion checks before ``OpenControl``)."""
+    _, rtde_receive = ImportUrRtde()
     ip = config.robot_ip
     try:
         receive = rtde_receive.RTDEReceiveInterface(ip, config.rtde_frequency)
@@ -64,17 +65,14 @@ def ConnectUr(config: UrConfig, read_only: bool = False) -> "UrClient":
         raise _Unavailable(
             f"hardware station: could not connect to the UR5 at {ip} (RTDE receive "
             f"interface, port 30004): {err}") from err
-    control = None
+    client = UrClient(config, control=None, receive=receive)
     if not read_only:
         try:
-            control = rtde_control.RTDEControlInterface(ip, config.rtde_frequency)
-        except Exception as err:
-            receive.disconnect()
-            raise _Unavailable(
-                f"hardware station: could not open the RTDE control interface of the UR5 at "
-                f"{ip} (is the robot in remote control mode, powered and released?): "
-                f"{err}") from err
-    return UrClient(config, control=control, receive=receive)
+            client.OpenControl()
+        except BaseException:
+            client.Close()
+            raise
+    return client
 
 
 class UrClient:
@@ -100,6 +98,22 @@ class UrClient:
         self._halted = False
         self._closed = False
         self.servo_count = 0
+
+    def OpenControl(self) -> None:
+        """Opens the RTDE control interface (ur_rtde uploads its control
+        script to the controller): from here on the arm can be commanded.
+        The first byte that can move the arm: call it after every check."""
+        if self.control is not None:
+            return
+        rtde_control, _ = ImportUrRtde()
+        ip = self.config.robot_ip
+        try:
+            self.control = rtde_control.RTDEControlInterface(ip, self.config.rtde_frequency)
+        except Exception as err:
+            raise _Unavailable(
+                f"hardware station: could not open the RTDE control interface of the UR5 at "
+                f"{ip} (is the robot in remote control mode, powered and released?): "
+                f"{err}") from err
 
     # ---- state -------------------------------------------------------------
     @property
