@@ -452,7 +452,8 @@ class Twin:
             w.Release()
             self.gripper.holding = False
             w.ApplyCommands()
-            self.events.append({"t": w.time, "event": "release"})
+            self.events.append({"t": w.time, "event": "release", "opening_cmd": w.width_cmd,
+                                "grasp_opening": self._grasp_opening})
             self.progress(f"twin: leaf released at t = {w.time:.2f} s")
         d, fault = self.options.fault_after_grasp_move, self.options.fault
         if d > 0 and w.grasp_state is not None and not self.stopped_by_twin and \
