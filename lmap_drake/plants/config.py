@@ -267,7 +267,9 @@ class GreenhouseConfig:
     those within ``fem_radius`` (m) of it, at most ``max_fem_leaves`` (each
     about ``fem_target_tets`` tetrahedra, material from ``plant_scene.leaf``);
     every other leaf is static (welded, visual; with collision geometry if
-    ``static_leaf_collision``). ``dressing``: strings, heating pipes, rails,
+    ``static_leaf_collision``; off: a welded leaf would stop the arm like a
+    wall), each leaf green varied by ``leaf_color_variation`` (0-1), with a
+    paler lower side. ``dressing``: strings, heating pipes, rails,
     slab; ``neighbour_row``: a static row of plants behind."""
     seed: int = 0
     num_stems: int = 2

@@ -18,7 +18,7 @@ SHELLS = {
     "bench_engines": ["--out", "--repeats", "--workers", "--scenario_names", "--methods",
                       "--distances", "--keep", "--reanalyse"],
     "bench_planner": ["--out", "--scenario_name", "--suite", "--shapes"],
-    "bench_station": ["--out", "--scenario_name", "--duration"],
+    "bench_station": ["--out", "--scenario_name", "--duration", "--scenario_file", "--leaf"],
     "calibrate_energy_cap": ["records", "--out"],
     "eval_deformation_vs_fem": ["--out", "--scenarios", "--corr_scenarios", "--corr_directions",
                                 "--corr_distances", "--grasp_fallbacks",
