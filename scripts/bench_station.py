@@ -30,8 +30,9 @@ def main(argv=None) -> None:
     p.add_argument("--leaf", type=int, default=-1,
                    help="the FEM leaf to grasp (multi / greenhouse plants; -1: the first "
                         "one the arm reaches)")
+    p.add_argument("--scenario_text", default="{}", help="YAML overrides applied last")
     a = p.parse_args(argv)
-    result = BenchStation(a.scenario_name, a.duration, a.scenario_file, a.leaf)
+    result = BenchStation(a.scenario_name, a.duration, a.scenario_file, a.leaf, a.scenario_text)
     with open(a.out, "w") as f:
         json.dump(result, f, indent=2)
     print(json.dumps(result, indent=2))

@@ -67,7 +67,7 @@ def GreenhouseSuite() -> dict[str, PlantSceneConfig]:
     a fruit behind a stem, sparse and dense plants."""
     F = _fruit
     scenes = [
-        _scene("gh_one_red_heavy", 1, fruits=[F(color="red", occlusion=0.8)]),
+        _scene("gh_one_red_heavy", 20, fruits=[F(color="red", occlusion=0.8)]),
         _scene("gh_one_yellow_partial", 2, fruits=[F(color="yellow", occlusion=0.45)]),
         _scene("gh_green_heavy", 3, fruits=[F(color="green", occlusion=0.75, height=0.4)]),
         _scene("gh_immature_partial", 4, fruits=[F(color="immature", occlusion=0.5,
@@ -84,7 +84,7 @@ def GreenhouseSuite() -> dict[str, PlantSceneConfig]:
             F(stem=1, color="green", azimuth_deg=-20.0, occlusion=0.5, height=0.5),
             F(stem=2, color="orange", azimuth_deg=70.0, occlusion=0.6, height=0.35)],
             num_random_fruits=1),
-        _scene("gh_dense_60_leaves", 9, num_stems=3, num_leaves=60, fruits=[
+        _scene("gh_dense_60_leaves", 23, num_stems=3, num_leaves=60, fruits=[
             F(stem=1, color="red", azimuth_deg=-30.0, occlusion=0.7)]),
         _scene("gh_sparse_15_leaves", 10, num_stems=1, num_leaves=15, num_random_fruits=1,
                fruits=[F(color="yellow", occlusion=0.6)]),

@@ -19,14 +19,16 @@ from lmap_drake.scenario import LoadScenario
 
 
 def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0,
-                 scenario_file=DEFAULT_SCENARIO_FILE, leaf: int = -1) -> dict:
+                 scenario_file=DEFAULT_SCENARIO_FILE, leaf: int = -1,
+                 scenario_text: str = "{}") -> dict:
     """``realtime_factor``: wall seconds per simulated second of a
     ``duration`` s pull (monitors sampled every ``outcome.sample_period``);
     ``realtime_factor_simulation_only``: the same with the monitors off.
     ``leaf``: the FEM leaf grasped (``kind: multi`` / ``greenhouse``; on a
     greenhouse plant leaf 0 is the first target's main occluder); -1: the
     first FEM leaf whose tip grasp the arm can reach (IK)."""
-    scenario = LoadScenario(filename=scenario_file, scenario_name=scenario_name)
+    scenario = LoadScenario(filename=scenario_file, scenario_name=scenario_name,
+                            scenario_text=scenario_text)
     world = PlantWorldSim(scenario, progress=lambda m: print(f"[bench] {m}", flush=True))
     world.Hold(0.3)
     tried = [leaf] if leaf >= 0 else list(range(len(world.leaf_refs)))
@@ -59,4 +61,5 @@ def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0,
             "grasped_leaf": leaf,
             "static_leaves": len(getattr(world.model, "static_leaves", [])),
             "scenario": f"{scenario_file}:{scenario_name}",
+            "scenario_text": scenario_text,
             "machine": f"{platform.machine()}, {os.cpu_count()} cpus"}
