@@ -301,7 +301,9 @@ class PlantSceneConfig:
     placeholder`` is a cheap rigid scene (branch cylinder, leaf plate,
     pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
     on side shoots and several FEM leaves (``multi``,
-    ``lmap_drake/plants/multi.py``). World frame, metres.
+    ``lmap_drake/plants/multi.py``); ``kind: greenhouse`` a dense greenhouse
+    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``). World
+    frame, metres.
 
     ``sleep_distance`` / ``sleep_speed``: a leaf at rest (every vertex
     slower than ``sleep_speed``, m/s), not held and farther than
