@@ -34,9 +34,9 @@ def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float,
     the side of the midrib: pads closing across the blade (TCP y = current
     blade normal), approaching within the blade plane along the direction
     from the robot's shoulder to the grasp point (the natural reach)."""
-    # a greenhouse plant's leaves have their own lengths: the blade's tip is its largest u
-    length = min(world.scenario.plant_scene.leaf.length,
-                 float(world.leaf_refs[leaf].uv[:, 0].max()))
+    length = world.scenario.plant_scene.leaf.length
+    if world.scenario.plant_scene.kind == "greenhouse":   # leaves of their own lengths
+        length = float(world.leaf_refs[leaf].uv[:, 0].max())
     u = length - from_tip
     _, p = LeafPoint(world, u, v, leaf)
     _, p_a = LeafPoint(world, u - 0.02, v, leaf)
