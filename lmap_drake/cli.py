@@ -81,7 +81,7 @@ def cmd_run(args) -> int:
     t0 = time.time()
     status = "done"
     with folder as out:
-        if args.hardware or (scenario.plant_scene.kind in ("procedural", "multi")
+        if args.hardware or (scenario.plant_scene.kind in ("procedural", "multi", "greenhouse")
                              and not args.scripted):
             from lmap_drake.episode import RunLmapEpisode
             files, status = RunLmapEpisode(scenario, out, progress=_stage,
@@ -329,7 +329,7 @@ def _CheckOverride(text: str) -> None:
     scenario is checked before anything runs (``ResolveSpecs``)."""
     from lmap_drake.scenario import LoadScenario
     first = None
-    for kind in ("procedural", None, "multi"):
+    for kind in ("procedural", None, "multi", "greenhouse"):
         base = [] if kind is None else ["{plant_scene: {kind: %s}}" % kind]
         try:
             LoadScenario(scenario_text=base + [text])

@@ -2,6 +2,8 @@
 """Realtime factor of the simulated station during a pull.
 
     python scripts/bench_station.py --out bench_station.json
+    python scripts/bench_station.py --out gh.json \
+        --scenario_file diagrams/greenhouse_suite.yaml --scenario_name gh_one_red_heavy
 
 Builds the default scenario (FEM leaf), approaches and grasps the leaf (not
 timed), then times a 2 s pull of the default direction and distance:
@@ -15,6 +17,7 @@ import json
 import sys
 
 from lmap_drake.errors import OneLineArgumentParser
+from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.studies.station_benchmark import BenchStation
 
 
@@ -24,8 +27,13 @@ def main(argv=None) -> None:
     p.add_argument("--out", required=True)
     p.add_argument("--scenario_name", default="Defaults")
     p.add_argument("--duration", type=float, default=2.0)
+    p.add_argument("--scenario_file", default=str(DEFAULT_SCENARIO_FILE))
+    p.add_argument("--leaf", type=int, default=-1,
+                   help="the FEM leaf to grasp (multi / greenhouse plants; -1: the first "
+                        "one the arm reaches)")
+    p.add_argument("--scenario_text", default="{}", help="YAML overrides applied last")
     a = p.parse_args(argv)
-    result = BenchStation(a.scenario_name, a.duration)
+    result = BenchStation(a.scenario_name, a.duration, a.scenario_file, a.leaf, a.scenario_text)
     with open(a.out, "w") as f:
         json.dump(result, f, indent=2)
     print(json.dumps(result, indent=2))

@@ -25,7 +25,7 @@ from lmap_drake.episode.records import (DescribePlan, EpisodeResult, OutcomeLine
                                         SaveEpisode)
 from lmap_drake.episode.sim_world import FrameMeshcat, SimWorld
 from lmap_drake.plants.generator import SaveGroundTruth
-from lmap_drake.plants.multi import SaveMultiGroundTruth
+from lmap_drake.plants.multi import MULTI_KINDS, NumPlantFruits, SaveMultiGroundTruth
 from lmap_drake.scenario import DumpScenario, Scenario
 from lmap_drake.station.camera_noise import CameraProfile
 from lmap_drake.station.hardware.run import PrepareHardware
@@ -178,8 +178,8 @@ def EpisodeTimeLimit(scenario: Scenario, per_fruit: float = SECONDS_PER_FRUIT) -
     ``HARDWARE_MAX_FRUITS`` on a plant of unknown fruit count handled
     fruit by fruit (``planner.targets: all`` and no simulated multi-fruit
     plant)."""
-    if scenario.plant_scene.kind == "multi":
-        return per_fruit * max(1, len(scenario.plant_scene.multi.fruits))
+    if scenario.plant_scene.kind in MULTI_KINDS:
+        return per_fruit * max(1, NumPlantFruits(scenario.plant_scene))
     if scenario.planner.targets == "all":
         return per_fruit * HARDWARE_MAX_FRUITS
     return per_fruit

@@ -18,7 +18,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 from lmap_drake.episode.records import OutcomeLine
 from lmap_drake.episode.sim_world import FrameMeshcat
 from lmap_drake.plants.generator import SaveGroundTruth
-from lmap_drake.plants.multi import SaveMultiGroundTruth
+from lmap_drake.plants.multi import MULTI_KINDS, SaveMultiGroundTruth
 from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.plants.plant_station import GetPlantModel, MakePlantStation
 from lmap_drake.plants.scripted import RunScriptedPull
@@ -36,8 +36,8 @@ def RunStationSnapshot(scenario: Scenario, out: Path,
     out = Path(out)
     DumpScenario(scenario, out / "scenario.yaml")
     extra = []
-    if scenario.plant_scene.kind == "multi":
-        progress("generating the multi-fruit plant")
+    if scenario.plant_scene.kind in MULTI_KINDS:
+        progress(f"generating the {scenario.plant_scene.kind} plant")
         extra = SaveMultiGroundTruth(GetPlantModel(scenario), out)
     progress("building station")
     meshcat = Meshcat()

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Callable
 
 from lmap_drake.errors import InputError
+from lmap_drake.plants.multi import MULTI_KINDS, NumPlantFruits
 from lmap_drake.evaluation import progress as P
 from lmap_drake.evaluation import report as R
 from lmap_drake.evaluation import tables as T
@@ -132,8 +133,8 @@ def ResolveSpecs(specs: list[dict], suite_file: str | Path, strict: bool = True,
                     f"no leaf to move); eval needs plant_scene.kind "
                     f"{' or '.join(kinds)}")
             spec["scenario_hash"] = ScenarioHash(scenario)
-            if scenario.plant_scene.kind == "multi" and scenario.planner.targets == "all":
-                spec["targets"] = len(scenario.plant_scene.multi.fruits)   # for the estimate
+            if scenario.plant_scene.kind in MULTI_KINDS and scenario.planner.targets == "all":
+                spec["targets"] = NumPlantFruits(scenario.plant_scene)   # for the estimate
         except Exception:
             if strict:
                 raise

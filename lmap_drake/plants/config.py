@@ -14,6 +14,7 @@ from lmap_drake.config_checks import CheckRules, Need
 from lmap_drake.errors import ConfigError
 from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
 from lmap_drake.plants.generator import PlantGenerationError
+from lmap_drake.plants.greenhouse_model import ValidateGreenhouseConfig
 from lmap_drake.plants.multi import ValidateMultiConfig
 from lmap_drake.plants.pepper import PepperShapeOf
 
@@ -232,6 +233,67 @@ class MultiPlantConfig:
 
 
 @dc.dataclass
+class GreenhouseFruitConfig:
+    """A placed fruit of a greenhouse plant (``plant_scene.greenhouse.fruits``).
+    It hangs on a short shoot and a curved stalk from stem ``stem`` at
+    ``height`` (fraction of ``greenhouse.stem_length``), in the horizontal
+    direction ``azimuth_deg`` from the stem (0: toward camera0, +90: camera0's
+    right, 180: behind the stem). ``color``: red | yellow | orange | green |
+    immature ("" = drawn from the seed). ``cover_leaves`` (0-2) leaves hang
+    from its stalk in front of it, swung to hide ``occlusion`` of it from
+    camera0 (nearest a grid of swings). ``target``: its occluders and the
+    leaves near it are FEM (the arm may move them)."""
+    stem: int = 0
+    height: float = 0.35
+    azimuth_deg: float = -70.0
+    color: str = ""
+    cover_leaves: int = 1
+    occlusion: float = 0.7
+    target: bool = True
+
+
+@dc.dataclass
+class GreenhouseConfig:
+    """``plant_scene.kind: greenhouse``: a procedural greenhouse sweet-pepper
+    plant (``lmap_drake/plants/greenhouse.py``), deterministic in ``seed``.
+    ``num_stems`` (1-3) main stems of ``stem_length`` (m) from
+    ``plant_scene.p_W_branch_base``, ``stem_spacing`` apart, leaning up to
+    ``lean_deg`` and tied to strings; ``num_leaves`` (15-60) alternating
+    leaves at the stems' nodes (blade length in ``leaf_length`` m, width /
+    length in ``leaf_aspect``: lanceolate 0.3 .. ovate 0.7, drooping
+    ``droop_deg``, cupped by ``curl``), the fruits' cover leaves included;
+    the placed ``fruits`` and ``num_random_fruits`` more (not targets) at
+    random nodes. FEM: the leaves hiding a target fruit from camera0, then
+    those within ``fem_radius`` (m) of it, at most ``max_fem_leaves`` (each
+    about ``fem_target_tets`` tetrahedra, material from ``plant_scene.leaf``);
+    every other leaf is static (welded, visual; with collision geometry if
+    ``static_leaf_collision``; off: a welded leaf would stop the arm like a
+    wall), each leaf green varied by ``leaf_color_variation`` (0-1), with a
+    paler lower side. ``dressing``: strings, heating pipes, rails,
+    slab; ``neighbour_row``: a static row of plants behind."""
+    seed: int = 0
+    num_stems: int = 2
+    stem_length: float = 0.75
+    stem_spacing: float = 0.09
+    lean_deg: float = 6.0
+    num_leaves: int = 30
+    leaf_length: list[float] = dc.field(default_factory=lambda: [0.07, 0.15])
+    leaf_aspect: list[float] = dc.field(default_factory=lambda: [0.35, 0.65])
+    droop_deg: list[float] = dc.field(default_factory=lambda: [20.0, 60.0])
+    curl: float = 0.25
+    fruits: list[GreenhouseFruitConfig] = dc.field(
+        default_factory=lambda: [GreenhouseFruitConfig()])
+    num_random_fruits: int = 2
+    fem_radius: float = 0.06
+    max_fem_leaves: int = 3
+    fem_target_tets: int = 500
+    static_leaf_collision: bool = False
+    leaf_color_variation: float = 0.2
+    dressing: bool = True
+    neighbour_row: bool = True
+
+
+@dc.dataclass
 class PlantSceneConfig:
     """The plant in front of the robot. ``kind: procedural`` builds the
     branch, pepper and FEM leaf from the sub-configs, with the leaf swung so
@@ -239,7 +301,9 @@ class PlantSceneConfig:
     placeholder`` is a cheap rigid scene (branch cylinder, leaf plate,
     pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
     on side shoots and several FEM leaves (``multi``,
-    ``lmap_drake/plants/multi.py``). World frame, metres.
+    ``lmap_drake/plants/multi.py``); ``kind: greenhouse`` a dense greenhouse
+    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``). World
+    frame, metres.
 
     ``sleep_distance`` / ``sleep_speed``: a leaf at rest (every vertex
     slower than ``sleep_speed``, m/s), not held and farther than
@@ -274,6 +338,7 @@ class PlantSceneConfig:
     pull: ScriptedPullConfig = dc.field(default_factory=ScriptedPullConfig)
     outcome: OutcomeConfig = dc.field(default_factory=OutcomeConfig)
     multi: MultiPlantConfig = dc.field(default_factory=MultiPlantConfig)
+    greenhouse: GreenhouseConfig = dc.field(default_factory=GreenhouseConfig)
     sleep_distance: float = 0.03
     sleep_speed: float = 0.002
     fem_threads: int = 0
@@ -352,7 +417,7 @@ _RULES = {
     "leaf_size": "3x>0",
 }
 _ENUMS = {
-    "kind": ("placeholder", "procedural", "multi"),
+    "kind": ("placeholder", "procedural", "multi", "greenhouse"),
     "leaf.shape": ("ovate", "elliptic"),
     "fruit.variant": ("blocky", "elongated", "conical"),  # plants.pepper.VARIANTS
 }
@@ -388,8 +453,8 @@ def ValidatePlantSceneConfig(ps: PlantSceneConfig, path: str = "plant_scene") ->
     Need(not fr.mesh_file or ps.kind == "procedural", f"{path}.fruit.mesh_file",
          f"needs {path}.kind: procedural (a multi-fruit plant takes a file per fruit: "
          f"{path}.multi.fruits[i].fruit.mesh_file)")
-    if ps.kind == "multi":
+    if ps.kind in ("multi", "greenhouse"):
         try:
-            ValidateMultiConfig(ps)
+            (ValidateMultiConfig if ps.kind == "multi" else ValidateGreenhouseConfig)(ps)
         except PlantGenerationError as err:
             raise ConfigError(err.key, err.detail) from None

@@ -19,9 +19,21 @@ from lmap_drake.plants.leaf import BoundaryTriangles
 from lmap_drake.plants.pepper import PepperShapeOf
 
 MAX_FRUITS, MIN_FRUITS = 4, 2
+MULTI_KINDS = ("multi", "greenhouse")   # plant_scene.kind values with several fruits and leaves
 MAX_LEAVES, MIN_LEAVES = 6, 2
 OCCLUDER_MIN = 0.02        # a leaf hiding at least this fraction of a fruit is one of its occluders
 FRUIT_GAP = 0.005          # m, fruit to fruit and fruit to other shoots
+
+
+def NumPlantFruits(ps) -> int:
+    """The fruits a ``plant_scene`` asks for: ``multi.fruits``; greenhouse:
+    ``greenhouse.fruits`` plus ``num_random_fruits`` (at most: a random fruit
+    that does not fit is left out); 1 otherwise."""
+    if ps.kind == "multi":
+        return len(ps.multi.fruits)
+    if ps.kind == "greenhouse":
+        return len(ps.greenhouse.fruits) + int(ps.greenhouse.num_random_fruits)
+    return 1
 
 
 class MultiConfigError(PlantGenerationError):
@@ -104,6 +116,10 @@ class MultiPlantModel:
     def LeafSurface(self, i: int) -> trimesh.Trimesh:
         return self.leaves[i].Surface()
 
+    def AllLeafSurfaces(self) -> list:
+        """Every leaf's rest surface, in ground-truth leaf order."""
+        return [lf.Surface() for lf in self.leaves]
+
     def GroundTruthDict(self) -> dict:
         return {
             "kind": "multi",
@@ -141,8 +157,8 @@ def SaveMultiGroundTruth(model: MultiPlantModel, folder: str | Path) -> list[str
     for i, f in enumerate(model.fruits):
         f.mesh_W.export(folder / f"fruit_{i}_W.obj")
         names.append(f"fruit_{i}_W.obj")
-    for j, lf in enumerate(model.leaves):
-        lf.Surface().export(folder / f"leaf_{j}_rest_W.obj")
+    for j, surface in enumerate(model.AllLeafSurfaces()):
+        surface.export(folder / f"leaf_{j}_rest_W.obj")
         names.append(f"leaf_{j}_rest_W.obj")
     return names
 

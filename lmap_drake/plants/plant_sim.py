@@ -30,6 +30,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from lmap_drake.plants.generator import SIGN_RAYS, MeshSignedDistance
 from lmap_drake.plants.leaf import MaxPrincipalStretch, RestShapeInverse
 from lmap_drake.plants.leaf_sleep import LeafProximity
+from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
                                        StrainPercentile, VisibilityFraction)
 from lmap_drake.plants.plant_station import (GetPlantModel, LeafGrasp, MakePlantStation,
@@ -100,9 +101,10 @@ class PlantWorldSim:
         """``make_diagram(scenario, meshcat, leaf_grasp) -> (root, station)``
         builds the simulated Diagram (default: the station alone, driven
         through its input ports by this object)."""
-        if scenario.plant_scene.kind not in ("procedural", "multi"):
-            raise ValueError("PlantWorldSim needs plant_scene.kind: procedural or multi")
-        self.multi = scenario.plant_scene.kind == "multi"
+        if scenario.plant_scene.kind not in ("procedural",) + MULTI_KINDS:
+            raise ValueError("PlantWorldSim needs plant_scene.kind: procedural, multi or "
+                             "greenhouse")
+        self.multi = scenario.plant_scene.kind in MULTI_KINDS
         self.scenario = scenario
         self.meshcat = meshcat
         self._make_diagram = make_diagram

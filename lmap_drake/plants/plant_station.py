@@ -15,6 +15,8 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import Diagram
 
 from lmap_drake.plants.config import PlantSceneConfig
+from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant
+from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.station import MakeStation
 
@@ -48,16 +50,25 @@ def _CachedMultiPlantModel(plant_scene_yaml: str, p_WC: tuple):
     return GenerateMultiPlant(cfg, np.array(p_WC))
 
 
+@functools.lru_cache(maxsize=8)
+def _CachedGreenhousePlantModel(plant_scene_yaml: str, p_WC: tuple):
+    from pydrake.common.yaml import yaml_load_typed
+    from lmap_drake.plants.greenhouse import GenerateGreenhousePlant
+    cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
+    return GenerateGreenhousePlant(cfg, np.array(p_WC))
+
+
 def GetPlantModel(scenario: Scenario):
     """The generated plant of a procedural scenario (``PlantModel``) or of a
     ``kind: multi`` one (``MultiPlantModel``); cached, deterministic in the
-    scenario."""
+    scenario; ``kind: greenhouse``: a ``GreenhousePlantModel``."""
     from pydrake.common.yaml import yaml_dump_typed
     kind = scenario.plant_scene.kind
-    if kind not in ("procedural", "multi"):
-        raise ValueError("GetPlantModel needs plant_scene.kind: procedural or multi")
+    if kind not in ("procedural",) + MULTI_KINDS:
+        raise ValueError("GetPlantModel needs plant_scene.kind: procedural, multi or greenhouse")
     p_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().translation()
-    cached = _CachedPlantModel if kind == "procedural" else _CachedMultiPlantModel
+    cached = {"procedural": _CachedPlantModel, "multi": _CachedMultiPlantModel,
+              "greenhouse": _CachedGreenhousePlantModel}[kind]
     # the keys that only steer the simulation do not make another plant
     shape = dc.replace(scenario.plant_scene, sleep_distance=0.0, sleep_speed=0.0, fem_threads=0)
     return cached(yaml_dump_typed(shape, schema=PlantSceneConfig),
@@ -71,9 +82,11 @@ def PlantWorldAdder(scenario: Scenario, leaf_grasp: LeafGrasp | None = None):
     from lmap_drake.plants.scene import AddMultiPlant, AddPlaceholderPlant, AddProceduralPlant
 
     def add(plant, scene_graph) -> None:
-        if scenario.plant_scene.kind == "multi":
-            handles = AddMultiPlant(plant, scene_graph, GetPlantModel(scenario),
-                                    scenario.plant_scene)
+        if scenario.plant_scene.kind in MULTI_KINDS:
+            add_multi = (AddGreenhousePlant if scenario.plant_scene.kind == "greenhouse"
+                         else AddMultiPlant)
+            handles = add_multi(plant, scene_graph, GetPlantModel(scenario),
+                                scenario.plant_scene)
             if leaf_grasp is not None:
                 from pydrake.geometry import Box
                 plant.mutable_deformable_model().AddFixedConstraint(
@@ -132,7 +145,7 @@ def RenderStill(scenario: Scenario, settle: float = 0.0,
         from lmap_drake.plants.scene import LeafBodyName
         plant = station.GetSubsystemByName("plant")
         dm = plant.deformable_model()
-        multi = scenario.plant_scene.kind == "multi"
+        multi = scenario.plant_scene.kind in MULTI_KINDS
         plant_context = plant.GetMyMutableContextFromRoot(root)
         for j, q in leaf_positions.items():
             body = dm.GetBodyByName(LeafBodyName(multi, j))
@@ -159,9 +172,10 @@ def UnoccludedFruitPixels(scenario: Scenario, fruit: int | None = None) -> int:
 
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-    if scenario.plant_scene.kind == "multi":
-        AddMultiPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
-                      with_leaves=False)
+    if scenario.plant_scene.kind in MULTI_KINDS:
+        add_multi = (AddGreenhousePlant if scenario.plant_scene.kind == "greenhouse"
+                     else AddMultiPlant)
+        add_multi(plant, sg, GetPlantModel(scenario), scenario.plant_scene, with_leaves=False)
     else:
         AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
                            with_leaf=False)

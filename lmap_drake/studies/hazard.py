@@ -470,7 +470,7 @@ def RunHazardStudy(a: HazardStudyOptions) -> int:
         t0 = time.perf_counter()
         s = LoadScenario(filename=str(a.scenario_file), scenario_name=name)
         s._name = name
-        evaluate = EvaluateMultiScenario if s.plant_scene.kind == "multi" else EvaluateScenario
+        evaluate = EvaluateMultiScenario if s.plant_scene.kind in ("multi", "greenhouse") else EvaluateScenario
         res = evaluate(s, a, lambda m: print(m, file=sys.stderr))
         res["correlation"] = Correlations(res["rows"])
         res["seconds"] = round(time.perf_counter() - t0, 1)

@@ -227,7 +227,7 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
     if box is None or not (truth == 3).any():
         raise ValueError("no fruit in view")
     return {"inputs": x[:, box[0], box[1]].astype(np.float16), "truth": truth[box],
-            "fruit_kind": kind, "multi": s.plant_scene.kind == "multi", "held": bool(held)}
+            "fruit_kind": kind, "multi": s.plant_scene.kind in ("multi", "greenhouse"), "held": bool(held)}
 
 
 def _work(args) -> str:

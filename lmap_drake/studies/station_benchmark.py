@@ -12,19 +12,35 @@ import time
 import numpy as np
 
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE
+from lmap_drake.planning.motion import MotionError
 from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.plants.scripted import ApproachAndGrasp, Pull
 from lmap_drake.scenario import LoadScenario
 
 
-def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0) -> dict:
+def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0,
+                 scenario_file=DEFAULT_SCENARIO_FILE, leaf: int = -1,
+                 scenario_text: str = "{}") -> dict:
     """``realtime_factor``: wall seconds per simulated second of a
     ``duration`` s pull (monitors sampled every ``outcome.sample_period``);
-    ``realtime_factor_simulation_only``: the same with the monitors off."""
-    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name=scenario_name)
+    ``realtime_factor_simulation_only``: the same with the monitors off.
+    ``leaf``: the FEM leaf grasped (``kind: multi`` / ``greenhouse``; on a
+    greenhouse plant leaf 0 is the first target's main occluder); -1: the
+    first FEM leaf whose tip grasp the arm can reach (IK)."""
+    scenario = LoadScenario(filename=scenario_file, scenario_name=scenario_name,
+                            scenario_text=scenario_text)
     world = PlantWorldSim(scenario, progress=lambda m: print(f"[bench] {m}", flush=True))
     world.Hold(0.3)
-    ApproachAndGrasp(world, scenario.plant_scene.pull)
+    tried = [leaf] if leaf >= 0 else list(range(len(world.leaf_refs)))
+    for k, j in enumerate(tried):
+        try:
+            ApproachAndGrasp(world, scenario.plant_scene.pull, leaf=j)
+            leaf = j
+            break
+        except MotionError as err:        # planned before anything moves
+            if k == len(tried) - 1:
+                raise
+            print(f"[bench] leaf {j}: {err}; trying leaf {tried[k + 1]}", flush=True)
     pull = scenario.plant_scene.pull
     fork = world.Fork()
     t0 = time.perf_counter()
@@ -40,5 +56,10 @@ def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0) -> dict
             "realtime_factor_simulation_only": wall_sim / duration,
             "simulated_seconds": duration,
             "time_step": scenario.plant_config.time_step,
-            "leaf_tets": int(len(world.model.leaf_tets)),
+            "leaf_tets": int(sum(len(r.tets) for r in world.leaf_refs)),
+            "fem_leaves": len(world.leaf_refs),
+            "grasped_leaf": leaf,
+            "static_leaves": len(getattr(world.model, "static_leaves", [])),
+            "scenario": f"{scenario_file}:{scenario_name}",
+            "scenario_text": scenario_text,
             "machine": f"{platform.machine()}, {os.cpu_count()} cpus"}

@@ -1,0 +1,160 @@
+"""Adds a greenhouse plant (``plant_scene.kind: greenhouse``) and its
+greenhouse dressing to the station's MultibodyPlant: stems, shoots and
+fruits as the multi-fruit plant (``scene.AddMultiPlant``), the FEM leaves
+(own colours), the static leaves (welded, two-tone: upper and lower side),
+the strings, and static dressing (heating pipes, rails, a slab, a bright
+glass wall, optionally a neighbouring row). Dressing is visual only and
+labelled background (render label 0)."""
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+import trimesh
+from pydrake.geometry import (Box, CollisionFilterDeclaration, Cylinder, GeometryInstance,
+                              GeometrySet, IllustrationProperties, PerceptionProperties,
+                              RenderLabel, Rgba)
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
+
+from lmap_drake.labels import BRANCH, LEAF, EncodeLabel
+from lmap_drake.plants.multi_geometry import BranchTube
+from lmap_drake.plants.config import PlantSceneConfig
+from lmap_drake.plants.scene import (AddFemLeaf, AddMultiPlant, LeafBodyName,
+                                     RegisterLabeledGeometry, _CylinderBetween, _ObjMesh)
+
+STRING_RADIUS = 0.0012
+STRING_COLOR = Rgba(0.92, 0.9, 0.82, 1.0)
+PIPE_COLOR = Rgba(0.78, 0.8, 0.82, 1.0)
+RAIL_COLOR = Rgba(0.45, 0.47, 0.5, 1.0)
+SLAB_COLOR = Rgba(0.93, 0.93, 0.9, 1.0)
+GLASS_COLOR = Rgba(0.82, 0.9, 0.97, 1.0)
+ROW_COLOR = Rgba(0.2, 0.42, 0.16, 1.0)
+
+
+def _Visual(plant, name: str, X: RigidTransform, shape, rgba: Rgba) -> None:
+    """Visual-only world geometry, labelled background."""
+    gi = GeometryInstance(X, shape, name)
+    ill = IllustrationProperties()
+    ill.AddProperty("phong", "diffuse", rgba)
+    per = PerceptionProperties()
+    per.AddProperty("phong", "diffuse", rgba)
+    per.AddProperty("label", "id", RenderLabel(0))
+    gi.set_illustration_properties(ill)
+    gi.set_perception_properties(per)
+    plant.RegisterVisualGeometry(plant.world_body(), gi)
+
+
+def _Rgba(c) -> Rgba:
+    return Rgba(*c) if not isinstance(c, Rgba) else c
+
+
+def UpperLowerSides(surface: trimesh.Trimesh, normal: np.ndarray):
+    """The leaf surface's faces facing ``normal`` (upper side) and the rest."""
+    up = surface.face_normals @ np.asarray(normal) >= 0
+    return (surface.submesh([up], append=True) if up.any() else None,
+            surface.submesh([~up], append=True) if (~up).any() else None)
+
+
+def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConfig,
+                       with_leaves: bool = True) -> dict:
+    """Adds a ``GreenhousePlantModel``; handles as ``AddMultiPlant`` (FEM
+    leaves ``leaf_<j>``). FEM leaves collide with the fruits and the robot,
+    not with the stems, shoots or static leaves (their petioles sit inside
+    the stems; static leaves would pin them). Static leaf ``s`` is labelled
+    ``EncodeLabel(LEAF, len(model.leaves) + s)``."""
+    handles = AddMultiPlant(plant, scene_graph, model, cfg, with_leaves=False)
+    g = cfg.greenhouse
+    world = plant.world_body()
+    for s, pts in enumerate(model.strings_W):
+        for k in range(len(pts) - 1):
+            X, length = _CylinderBetween(pts[k] + [0.0, 0.0, 0.0], pts[k + 1])
+            RegisterLabeledGeometry(plant, world, X, Cylinder(STRING_RADIUS, length),
+                                    f"string_{s}_{k}", STRING_COLOR, EncodeLabel(BRANCH, s),
+                                    collision=False)
+    if g.dressing:
+        AddGreenhouseDressing(plant, np.asarray(cfg.p_W_branch_base, float),
+                              np.asarray(model.p_WC, float),
+                              _CanopyMesh(model) if g.neighbour_row else None)
+    if not with_leaves:
+        return handles
+    K = len(model.leaves)
+    static_gids = []
+    for s, lf in enumerate(model.static_leaves):
+        upper, lower = UpperLowerSides(lf.surface_W, lf.normal_W)
+        for part, color, tag in ((upper, lf.color, "upper"), (lower, lf.color_below, "lower")):
+            if part is not None:
+                RegisterLabeledGeometry(plant, world, RigidTransform(),
+                                        _ObjMesh(part, f"static_leaf_{s}_{tag}"),
+                                        f"static_leaf_{s}_{tag}", _Rgba(color),
+                                        EncodeLabel(LEAF, K + s), collision=False)
+        if g.static_leaf_collision:
+            static_gids.append(plant.RegisterCollisionGeometry(
+                world, RigidTransform(), _ObjMesh(lf.surface_W, f"static_leaf_{s}_collision"),
+                f"static_leaf_{s}_collision", CoulombFriction(0.8, 0.8)))
+    cfm = scene_graph.collision_filter_manager()
+    plant_rigid = [gid for gids in handles["branch_geometry_ids"] for gid in gids] + static_gids
+    for j, leaf in enumerate(model.leaves):
+        color = model.leaf_colors[j][0] if model.leaf_colors else cfg.leaf.color
+        bid, gid = AddFemLeaf(plant, LeafBodyName(True, j), leaf.rest_W, leaf.tets, leaf.fixed,
+                              dc.replace(cfg.leaf, color=_Rgba(color)), EncodeLabel(LEAF, j))
+        handles["leaf_body_ids"].append(bid)
+        handles["leaf_geometry_ids"].append(gid)
+        if plant_rigid:
+            cfm.Apply(CollisionFilterDeclaration().ExcludeBetween(
+                GeometrySet(gid), GeometrySet(plant_rigid)))
+    if handles["leaf_geometry_ids"] and not cfg.multi.leaf_leaf_contact:
+        cfm.Apply(CollisionFilterDeclaration().ExcludeWithin(
+            GeometrySet(handles["leaf_geometry_ids"])))
+    return handles
+
+
+def _CanopyMesh(model) -> trimesh.Trimesh:
+    """The plant's leaves and stems as one mesh (W): the neighbouring row's plants."""
+    parts = [s.surface_W for s in model.static_leaves] + [lf.Surface() for lf in model.leaves]
+    parts += [BranchTube(b, sections=6) for b in model.branches]
+    return trimesh.util.concatenate(parts)
+
+
+def AddGreenhouseDressing(plant, base: np.ndarray, p_WC: np.ndarray,
+                          canopy: trimesh.Trimesh | None) -> None:
+    """Static greenhouse dressing around a plant at ``base`` seen from
+    ``p_WC`` (W, m): a stone-wool slab on a hanging gutter under the row, two
+    heating pipes (the pipe-rail) along the row, a wire above, a glass wall
+    behind and, with ``canopy`` (a plant's mesh, W), a neighbouring row of
+    shifted, turned copies of it further back (background, not labelled)."""
+    to_cam = p_WC - base
+    d = np.array([to_cam[0], to_cam[1], 0.0])
+    d /= max(np.linalg.norm(d), 1e-9)
+    row = np.cross(d, [0, 0, 1.0])            # along the row (row, d, z right-handed)
+    R = RotationMatrix(np.c_[row, d, [0, 0, 1.0]])
+
+    def at(along, toward, z):                 # a point in row coordinates
+        return base + along * row + toward * d + np.array([0, 0, z])
+    slab_top = base[2] - 0.005
+    _Visual(plant, "gh_slab", RigidTransform(R, at(0, 0, -0.045) + [0, 0, slab_top - base[2]]),
+            Box(1.6, 0.18, 0.08), SLAB_COLOR)
+    _Visual(plant, "gh_gutter", RigidTransform(R, at(0, 0, -0.1)), Box(1.8, 0.26, 0.03),
+            RAIL_COLOR)
+    for k, off in enumerate((-0.3, 0.3)):           # pipe-rail: heating pipes either side
+        for tag, zz in (("pipe", -0.12),):
+            X = RigidTransform(RotationMatrix.MakeFromOneVector(row, 2), at(0, off, zz))
+            _Visual(plant, f"gh_{tag}_{k}", X, Cylinder(0.026, 2.4), PIPE_COLOR)
+    X = RigidTransform(RotationMatrix.MakeFromOneVector(row, 2), at(0, 0, 1.35))
+    _Visual(plant, "gh_wire", X, Cylinder(0.002, 2.4), RAIL_COLOR)
+    _Visual(plant, "gh_glass", RigidTransform(R, at(0, -1.6, 0.8)), Box(4.0, 0.02, 3.0),
+            GLASS_COLOR)
+    for k in range(-4, 5):                            # glasshouse posts
+        _Visual(plant, f"gh_post_{k}", RigidTransform(R, at(0.5 * k, -1.58, 0.8)),
+                Box(0.03, 0.03, 3.0), RAIL_COLOR)
+    if canopy is not None:
+        rng = np.random.default_rng(0)
+        for k, (along, back) in enumerate(((-0.5, -0.75), (0.0, -0.8), (0.5, -0.75),
+                                           (-0.45, 0.0), (0.45, 0.0))):
+            c = np.clip(np.array([ROW_COLOR.r(), ROW_COLOR.g(), ROW_COLOR.b()])
+                        * rng.uniform(0.8, 1.2), 0, 1)
+            turn = RotationMatrix.MakeZRotation(rng.uniform(0, 2 * np.pi))
+            # turned about the plant base, then moved along / behind the row
+            X = RigidTransform(at(along, back, 0.0)) @ RigidTransform(turn) @ \
+                RigidTransform(-base)
+            _Visual(plant, f"gh_row_{k}", X, _ObjMesh(canopy, f"gh_row_{k}"), Rgba(*c, 1.0))

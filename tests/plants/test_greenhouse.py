@@ -1,0 +1,179 @@
+"""The greenhouse plant (``plant_scene.kind: greenhouse``): deterministic by
+seed, leaf and fruit counts in range, FEM only for the leaves hiding or near
+the target fruits, ground truth consistent, bad keys named, its Drake model,
+and the greenhouse suite file (written byte for byte, every scene builds)."""
+import dataclasses as dc
+import re
+
+import numpy as np
+import pytest
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+
+from lmap_drake.scenario import ScenarioError
+from lmap_drake.paths import DIAGRAMS_DIR
+from lmap_drake.plants.config import GreenhouseFruitConfig, PlantSceneConfig
+from lmap_drake.plants.greenhouse import GenerateGreenhousePlant
+from lmap_drake.plants.greenhouse_model import GreenhouseConfigError
+from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant
+from lmap_drake.plants.greenhouse_suite import GreenhouseSuite, RandomGreenhouseSuite
+from lmap_drake.plants.multi import OCCLUDER_MIN
+from lmap_drake.plants.multi_geometry import SurfaceDistance
+from lmap_drake.plants.suite import WriteSuiteFile
+from lmap_drake.scenario import LoadScenario
+from lmap_drake.station.config import DefaultCameraConfig
+
+P_WC = DefaultCameraConfig().X_PB.GetDeterministicValue().translation()
+
+
+def _cfg(**g):
+    cfg = PlantSceneConfig(kind="greenhouse")
+    for k, v in g.items():
+        setattr(cfg.greenhouse, k, v)
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def two_targets():
+    cfg = _cfg(seed=7, num_leaves=30, max_fem_leaves=3, fruits=[
+        GreenhouseFruitConfig(stem=0, color="red", occlusion=0.7, height=0.3),
+        GreenhouseFruitConfig(stem=1, color="green", azimuth_deg=70.0, occlusion=0.5,
+                              height=0.5)])
+    return cfg, GenerateGreenhousePlant(cfg, P_WC)
+
+
+def test_generation_is_deterministic_by_seed(two_targets):
+    cfg, model = two_targets
+    again = GenerateGreenhousePlant(cfg, P_WC)
+    assert len(again.leaves) == len(model.leaves)
+    for a, b in zip(again.AllLeafSurfaces(), model.AllLeafSurfaces()):
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+    for a, b in zip(again.fruits, model.fruits):
+        np.testing.assert_array_equal(a.mesh_W.vertices, b.mesh_W.vertices)
+    other = GenerateGreenhousePlant(dc.replace(cfg, greenhouse=dc.replace(cfg.greenhouse,
+                                                                           seed=8)), P_WC)
+    assert not np.allclose(other.AllLeafSurfaces()[-1].vertices[:10],
+                           model.AllLeafSurfaces()[-1].vertices[:10])
+
+
+def test_counts_in_range(two_targets):
+    cfg, model = two_targets
+    g = cfg.greenhouse
+    assert model.num_leaves_total == g.num_leaves
+    assert len(g.fruits) <= len(model.fruits) <= len(g.fruits) + g.num_random_fruits
+    assert model.targets == [0, 1]
+    assert len(model.branches) == g.num_stems + len(model.fruits)   # stems, one shoot per fruit
+    assert len(model.strings_W) == g.num_stems
+
+
+def test_fem_leaves_are_only_those_near_the_targets(two_targets):
+    cfg, model = two_targets
+    g = cfg.greenhouse
+    assert 1 <= len(model.leaves) <= g.max_fem_leaves
+    target_occluders = {j for i in model.targets for j in model.fruits[i].occluders}
+    for j, leaf in enumerate(model.leaves):
+        near = min(float(SurfaceDistance([model.fruits[i].mesh_W], leaf.rest_W).min())
+                   for i in model.targets)
+        assert j in target_occluders or near <= g.fem_radius + 1e-9, (j, near)
+    # every other leaf is static, and none of those is near a target if there was room
+    assert len(model.static_leaves) == g.num_leaves - len(model.leaves)
+
+
+def test_ground_truth_consistent(two_targets):
+    cfg, model = two_targets
+    gt = model.GroundTruthDict()
+    n_fem = len(model.leaves)
+    assert gt["kind"] == "greenhouse" and gt["targets"] == model.targets
+    assert [lf["index"] for lf in gt["leaves"]] == list(range(cfg.greenhouse.num_leaves))
+    assert [lf["fem"] for lf in gt["leaves"]] == [True] * n_fem + [False] * (
+        cfg.greenhouse.num_leaves - n_fem)
+    for f in gt["fruits"]:
+        for j in f["occluders"]:
+            assert 0 <= j < len(gt["leaves"]) and f["index"] in gt["leaves"][j]["hides_fruits"]
+    for i in model.targets:
+        occ = model.fruits[i].occluders
+        assert occ, f"target {i} has no occluder"
+        assert any(j < n_fem for j in occ), f"no occluder of target {i} is FEM: {occ}"
+        # each target's occluders are FEM while there is room (round robin over the targets)
+    total = {j for i in model.targets for j in model.fruits[i].occluders}
+    if len(total) <= cfg.greenhouse.max_fem_leaves:
+        assert all(j < n_fem for j in total)
+    # an occluder does hide its fruit: taking every occluder away reveals more
+    from lmap_drake.plants.multi_generator import _FruitViews
+    views = _FruitViews(model.fruits, model.branches, model.p_WC)
+    surfs = model.AllLeafSurfaces()
+    for i in model.targets:
+        assert views[i].Occlusion([surfs[j] for j in model.fruits[i].occluders[:1]]) \
+            >= OCCLUDER_MIN
+        rest = [s for j, s in enumerate(surfs) if j not in model.fruits[i].occluders]
+        assert views[i].Occlusion(rest) < model.fruits[i].occlusion_predicted
+
+
+def test_drake_model_has_one_fem_body_per_fem_leaf(two_targets):
+    cfg, model = two_targets
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.01), builder)
+    handles = AddGreenhousePlant(plant, sg, model, cfg)
+    plant.Finalize()
+    assert plant.deformable_model().num_bodies() == len(model.leaves)
+    assert len(handles["fruit_geometry_ids"]) == len(model.fruits)
+
+
+@pytest.mark.parametrize("key,value,name", [
+    ("num_leaves", 14, "plant_scene.greenhouse.num_leaves"),
+    ("num_leaves", 61, "plant_scene.greenhouse.num_leaves"),
+    ("num_stems", 4, "plant_scene.greenhouse.num_stems"),
+    ("leaf_length", [0.1, 0.05], "plant_scene.greenhouse.leaf_length"),
+    ("max_fem_leaves", 9, "plant_scene.greenhouse.max_fem_leaves"),
+])
+def test_bad_values_name_the_key(key, value, name):
+    with pytest.raises(GreenhouseConfigError) as err:
+        GenerateGreenhousePlant(_cfg(**{key: value}), P_WC)
+    assert err.value.key == name
+    with pytest.raises(ScenarioError, match=re.escape(name)):
+        LoadScenario(scenario_text="{plant_scene: {kind: greenhouse, greenhouse: {%s: %s}}}"
+                     % (key, value))
+
+
+def test_bad_fruit_values_name_the_key():
+    with pytest.raises(ScenarioError, match=r"plant_scene\.greenhouse\.fruits\[0\]\.color"):
+        LoadScenario(scenario_text="{plant_scene: {kind: greenhouse, greenhouse: "
+                                   "{fruits: [{color: purple}]}}}")
+    with pytest.raises(ScenarioError, match=r"plant_scene\.greenhouse\.fruits\[0\]\.stem"):
+        LoadScenario(scenario_text="{plant_scene: {kind: greenhouse, greenhouse: "
+                                   "{num_stems: 1, fruits: [{stem: 1}]}}}")
+
+
+def test_suite_file_is_written_byte_for_byte(tmp_path):
+    n, path = WriteSuiteFile(tmp_path / "g.yaml", greenhouse=True)
+    assert n == len(GreenhouseSuite()) >= 12
+    assert path.read_text() == (DIAGRAMS_DIR / "greenhouse_suite.yaml").read_text()
+
+
+def test_every_suite_scene_loads_and_builds():
+    """Every scene of the committed suite loads and its plant model builds
+    (generation only, no episode); each target has an FEM occluder."""
+    from lmap_drake.plants.plant_station import GetPlantModel
+    text = (DIAGRAMS_DIR / "greenhouse_suite.yaml").read_text()
+    names = re.findall(r"^(\w+):$", text, re.M)
+    assert len(names) >= 12
+    kinds = set()
+    for name in names:
+        s = LoadScenario(filename=DIAGRAMS_DIR / "greenhouse_suite.yaml", scenario_name=name)
+        assert s.plant_scene.kind == "greenhouse" and len(s.lights) == 3
+        model = GetPlantModel(s)
+        assert 15 <= model.num_leaves_total <= 60
+        for i in model.targets:
+            f = model.fruits[i]
+            if s.plant_scene.greenhouse.fruits[i].cover_leaves:
+                assert any(j < len(model.leaves) for j in f.occluders), (name, i)
+            kinds.add(len([j for j in f.occluders if j < len(model.leaves)]) >= 2)
+    assert kinds == {True, False}     # some targets under two FEM leaves, some under one
+
+
+def test_random_suite_is_deterministic():
+    a = RandomGreenhouseSuite(1, 3)
+    b = RandomGreenhouseSuite(1, 3)
+    assert list(a) == ["gh_random_3_000"]
+    assert a["gh_random_3_000"] == b["gh_random_3_000"]
+    assert 15 <= a["gh_random_3_000"].greenhouse.num_leaves <= 60
