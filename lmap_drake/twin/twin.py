@@ -89,7 +89,11 @@ class TwinGripper:
     gripper: ``SET POS`` requests an opening, ``GET POS`` reads the
     simulated fingers, OBJ is 2 when they stand still short of a closing
     request or the plant world holds the leaf between them (an object
-    between the pads), 3 at the request."""
+    between the pads), 3 at the request. While it holds, ``GET POS`` never
+    reads wider than ``held_at`` (POS where the pads met the leaf): a
+    2F-85 stopped on an object stands there, while the simulated fingers
+    may bounce off the held leaf region (the held station's coarser step)
+    and a wider reading would make the controller's hold request open them."""
 
     def __init__(self, config, opening: float):
         self.config = config
@@ -100,6 +104,7 @@ class TwinGripper:
         self.regs.update(POS=pos, PRE=pos, OBJ=3)
         self._still_since = None
         self.holding = False        # the plant world holds the leaf between the pads
+        self.held_at = None         # POS where the pads met the held leaf
 
     def Set(self, values: dict) -> bool:
         with self.lock:
@@ -134,6 +139,8 @@ class TwinGripper:
         in the instant a new request arrives, before they move)."""
         with self.lock:
             pos = OpeningToPos(float(np.clip(opening, 0.0, 0.085)), self.config)
+            if self.holding and self.held_at is not None:
+                pos = max(pos, self.held_at)      # not wider than where they met the leaf
             self.regs["POS"] = pos
             still_short = abs(pos - self.regs["PRE"]) > 1 and abs(rate) < 1e-3
             if not still_short:
@@ -435,6 +442,7 @@ class Twin:
                 self._grasp_tried_at != round(width, 4):
             try:
                 w.Grasp()
+                self.gripper.held_at = OpeningToPos(width, self.gripper.config)
                 self.gripper.holding = True
                 self._grasp_opening = width
                 self._grasp_tcp = w.X_WT().translation()

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from fakes.hardware import FakeRobotiqServer
+from fakes.hardware import FakeGripper, FakeRobotiqServer
 from lmap_drake.station.hardware.robotiq_client import (GripperCommandRefusal, OpeningToPos,
                                                         PosToOpening, RobotiqClient, RobotiqError)
 from lmap_drake.station.hardware_config import GripperConfig
@@ -96,3 +96,50 @@ def test_nothing_listening_gives_clear_error():
         port = s.getsockname()[1]
     with pytest.raises(HardwareStationUnavailable, match=f"Robotiq gripper socket at 127.0.0.1:{port}"):
         RobotiqClient.Connect(GripperConfig(port=port, timeout=0.5), "127.0.0.1")
+
+
+class _StopsOnTheLeafAfterOneRead(FakeGripper):
+    """FAKE register model: the fingers close at POS 220 (OBJ 0, moving)
+    until the first GET is answered; from then on they stand stopped on the
+    leaf at POS 245 (OBJ 2): a gripper that stops between two requests."""
+
+    def __init__(self):
+        super().__init__()
+        self.regs.update(ACT=1, GTO=1, STA=3, PRE=255, POS=220, OBJ=0)
+        self.gets = 0
+
+    def Get(self, var):
+        with self.lock:
+            value = self.regs.get(var)
+            self.gets += 1
+            if self.gets == 1:
+                self.regs.update(POS=245, OBJ=2)
+            return value
+
+
+def test_the_driver_never_pairs_an_object_flag_with_an_older_opening():
+    """The controller holds just inside the opening it measured when the
+    gripper reports an object: an opening read before the flag (the fingers
+    still moving) would make it command a wider opening than they hold,
+    which lets the leaf go. The flag is read first, the opening after it."""
+    import numpy as np
+    from lmap_drake.station.hardware.systems import RobotiqDriver
+    with FakeRobotiqServer(_StopsOnTheLeafAfterOneRead()) as server:
+        c = _client(server)
+        server.gripper.gets = 0
+        opening, obj = c.Measure()
+        assert server.received[-2:] == ["GET OBJ", "GET POS"]
+        assert (obj, opening) == (0, pytest.approx(PosToOpening(245, c.config)))
+        assert c.Measure() == (pytest.approx(PosToOpening(245, c.config)), 2)
+        driver = RobotiqDriver(c, 0.05, command=False)
+        context = driver.CreateDefaultContext()
+        server.gripper.regs.update(POS=220, OBJ=0)
+        server.gripper.gets = 0                 # the fingers stop inside the driver's update
+        state = driver.EvalUniquePeriodicDiscreteUpdate(context).get_vector(0).get_value()
+        assert state[2] == 0.0 and state[0] == pytest.approx(PosToOpening(245, c.config))
+        server.gripper.gets = 0
+        state = driver.EvalUniquePeriodicDiscreteUpdate(
+            driver.CreateDefaultContext()).get_vector(0).get_value()
+        assert state[2] == 1.0 and state[0] == pytest.approx(PosToOpening(245, c.config))
+        assert np.isfinite(state[1])
+        c.Close()

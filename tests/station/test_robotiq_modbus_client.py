@@ -82,6 +82,9 @@ def test_a_close_on_an_object_reports_it_and_where_it_stalled(server):
     assert c.ObjectStatus() == 2                 # stopped on an object while closing
     assert c.Position() == LEAF_POS and c.Get("PRE") == 255
     assert c.Opening() == pytest.approx(PosToOpening(LEAF_POS, c.config))
+    n = len(server.wire)
+    assert c.Measure() == (pytest.approx(PosToOpening(LEAF_POS, c.config)), 2)
+    assert server.wire[n:].count(bytes.fromhex("09 03 07 D0 00 03 04 0E")) == 1   # one read
     c.MoveToOpening(0.085)                       # open again: nothing in the way
     assert _Wait(lambda: c.ObjectStatus() == 3) and c.Position() == 0
 

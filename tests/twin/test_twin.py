@@ -164,6 +164,26 @@ def test_the_twin_gripper_reports_a_held_leaf_as_an_object():
     assert g.Get("OBJ") == 3                                 # at the request: nothing held
 
 
+def test_the_twin_gripper_holding_never_reads_wider_than_where_it_met_the_leaf():
+    """Simulated fingers that bounce open off the held leaf read as standing
+    where the pads met it (a 2F-85 stopped on an object stays there), so the
+    controller's hold request (just inside the reading) keeps the leaf."""
+    from lmap_drake.station.hardware_config import HardwareConfig
+    from lmap_drake.station.hardware.robotiq_client import OpeningToPos, PosToOpening
+    from lmap_drake.twin.twin import TwinGripper
+    cfg = HardwareConfig().gripper
+    g = TwinGripper(cfg, 0.085)
+    g.Set({"ACT": 1, "GTO": 1, "POS": OpeningToPos(0.0, cfg)})
+    g.held_at, g.holding = OpeningToPos(0.005, cfg), True
+    g.SetMeasured(0.0087, 0.05, 1.0)                         # bounced open
+    assert g.Get("OBJ") == 2 and PosToOpening(g.Get("POS"), cfg) <= 0.005 + 1e-9
+    g.SetMeasured(0.002, -0.05, 1.02)                        # closed past it: as measured
+    assert PosToOpening(g.Get("POS"), cfg) == pytest.approx(0.002, abs=0.0004)
+    g.holding = False
+    g.SetMeasured(0.0087, 0.0, 1.04)                         # let go: as measured again
+    assert PosToOpening(g.Get("POS"), cfg) == pytest.approx(0.0087, abs=0.0004)
+
+
 class _BlockedArmTwin(Twin):
     """TEST DOUBLE: a twin whose simulated arm is blocked (it stands for an
     arm held by an obstacle): its joint command stays ``blocked_q`` whatever

@@ -170,6 +170,14 @@ class RobotiqClient:
     def ObjectStatus(self) -> int:
         return self.Get("OBJ")
 
+    def Measure(self) -> tuple[float, int]:
+        """(opening m, OBJ) for one driver sample: ``GET OBJ`` first, then
+        ``GET POS``, so the opening is never older than the object flag (the
+        fingers may stop on an object between two requests; an opening read
+        before it, paired with OBJ 2, overstates where they hold)."""
+        obj = self.ObjectStatus()
+        return self.Opening(), obj
+
     def Status(self) -> int:
         return self.Get("STA")
 

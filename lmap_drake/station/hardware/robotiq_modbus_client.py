@@ -274,6 +274,11 @@ class RobotiqModbusClient:
     def ObjectStatus(self) -> int:
         return self.Get("OBJ")
 
+    def Measure(self) -> tuple[float, int]:
+        """(opening m, OBJ) from one status read: both of the same instant."""
+        status = self.ReadStatus()
+        return PosToOpening(status["POS"], self.config), status["OBJ"]
+
     def Status(self) -> int:
         return self.Get("STA")
 

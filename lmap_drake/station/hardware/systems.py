@@ -74,8 +74,10 @@ class RobotiqDriver(LeafSystem):
     """Input ``position`` (1, opening m, 0 closed .. 0.085 open; optional);
     output ``state_measured`` (3: opening m, its rate m/s by finite
     difference over ``period``, and 1 when the gripper's OBJ register says it
-    stopped on an object while closing, else 0). A new ``SET POS`` is sent only when the
-    commanded POS register value changes (``command=False``: never; the
+    stopped on an object while closing, else 0; ``client.Measure`` reads
+    the opening after the flag: the controller holds just inside it). A new
+    ``SET POS`` is sent only when the commanded POS register value changes
+    (``command=False``: never; the
     gripper is only read). ``on_abort`` is called before a
     HardwareAbort (a refused command, a lost link) leaves an event."""
 
@@ -101,8 +103,8 @@ class RobotiqDriver(LeafSystem):
             if pos != self.client.last_pos_sent:
                 self.client.MoveToPos(pos)
         old = context.get_discrete_state(self._x).get_value()[0]
-        new = self.client.Opening()
-        on_object = 1.0 if self.client.ObjectStatus() == 2 else 0.0   # stopped while closing
+        new, obj = self.client.Measure()       # the opening no older than the object flag
+        on_object = 1.0 if obj == 2 else 0.0   # stopped while closing
         discrete_state.set_value(self._x, np.array([new, (new - old) / self._period, on_object]))
 
 
