@@ -65,7 +65,29 @@ def CheckOpeningCommand(opening) -> float:
     return float(np.clip(o[0], 0.0, GRIPPER_MAX_WIDTH))
 
 
-class RobotiqClient:
+class GripperRegisters:
+    """The 2F-85 operations both links share, on top of a link's ``Get``,
+    ``MoveToPos`` and ``config`` (URCap socket: ``RobotiqClient``; Modbus
+    RTU: ``RobotiqModbusClient``)."""
+
+    def MoveToOpening(self, opening: float) -> int:
+        """Checks the opening (m) and moves there; returns the POS sent."""
+        pos = OpeningToPos(CheckOpeningCommand(opening), self.config)
+        self.MoveToPos(pos)
+        return pos
+
+    def Position(self) -> int:
+        return self.Get("POS")
+
+    def Opening(self) -> float:
+        """Measured opening in metres."""
+        return PosToOpening(self.Position(), self.config)
+
+    def ObjectStatus(self) -> int:
+        return self.Get("OBJ")
+
+
+class RobotiqClient(GripperRegisters):
     """Request/reply client over one TCP socket (thread-safe)."""
 
     def __init__(self, config: GripperConfig, sock: socket.socket, host: str = ""):
@@ -153,22 +175,6 @@ class RobotiqClient:
         pos = int(np.clip(pos, 0, 255))
         self.Set(POS=pos, SPE=self.config.speed, FOR=self.config.force, GTO=1)
         self.last_pos_sent = pos
-
-    def MoveToOpening(self, opening: float) -> int:
-        """Checks the opening (m) and moves there; returns the POS sent."""
-        pos = OpeningToPos(CheckOpeningCommand(opening), self.config)
-        self.MoveToPos(pos)
-        return pos
-
-    def Position(self) -> int:
-        return self.Get("POS")
-
-    def Opening(self) -> float:
-        """Measured opening in metres."""
-        return PosToOpening(self.Position(), self.config)
-
-    def ObjectStatus(self) -> int:
-        return self.Get("OBJ")
 
     def Measure(self) -> tuple[float, int]:
         """(opening m, OBJ) for one driver sample: ``GET OBJ`` first, then

@@ -46,8 +46,8 @@ import threading
 import time
 
 from lmap_drake.errors import HardwareStationUnavailable
-from lmap_drake.station.hardware.robotiq_client import (STA_ACTIVE, CheckOpeningCommand,
-                                                        OpeningToPos, PosToOpening, RobotiqError)
+from lmap_drake.station.hardware.robotiq_client import (STA_ACTIVE, GripperRegisters,
+                                                        PosToOpening, RobotiqError)
 from lmap_drake.station.hardware_config import GripperConfig
 
 INSTALL_HINT = "pip install -e .[hardware]"
@@ -112,7 +112,7 @@ def FaultText(code: int) -> str:
     return f"0x{code:02X} ({FAULTS.get(code, 'unknown fault code')})"
 
 
-class RobotiqModbusClient:
+class RobotiqModbusClient(GripperRegisters):
     """Request/reply client over one pymodbus ``ModbusSerialClient``
     (thread-safe). ``Connect`` opens it; tests may pass any client with the
     same methods."""
@@ -257,22 +257,6 @@ class RobotiqModbusClient:
         self.ReadStatus()
         self.Set(POS=pos, SPE=self.config.speed, FOR=self.config.force, GTO=1)
         self.last_pos_sent = pos
-
-    def MoveToOpening(self, opening: float) -> int:
-        """Checks the opening (m) and moves there; returns the POS sent."""
-        pos = OpeningToPos(CheckOpeningCommand(opening), self.config)
-        self.MoveToPos(pos)
-        return pos
-
-    def Position(self) -> int:
-        return self.Get("POS")
-
-    def Opening(self) -> float:
-        """Measured opening in metres."""
-        return PosToOpening(self.Position(), self.config)
-
-    def ObjectStatus(self) -> int:
-        return self.Get("OBJ")
 
     def Measure(self) -> tuple[float, int]:
         """(opening m, OBJ) from one status read: both of the same instant."""
