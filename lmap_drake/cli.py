@@ -7,7 +7,8 @@
     lmap-drake replay BAG --calibration FILE [--time S | --index K] [--topics ROLE=T,..]
                       [--scenario_file F] [--scenario_name N] [--scenario_text YAML] [--output DIR]
     lmap-drake twin [--scenario_file F] [--scenario_name N] [--host H] [--rate R]
-                    [--output DIR] [--duration S] [--fault K --fault_after_grasp_move D]
+                    [--output DIR] [--overwrite] [--duration S]
+                    [--fault K --fault_after_grasp_move D]
     lmap-drake eval [--scenario_file F | --scenarios N --seed S] [--methods M,..]
                     [--distances D,..] [--random_seeds K] [--scenario_names A,B]
                     [--workers W] [--output DIR] [--resume] [--debug]
@@ -176,12 +177,10 @@ def _ReplayBag(args) -> int:
 
 def cmd_twin(args) -> int:
     """The digital twin until Ctrl-C, SIGTERM, a ``quit`` line on stdin or
-    ``--duration`` wall seconds; then it writes its outcome."""
-    import signal
-    import threading
-
-    from lmap_drake.outputs import DefaultOutputFolder, EnsureWritableFolder, WriteMarker
-    from lmap_drake.twin.twin import Twin, TwinOptions, TwinRunOverrides, WriteTwinCalibration
+    ``--duration`` wall seconds; then it writes its outcome. Its output
+    folder is claimed (lock, marker, --overwrite rules) before anything is
+    built."""
+    from lmap_drake.outputs import DefaultOutputFolder, InPlaceFolder
     from lmap_drake.scenario import LoadScenario
 
     scenario = LoadScenario(filename=args.scenario_file, scenario_name=args.scenario_name,
@@ -191,8 +190,17 @@ def cmd_twin(args) -> int:
     if not 0.0 < args.rate <= 1.0:
         raise UsageError(f"--rate must be in (0, 1] simulated s per wall s, got {args.rate}")
     warning = _CheckTwinArgs(args)
-    out = EnsureWritableFolder(Path(args.output) if args.output
-                               else DefaultOutputFolder(prefix="twin-"))
+    folder = InPlaceFolder(args.output or DefaultOutputFolder(prefix="twin-"), "twin", {},
+                           overwrite=args.overwrite, inputs=[args.scenario_file])
+    with folder:
+        return _ServeTwin(args, scenario, warning, folder.Start())
+
+
+def _ServeTwin(args, scenario, warning, out: Path) -> int:
+    import signal
+    import threading
+
+    from lmap_drake.twin.twin import Twin, TwinOptions, TwinRunOverrides, WriteTwinCalibration
     calibration = (out / "calibration.yaml").resolve()
     options = TwinOptions(host=args.host, camera_port=args.camera_port,
                           gripper_port=args.gripper_port, rate=args.rate,
@@ -229,7 +237,6 @@ def cmd_twin(args) -> int:
     finally:
         twin.Close()
     outcome = twin.Finish(out)
-    WriteMarker(out, "twin")                  # the folder is an lmap-drake output
     _stage(f"twin stopped after {twin.world.time:.1f} simulated s (largest lag "
            f"{twin.lag_max:.2f} s); outcome: " + json.dumps(
                {k: v for k, v in outcome.items() if k != "release_outcome"}))
@@ -513,6 +520,9 @@ def _main(argv=None) -> int:
                     help="the fault --fault_after_grasp_move injects (default: %(default)s)")
     tw.add_argument("--fault_after_grasp_move", type=float, default=0.0,
                     help="inject --fault once the held leaf moved this far (m); 0: never")
+    tw.add_argument("--overwrite", action="store_true",
+                    help="replace an existing lmap-drake output folder (one holding the "
+                         ".lmap_drake marker; never the input being read)")
     tw.add_argument("--debug", action="store_true", help="show tracebacks")
     tw.set_defaults(func=cmd_twin)
     ev = sub.add_parser("eval", help="run a scenario suite with LMAP and the baselines; "

@@ -225,37 +225,48 @@ class InPlaceFolder:
     folder must be absent or empty, or, with ``resume``, an output of the
     same ``command`` whose ``options`` (the marker's record of the command's
     identity, e.g. ``--seed``) equal these; the first differing option is
-    named. Nothing is written until ``Start()`` (creates the folder, writes
+    named; with ``overwrite`` (``twin``; None: the command has no such
+    option), a non-empty folder must be an lmap-drake output, emptied by
+    ``Start()``. ``inputs``: paths being read,
+    which the folder may not be, contain or be inside. Nothing is written
+    until ``Start()`` (creates the folder, writes
     the marker; a folder of a version without markers gets it when the
     command ends well). Leaving the ``with`` block on an exception removes the
     folder when this command created it and ``kept(folder)`` says nothing
     worth keeping is inside."""
 
     def __init__(self, folder: str | Path, command: str, options: dict,
-                 resume: bool = False, legacy=(), kept=None):
+                 resume: bool = False, legacy=(), kept=None, overwrite: bool | None = None,
+                 inputs=()):
         self.path = Path(folder)
         self.command, self.options = command, dict(options)
         self.kept = kept or (lambda p: False)
-        self.created = False
+        self.created = self.clear = False
         p = self.path
         if p.exists() and not p.is_dir():
             raise OutputError(f"output path {p} exists and is not a folder")
+        CheckNotInput(p, inputs)
         self.lock = FolderLock(p)
         try:
-            self.marker = self._Check(resume, legacy)
+            if overwrite and not resume and _NonEmpty(p):
+                CheckOverwritable(p)        # ours: emptied by Start(), not before
+                self.clear, self.marker = True, None
+                return
+            self.marker = self._Check(resume, legacy, overwrite is not None)
         except BaseException:
             self.lock.Release()
             raise
 
-    def _Check(self, resume: bool, legacy) -> dict | None:
+    def _Check(self, resume: bool, legacy, has_overwrite: bool = False) -> dict | None:
         p = self.path
         if not _NonEmpty(p):
             return None
         marker = ReadMarker(p)
         ours = marker is not None or any((p / name).exists() for name in legacy)
         if not resume:
+            again = "--overwrite to replace it" if has_overwrite else "--resume to continue it"
             raise NotOurs(f"output folder {p} exists and is not empty: "
-                          + ("pass --resume to continue it, or choose another --output"
+                          + (f"pass {again}, or choose another --output"
                              if ours else "choose another --output"))
         if not ours:
             raise NotOurs(f"output folder {p} is not an lmap-drake {self.command} output "
@@ -280,6 +291,13 @@ class InPlaceFolder:
         it is when it already records the options)."""
         if not self.path.exists():
             self.created = True
+        if self.clear:
+            CheckOverwritable(self.path)        # still ours
+            for child in self.path.iterdir():
+                if child.is_dir() and not child.is_symlink():
+                    shutil.rmtree(child)
+                else:
+                    child.unlink()
         legacy = _NonEmpty(self.path) and self.marker is None
         EnsureWritableFolder(self.path)
         if not legacy and not isinstance((self.marker or {}).get("options"), dict):

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from lmap_drake.cli import main
-from lmap_drake.errors import EXIT_BAD_INPUT
+from lmap_drake.errors import EXIT_BAD_INPUT, OutputError
 
 PLACEHOLDER = "{plant_scene: {kind: placeholder}, simulation_duration: 0.05}"
 
@@ -174,3 +174,60 @@ def test_lock_file_is_removed_by_its_last_holder(tmp_path):
     assert not LockPath(tmp_path / "o").exists()
     FolderLock(tmp_path / "o").Release()
     assert os.listdir(tmp_path) == []
+
+
+# ------------------------------------------------------------------- twin
+def _UserFolder(tmp_path):
+    user = tmp_path / "mine"
+    user.mkdir()
+    (user / "calibration.yaml").write_text("my calibration\n")
+    return user
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_twin_refuses_a_folder_that_is_not_ours(tmp_path, capsys, overwrite):
+    """``twin --output`` into a user's folder: exit 2 before anything is
+    built, the user's calibration.yaml untouched, no lock file left."""
+    user = _UserFolder(tmp_path)
+    code = main(["twin", "--output", str(user), *(["--overwrite"] if overwrite else [])])
+    err = capsys.readouterr().err
+    assert code == EXIT_BAD_INPUT and err.count("\n") == 1, err
+    assert str(user) in err and ("not an lmap-drake output" if overwrite
+                                 else "exists and is not empty") in err, err
+    assert (user / "calibration.yaml").read_text() == "my calibration\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+
+
+def test_twin_overwrite_refuses_the_folder_of_the_scenario_file(tmp_path, capsys):
+    import shutil
+
+    from lmap_drake.outputs import WriteMarker
+    from lmap_drake.paths import DEFAULT_SCENARIO_FILE
+    shutil.copy(DEFAULT_SCENARIO_FILE, tmp_path / "s.yaml")
+    WriteMarker(tmp_path, "twin")
+    code = main(["twin", "--scenario_file", str(tmp_path / "s.yaml"), "--output",
+                 str(tmp_path), "--overwrite"])
+    err = capsys.readouterr().err
+    assert code == EXIT_BAD_INPUT and "contains the input" in err, err
+    assert (tmp_path / "s.yaml").read_text() == DEFAULT_SCENARIO_FILE.read_text()
+
+
+def test_in_place_overwrite_empties_only_an_lmap_output(tmp_path):
+    """``InPlaceFolder(overwrite=True)`` (the twin's folder): an lmap
+    output is emptied by Start() and marked again; nothing is deleted
+    before Start(); a folder another command holds is refused."""
+    from lmap_drake.outputs import FolderBusy, InPlaceFolder, ReadMarker, WriteMarker
+    out = tmp_path / "twin"
+    out.mkdir()
+    (out / "outcome.json").write_text("{}")
+    (out / "sub").mkdir()
+    WriteMarker(out, "twin")
+    with InPlaceFolder(out, "twin", {}, overwrite=True) as folder:
+        assert (out / "outcome.json").exists()
+        with pytest.raises(FolderBusy):
+            InPlaceFolder(out, "twin", {}, overwrite=True)
+        folder.Start()
+        assert sorted(p.name for p in out.iterdir()) == [".lmap_drake"]
+        assert ReadMarker(out)["command"] == "twin"
+    with pytest.raises(OutputError, match="exists and is not empty: pass --overwrite"):
+        InPlaceFolder(out, "twin", {}, overwrite=False)     # twin without --overwrite

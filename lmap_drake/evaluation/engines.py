@@ -25,11 +25,15 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing as mp
 import os
+import subprocess
+import sys
 import time
 from typing import Any, Callable, Iterator, Protocol, Sequence
 
 from lmap_drake.errors import InputError
 from lmap_drake.parallel import THREADS_ENV
+
+REAPER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ray_reaper.py")
 
 ENGINES = ("pool", "ray")
 RAY_REQUIREMENT = "ray==2.60.0"
@@ -199,6 +203,23 @@ def _RayTask(fn, threads: int, *args):
     return fn(*args)
 
 
+def StartReaper() -> subprocess.Popen | None:
+    """``ray_reaper.py`` watching this process, started before ``ray.init``
+    of a local instance: when this process dies (SIGKILL included), the
+    processes it started (the Ray node: GCS, raylet, agents, workers) are
+    terminated within seconds. None where there is no ``/proc``."""
+    if not os.path.isdir("/proc"):
+        return None
+    return subprocess.Popen([sys.executable, REAPER, str(os.getpid())],
+                            stdin=subprocess.DEVNULL, start_new_session=True)
+
+
+def _StopReaper(reaper: subprocess.Popen | None) -> None:
+    if reaper is not None:
+        reaper.kill()
+        reaper.wait()
+
+
 class RayEngine:
     """Ray tasks (one CPU each) on a local instance with ``workers`` CPUs,
     or on the cluster at ``address``. A Ray session already initialised
@@ -210,6 +231,7 @@ class RayEngine:
         self.slots = self.workers
         self._ray = self._task = None
         self._own = False
+        self._reaper = None
         self._pending: dict = {}
 
     def __enter__(self) -> "RayEngine":
@@ -223,6 +245,7 @@ class RayEngine:
                 kw = dict(num_cpus=self.workers, object_store_memory=LOCAL_OBJECT_STORE_BYTES,
                           logging_level=logging.ERROR)
             handlers = _SignalHandlers()
+            self._reaper = None if self.address else StartReaper()
             try:
                 ray.init(include_dashboard=False, **kw)
             except Exception as err:  # noqa: BLE001 - one line for the CLI
@@ -231,6 +254,7 @@ class RayEngine:
                 hint = ("; a cluster with token authentication needs RAY_AUTH_MODE=token "
                         "and its ~/.ray/auth_token here (README: A Ray cluster)"
                         if self.address else "")
+                _StopReaper(self._reaper)
                 raise EngineError(f"cannot connect to {where}: "
                                   f"{' '.join(str(err).split())[:300]}{hint}") from None
             finally:
@@ -252,6 +276,8 @@ class RayEngine:
         if self._own:
             ray.shutdown()
             self._own = False
+        _StopReaper(self._reaper)         # the node is down: nothing left to reap
+        self._reaper = None
 
     def Imap(self, fn, jobs):
         ray = self._ray
