@@ -44,6 +44,11 @@ def IsNumber(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
 
 
+def IsFiniteNumber(v) -> bool:
+    """A number (not a bool) that is finite."""
+    return IsNumber(v) and bool(np.isfinite(v))
+
+
 def RuleError(v, rule: str) -> str:
     """'' if the scalar ``v`` obeys ``rule``, else what is wrong."""
     if not IsNumber(v):

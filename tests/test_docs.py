@@ -9,10 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
-import yaml
 from pydrake.common.yaml import yaml_dump_typed
 
-from lmap_drake.scenario import LoadDefaultScenario, Scenario
+from lmap_drake.scenario import LoadDefaultScenario, RawYaml, Scenario
 
 REPO = Path(__file__).resolve().parents[1]
 # What follows a key of a Drake value type in its YAML spelling (a
@@ -30,21 +29,6 @@ def _Reference():
     return module
 
 
-class _AnyTagLoader(yaml.SafeLoader):
-    """Reads Drake's tagged YAML (``!Rpy``, ...) as plain data."""
-
-
-def _tagged(loader, suffix, node):
-    if isinstance(node, yaml.MappingNode):
-        return loader.construct_mapping(node, deep=True)
-    if isinstance(node, yaml.SequenceNode):
-        return loader.construct_sequence(node, deep=True)
-    return loader.construct_scalar(node)
-
-
-_AnyTagLoader.add_multi_constructor("!", _tagged)
-
-
 def _LeafPaths(data, path=""):
     """Dotted leaf paths of loaded YAML; list items as ``[]``."""
     if isinstance(data, dict) and data:
@@ -58,7 +42,7 @@ def _LeafPaths(data, path=""):
 
 
 def _ScenarioLeafKeys(scenario) -> set[str]:
-    data = yaml.load(yaml_dump_typed(scenario), Loader=_AnyTagLoader)
+    data = RawYaml(yaml_dump_typed(scenario))
     keys = set()
     for p in _LeafPaths(data):
         parts = p.split(".")

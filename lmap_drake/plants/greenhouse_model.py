@@ -14,6 +14,7 @@ import dataclasses as dc
 import numpy as np
 import trimesh
 
+from lmap_drake.config_checks import IsFiniteNumber
 from lmap_drake.plants.multi import MultiConfigError, MultiPlantModel
 
 MIN_LEAVES, MAX_LEAVES = 15, 60
@@ -96,8 +97,7 @@ def ValidateGreenhouseConfig(ps) -> None:
         if not cond:
             raise GreenhouseConfigError(f"{key}.{path}", msg)
 
-    def num(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+    num = IsFiniteNumber
 
     def rng2(name, lo, hi):
         v = getattr(g, name)

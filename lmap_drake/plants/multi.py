@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from lmap_drake.config_checks import IsFiniteNumber
 from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
 from lmap_drake.plants.generator import PlantGenerationError
 from lmap_drake.plants.leaf import BoundaryTriangles
@@ -175,8 +176,7 @@ def ValidateMultiConfig(ps) -> None:
         if not cond:
             raise MultiConfigError(f"{key}.{path}", msg)
 
-    def num(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+    num = IsFiniteNumber
     n = len(m.fruits)
     need(MIN_FRUITS <= n <= MAX_FRUITS, "fruits",
          f"needs {MIN_FRUITS} to {MAX_FRUITS} fruits, got {n}")
