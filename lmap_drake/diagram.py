@@ -164,10 +164,21 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station:
 
 def MakeReplayDiagram(scenario: Scenario, resources: EpisodeResources, views) -> Diagram:
     """The planning stages fed by recorded views (``RecordedViews``), no
-    station and no controller: evaluate ``action_selection``'s ``plan``."""
+    station and no controller: evaluate ``action_selection``'s ``plan``;
+    with ``planner.targets: all`` also ``plant_planning`` (as in the
+    episode), whose ``status`` input (the fruits handled so far, as the
+    ``ArmController``'s status carries them) is exported as the Diagram's
+    input ``status``."""
     b = DiagramBuilder()
     source = b.AddNamedSystem("recorded_views", views)
-    AddPlanningStages(b, scenario, resources, source)
+    stages = AddPlanningStages(b, scenario, resources, source)
+    if scenario.planner.targets == "all":
+        from lmap_drake.systems.planning import PlantPlanning
+        plant = b.AddNamedSystem("plant_planning", PlantPlanning(scenario, resources.robot))
+        b.Connect(stages["shape_completion"].GetOutputPort("plant_estimate"),
+                  plant.GetInputPort("plant_estimate"))
+        b.Connect(source.GetOutputPort("ur5.position"), plant.GetInputPort("ur5.position"))
+        b.ExportInput(plant.GetInputPort("status"), "status")
     diagram = b.Build()
     diagram.set_name("lmap_replay")
     return diagram

@@ -15,6 +15,7 @@ import numpy as np
 from lmap_drake.episode.figures import SaveEpisodeFigures
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import SaveRecording
+from lmap_drake.planning.selection import RejectionCounts
 from lmap_drake.scenario import Scenario
 from lmap_drake.viz import SaveDepth, SaveLabel, SaveRgb
 
@@ -57,12 +58,19 @@ def PlanRecord(plan, stage_seconds: dict | None = None) -> dict:
         return {"status": None}
     out = {"status": plan.status, "method": plan.method, "message": plan.message,
            "chosen_action": plan.chosen.Row() if plan.chosen is not None else None,
+           "action": plan.chosen.action.Describe() if plan.chosen is not None else None,
            "predicted_visibility": None if not plan.seen_max else {
                "initial": plan.seen_init / plan.seen_max,
                "chosen": (plan.chosen.seen / plan.seen_max
                           if plan.chosen is not None and plan.chosen.seen >= 0 else None)},
            "num_candidates": len(plan.candidates),
-           "num_feasible": sum(c.feasible for c in plan.candidates)}
+           # after every check (robot, deformation, leaf-fruit, visibility
+           # gain, caps, the executed path): feasible and not chosen =
+           # passed all, scored lower
+           "num_feasible": sum(c.feasible for c in plan.candidates),
+           "rejected": RejectionCounts(plan.candidates)}
+    if getattr(plan, "target", None):
+        out["target"] = plan.target        # which fruit, its occluders, why
     if stage_seconds is not None:
         out["stage_seconds"] = stage_seconds
     return out

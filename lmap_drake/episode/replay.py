@@ -84,7 +84,13 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
         return value, time.perf_counter() - t
     semantic, seg_s = timed("perception")
     estimate, ssc_s = timed("shape_completion")
-    plan, plan_s = timed("action_selection")
+    sequence = None
+    if scenario.planner.targets == "all":
+        t = time.perf_counter()
+        sequence, plan, estimate = PlanFruitSequence(diagram, ctx)
+        plan_s = time.perf_counter() - t
+    else:
+        plan, plan_s = timed("action_selection")
     stage_seconds = {"segmentation_s": seg_s, "shape_completion_s": ssc_s,
                      "planning_s": plan_s, **plan.timings}
     files = ["scenario.yaml", "plan.json", "replay.json"]
@@ -93,20 +99,30 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
     plan.SaveJson(out / "candidates.json")
     files.append("candidates.json")
     mine = plan.chosen.Row() if plan.chosen is not None else None
-    same = None if (original is None and mine is None) or not had_plan else (
-        original is not None and mine is not None and all(
-            original[k] == mine[k] for k in ("grasp_id", "direction_id", "distance")))
+    # a run without a plan (or whose plan chose nothing) has nothing to compare
+    same = None if original is None or not had_plan else (
+        mine is not None and all(original[k] == mine[k]
+                                 for k in ("grasp_id", "direction_id", "distance")))
     record = {"run": str(run_dir), "scenario_text": scenario_text, "status": plan.status,
               "message": plan.message, "chosen_action": mine, "run_chosen_action": original,
               "same_action_as_run": same,
               "planning_wall_seconds": seg_s + ssc_s + plan_s,
               "template_load_seconds": t_load, "stage_seconds": stage_seconds}
+    if sequence is not None:
+        record["first_plans"] = sequence
+        run_seq = RunFirstPlans(run_dir)
+        record["run_first_plans"] = run_seq
+        record["same_first_plans_as_run"] = None if run_seq is None else SameFirstPlans(
+            sequence, run_seq)
+        if run_seq is not None:
+            same = record["same_first_plans_as_run"]
     (out / "replay.json").write_text(json.dumps(record, indent=1, default=float))
     files += SavePlanFigures(scenario, recording.views[0], plan, estimate, out)
     progress(f"replay plan {plan.status}: " + (DescribePlan(plan) if plan.chosen is not None
                                                else plan.message))
+    what = "first plans (fruit by fruit)" if sequence is not None else "action"
     progress(f"planning on the replayed capture: {record['planning_wall_seconds']:.1f} s; "
-             + ("same action as the run" if same else "a different action from the run"
+             + (f"same {what} as the run" if same else f"different {what} from the run"
                 if same is False else "the run had no plan to compare"))
     return files, record
 
@@ -124,3 +140,82 @@ def SavePlanFigures(scenario: Scenario, view, plan, estimate, out: Path) -> list
                         cam.X_PB.GetDeterministicValue().GetAsMatrix4()),
             out / "plan_on_image.png")
     return ["rgb_before_segmented.png", "plan_on_image.png"]
+
+
+class _Handled:
+    """The ``status`` input of ``plant_planning`` in a replay: the fruits
+    the run handled so far, as the ``ArmController``'s status lists them
+    (``targets``), with no motion executed."""
+
+    def __init__(self):
+        self.targets = []
+        self.plan = None
+        self.initial_estimate = None
+
+
+def PlanFruitSequence(diagram, ctx, max_targets: int = 12):
+    """``planner.targets: all`` on view 0 as the run did before its first
+    motion: the next fruit's plan, and while it is 'no_feasible_action' the
+    fruit is recorded as handled and the next one planned (the
+    ``ArmController`` does the same). Returns (one record per plan: fruit
+    id, leaf id, status, action; the last plan; its scene estimate)."""
+    planner = diagram.GetSubsystemByName("plant_planning")
+    pctx = planner.GetMyContextFromRoot(ctx)
+    status = _Handled()
+    seq, plan, scene = [], None, None
+    for _ in range(max_targets):
+        diagram.GetInputPort("status").FixValue(ctx, status)
+        plan = planner.GetOutputPort("plan").Eval(pctx)
+        scene = planner.GetOutputPort("scene_estimate").Eval(pctx)
+        t = plan.target or {}
+        seq.append({"fruit_id": t.get("fruit_id"), "leaf_id": t.get("leaf_id"),
+                    "status": plan.status,
+                    "action": None if plan.chosen is None else plan.chosen.action.Describe()})
+        if plan.status != "no_feasible_action" or not t:
+            break
+        nxt = _Handled()
+        nxt.targets = status.targets + [{"target": t, "outcome": plan.status, "plan": plan,
+                                         "initial_estimate": scene, "final_estimate": scene,
+                                         "motions": 0}]
+        status = nxt
+    return seq, plan, scene
+
+
+def RunFirstPlans(run_dir: Path) -> list[dict] | None:
+    """The run's fruit-by-fruit plans before its first motion (its
+    ``episode.json`` ``targets``, then, when no fruit moved, the plan it
+    stopped at: ``plan.json``): fruit id, leaf id, whether it moved and its
+    first motion; None without any."""
+    try:
+        rows = json.loads((Path(run_dir) / "episode.json").read_text()).get("targets")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(rows, list):
+        return None
+    out = []
+    for r in rows:
+        moved = bool(r.get("motions"))
+        out.append({"fruit_id": r.get("fruit_id"), "leaf_id": r.get("leaf_id"),
+                    "status": "ok" if moved else str(r.get("outcome", "")).split(":")[0],
+                    "action": r["motions"][0] if moved else None})
+        if moved:
+            return out
+    # no fruit moved: an episode that ended on a plan (aborted at the grasp,
+    # or plan only) has it as its last plan.json
+    try:
+        plan = json.loads((Path(run_dir) / "plan.json").read_text())
+    except (OSError, ValueError):
+        return out or None
+    t = plan.get("target") if isinstance(plan, dict) else None
+    if isinstance(t, dict) and plan.get("status") == "ok" and plan.get("action"):
+        out.append({"fruit_id": t.get("fruit_id"), "leaf_id": t.get("leaf_id"),
+                    "status": "ok", "action": plan["action"]})
+    return out or None
+
+
+def SameFirstPlans(replayed: list[dict], run: list[dict]) -> bool:
+    """Do the replay's fruit-by-fruit plans on view 0 match the run's (the
+    same fruits and leaves in the same order, the same first motion)?"""
+    def key(r):
+        return (r.get("fruit_id"), r.get("leaf_id"), r.get("status") == "ok", r.get("action"))
+    return [key(r) for r in replayed] == [key(r) for r in run]

@@ -113,6 +113,15 @@ class PlannerConfig:
     visibility by at least ``min_replan_gain`` (fraction of the fruit's
     voxels) over the leaf held where it is.
 
+    ``min_visibility_gain``: the first motion too must raise the fruit's
+    predicted visibility by at least this fraction of its surface voxels
+    over the leaf left where it is; an action below it is rejected with the
+    reason, and a plan whose every action is below it is
+    'no_feasible_action', never 'ok' (a leaf grasped for nothing is risk
+    for nothing). The same bar as ``min_replan_gain``: a gain smaller than
+    this is within what one voxel layer of the fruit's rim and the
+    deformation prediction's error shift.
+
     ``hinge_bending_weight`` (m^2 per rad^2 per leaf node): the petiole's
     bending at its attachment, added to every action's predicted energy as
     weight * theta^2, theta the turn of the grasp point about the estimated
@@ -287,6 +296,7 @@ class PlannerConfig:
     num_arc_axes: int = 8  # arc axes, evenly spread, perpendicular to the attachment-grasp line
     max_replans: int = 1
     min_replan_gain: float = 0.05
+    min_visibility_gain: float = 0.05
     hinge_bending_weight: float = 3.0e-7
     max_hinge_deg: float = 50.0
     max_replan_turn_deg: float = 45.0  # deg: cap on the equivalent turn after a re-plan
@@ -343,6 +353,7 @@ _RULES = {
     "max_reveals_per_fruit": ">=1",
     "next_leaf_min_gain": "[0,1]",
     "min_replan_gain": "[0,1]",
+    "min_visibility_gain": "[0,1]",
     "hinge_bending_weight": ">=0",
     "max_hinge_deg": "(0,180]",
     "max_replan_turn_deg": "(0,180]",

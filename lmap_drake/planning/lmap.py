@@ -19,7 +19,7 @@ from lmap_drake.planning.candidates import GenerateCandidates
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.result import CandidateSet, PlanResult
-from lmap_drake.planning.selection import SelectFromPredictions
+from lmap_drake.planning.selection import RejectAll, SelectFromPredictions
 from lmap_drake.deformation.config import DeformationConfig
 
 
@@ -36,6 +36,7 @@ def PredictLive(ctx: PlanningContext, cset: CandidateSet, dcfg: DeformationConfi
                                               skip_unmodelled=True)
         except ValueError as err:
             cset.status, cset.message = "no_feasible_action", f"deformation model: {err}"
+            RejectAll(cset.candidates, f"deformation model: {err}")
     cset.timings["deformation_s"] = time.perf_counter() - t0
     return predictions
 
@@ -47,6 +48,7 @@ def PlanLmap(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
     Never raises on a bad scene: returns a status."""
     cset = GenerateCandidates(ctx, cfg, dcfg, progress)
     predictions = PredictLive(ctx, cset, dcfg)
-    result = SelectFromPredictions(ctx, cset, predictions, cfg)
+    result = SelectFromPredictions(ctx, cset, predictions, cfg,
+                                   min_gain=cfg.min_visibility_gain)
     result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
     return result

@@ -255,11 +255,20 @@ def _PredictVisibility(ctx: PlanningContext, cset: CandidateSet, cfg: PlannerCon
                 reached = True
 
 
+def RejectAll(cands: list[Candidate], reason: str) -> None:
+    """Marks every still-feasible candidate of ``cands`` rejected for
+    ``reason`` (a stage after the geometric checks failed for all, e.g. the
+    deformation model), so that feasibility counts every check."""
+    for c in cands:
+        if c.feasible:
+            c.reason = reason
+
+
 def _RequireGain(cands: list[Candidate], seen_init: int, n_max: int, min_gain: float) -> None:
-    """(re-planning) a further motion must show clearly more of the fruit
-    than the leaf held where it is (``min_gain`` of its ``n_max`` voxels
-    over ``seen_init``): the normalised score alone would pick some action
-    even if every one reveals less."""
+    """An action must show clearly more of the fruit than the leaf left
+    (or held) where it is (``min_gain`` of its ``n_max`` voxels over
+    ``seen_init``): the normalised score alone would pick some action even
+    if every one reveals less."""
     for c in cands:
         if c.feasible and c.seen < seen_init + min_gain * n_max:
             c.reason = (f"predicted visibility {c.seen / n_max:.2f} not above the "
@@ -367,11 +376,22 @@ def NoActionReason(cands: list[Candidate], dropped_grasps: list[dict],
 _NUMBER = re.compile(r"\d[\d.]*(?:e[+-]?\d+)?")
 
 
+def RejectionCounts(cands: list[Candidate]) -> dict[str, int]:
+    """The rejected candidates' reasons grouped as ``GroupReasons`` words
+    them (numbers as ranges), each with its count, most frequent first."""
+    return dict(ReasonGroups([c.reason.split(" (")[0] for c in cands if not c.feasible]))
+
+
 def GroupReasons(reasons: list[str]) -> str:
     """Rejection reasons grouped by wording, most frequent first, with their
     counts; the numbers in a group's wording given as their range over the
     group (``predicted visibility 0.61-0.95 not above the current 0.97 +
     0.05: 9``)."""
+    return ", ".join(f"{text}: {n}" for text, n in ReasonGroups(reasons))
+
+
+def ReasonGroups(reasons: list[str]) -> list[tuple[str, int]]:
+    """(wording with number ranges, count) per group of ``GroupReasons``."""
     groups: dict[str, list[str]] = {}
     for r in reasons:
         groups.setdefault(_NUMBER.sub("\0", r) or "unknown", []).append(r or "unknown")
@@ -384,5 +404,5 @@ def GroupReasons(reasons: list[str]) -> str:
             lo, hi = vals[int(np.argmin(nums))], vals[int(np.argmax(nums))]
             shown.append(lo if min(nums) == max(nums) else f"{lo}-{hi}")
         it = iter(shown)
-        parts.append(re.sub("\0", lambda _: next(it), key) + f": {len(texts)}")
-    return ", ".join(parts)
+        parts.append((re.sub("\0", lambda _: next(it), key), len(texts)))
+    return parts

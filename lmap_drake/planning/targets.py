@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from lmap_drake.planning.context import FruitSurfaceSamples, PlanningContext
 from lmap_drake.planning.lmap import PlanLmap
 from lmap_drake.planning.visibility import VisibilityModel
-from lmap_drake.types import FruitEstimate, PlantEstimate, SceneEstimate
+from lmap_drake.types import FruitEstimate, PlantEstimate, SceneEstimate, SemanticScene
 
 
 def _Instances(ids: np.ndarray, min_points: int) -> list[int]:
@@ -217,7 +217,7 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
     ``ChooseLeafPlan`` picks the leaf. ``occluders``: fruit ``k``'s
     ``OccludingLeaves``, when already computed (``FruitOrder``)."""
     occ = occluders or OccludingLeaves(plant.fruits[k], plant, X_WC, cfg.visibility_voxel,
-                                       image_tan)
+                                       image_tan, min_gain=cfg.min_visibility_gain)
     out = TargetPlan(k, plant.fruit_ids[k], occ["visible"], occ["leaves"])
     if occ["visible"] >= cfg.early_stop_fraction:
         out.why = f"already {occ['visible']:.0%} visible: no action needed"
@@ -234,10 +234,123 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
     return out
 
 
+# A completed fruit instance is a target only if it is a plausible sweet
+# pepper: its volume within the range of the crop (small immature fruit to
+# the largest blocky peppers; cm^3) and its observed points on its surface
+# (median distance, m: the fit's own surface-loss scale). A shaded leaf
+# patch completed as a fruit fails one or the other; it stays an obstacle.
+FRUIT_VOLUME_CM3 = (10.0, 600.0)
+MAX_FRUIT_RESIDUAL = 0.004
+
+
+def FruitImplausible(fruit: FruitEstimate, points_W: np.ndarray) -> str:
+    """Why the completed ``fruit`` (observed ``points_W``, W, m) is not a
+    plausible target, or "" when it is (``FRUIT_VOLUME_CM3``,
+    ``MAX_FRUIT_RESIDUAL``)."""
+    import trimesh
+    vol = abs(float(trimesh.Trimesh(fruit.vertices_W, fruit.faces, process=False).volume)) * 1e6
+    if not FRUIT_VOLUME_CM3[0] <= vol <= FRUIT_VOLUME_CM3[1]:
+        return (f"completed volume {vol:.0f} cm^3 outside a pepper's "
+                f"{FRUIT_VOLUME_CM3[0]:g}-{FRUIT_VOLUME_CM3[1]:g} cm^3")
+    pts = np.asarray(points_W, float).reshape(-1, 3)
+    if len(pts) and fruit.sdf_W is not None:
+        r = float(np.median(np.abs(fruit.sdf_W(pts))))
+        if r > MAX_FRUIT_RESIDUAL:
+            return (f"its points lie {r * 1000:.1f} mm from the completed surface "
+                    f"(median; at most {MAX_FRUIT_RESIDUAL * 1000:g} mm)")
+    return ""
+
+
 def FruitOrder(plant: PlantEstimate, X_WC: np.ndarray, cfg, image_tan: tuple | None = None
                ) -> tuple[list[int], list[dict]]:
     """The fruits' reveal order (``OrderTargets``: least visible first, the
-    ones already visible left out) and every fruit's ``OccludingLeaves``."""
-    occ = [OccludingLeaves(f, plant, X_WC, cfg.visibility_voxel, image_tan)
-           for f in plant.fruits]
-    return OrderTargets([o["visible"] for o in occ], cfg.early_stop_fraction), occ
+    ones already visible left out, implausible ones too: their
+    ``OccludingLeaves`` record carries ``implausible``, the reason) and
+    every fruit's ``OccludingLeaves``."""
+    occ = [OccludingLeaves(f, plant, X_WC, cfg.visibility_voxel, image_tan,
+                           min_gain=cfg.min_visibility_gain) for f in plant.fruits]
+    sem = plant.semantic
+    fruit_W = np.asarray(sem.fruit_points_W, float).reshape(-1, 3)
+    inst = np.asarray(sem.fruit_instance)
+    for k, f in enumerate(plant.fruits):
+        mine = fruit_W[inst == plant.fruit_ids[k]] if len(inst) == len(fruit_W) and \
+            k < len(plant.fruit_ids) else fruit_W[:0]
+        why = FruitImplausible(f, mine)
+        if why:
+            occ[k]["implausible"] = why
+    order = OrderTargets([o["visible"] for o in occ], cfg.early_stop_fraction)
+    return [k for k in order if "implausible" not in occ[k]], occ
+
+
+def HeldLeaf(semantic: SemanticScene, p_WT: np.ndarray, radius: float = 0.04) -> int:
+    """The leaf in the gripper: the instance with the most points within
+    ``radius`` (m) of the TCP at ``p_WT``, else (the pads hide the leaf
+    there, and the robot self-filter drops what is next to them) the
+    instance of the leaf point nearest the TCP; -1 without leaf points."""
+    pts = np.asarray(semantic.leaf_points_W, float).reshape(-1, 3)
+    ids = np.asarray(semantic.leaf_instance)
+    if len(pts) == 0 or len(ids) != len(pts) or not np.any(ids >= 0):
+        return -1
+    pts, ids = pts[ids >= 0], ids[ids >= 0]
+    d = np.linalg.norm(pts - p_WT, axis=1)
+    near = d < radius
+    if near.any():
+        u, n = np.unique(ids[near], return_counts=True)
+        return int(u[np.argmax(n)])
+    return int(ids[np.argmin(d)])
+
+
+def _SceneWithLeaf(scene: SceneEstimate, keep: np.ndarray) -> SceneEstimate:
+    """``scene`` with the leaf points ``keep`` (bool mask) as its leaf and
+    every other leaf point added to ``other_leaves_W`` (obstacles and
+    occluders)."""
+    sem = scene.semantic
+    leaf_W = np.asarray(sem.leaf_points_W, float).reshape(-1, 3)
+    ids = np.asarray(sem.leaf_instance)
+    other = np.vstack([np.asarray(scene.other_leaves_W, float).reshape(-1, 3), leaf_W[~keep]])
+    return dc.replace(scene, semantic=dc.replace(sem, leaf_points_W=leaf_W[keep],
+                                                 leaf_instance=ids[keep],
+                                                 flags=list(sem.flags)),
+                      other_leaves_W=other)
+
+
+def _LeafInstances(scene: SceneEstimate, min_points: int) -> list[int]:
+    ids = np.asarray(scene.semantic.leaf_instance)
+    n = len(np.asarray(scene.semantic.leaf_points_W).reshape(-1, 3))
+    return _Instances(ids, min_points) if len(ids) == n else []
+
+
+def OccluderScene(scene: SceneEstimate, X_WC: np.ndarray, cfg, image_tan: tuple | None = None,
+                  min_points: int = 30) -> tuple[SceneEstimate, str]:
+    """The single-fruit planner's scene on a plant of several leaves (as
+    ``PlanTarget`` for several fruits): the leaf to grasp is the leaf
+    instance that alone hides most of ``scene.fruit`` (``OccludingLeaves``),
+    every other leaf point an obstacle and occluder. One leaf instance (or
+    none, or no fruit): ``scene`` unchanged. Returns (scene, why): ``why``
+    is non-empty when no leaf alone hides at least
+    ``planner.min_visibility_gain`` of the fruit (nothing
+    to move; the scene then has no leaf)."""
+    inst = _LeafInstances(scene, min_points)
+    if scene.fruit is None or len(inst) <= 1:
+        return scene, ""
+    plant = PlantEstimate(semantic=scene.semantic, branch=scene.branch,
+                          fruits=[scene.fruit] + list(scene.other_fruits))
+    occ = OccludingLeaves(scene.fruit, plant, X_WC, cfg.visibility_voxel, image_tan,
+                          min_gain=cfg.min_visibility_gain, min_points=min_points)
+    ids = np.asarray(scene.semantic.leaf_instance)
+    if not occ["leaves"]:
+        return _SceneWithLeaf(scene, np.zeros(len(ids), bool)), (
+            f"no leaf alone hides the fruit ({len(inst)} leaves seen; it is "
+            f"{occ['visible']:.0%} visible): nothing to move")
+    return _SceneWithLeaf(scene, ids == occ["leaves"][0]["leaf_id"]), ""
+
+
+def HeldLeafScene(scene: SceneEstimate, p_WT: np.ndarray, min_points: int = 30
+                  ) -> SceneEstimate:
+    """``scene`` with the leaf in the gripper (``HeldLeaf``, TCP at
+    ``p_WT``, W, m) as its leaf and the other leaves as obstacles; one leaf
+    instance or none: ``scene`` unchanged."""
+    if len(_LeafInstances(scene, min_points)) <= 1:
+        return scene
+    j = HeldLeaf(scene.semantic, p_WT)
+    return _SceneWithLeaf(scene, np.asarray(scene.semantic.leaf_instance) == j)

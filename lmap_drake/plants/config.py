@@ -264,7 +264,8 @@ class GreenhouseConfig:
     ``droop_deg``, cupped by ``curl``), the fruits' cover leaves included;
     the placed ``fruits`` and ``num_random_fruits`` more (not targets) at
     random nodes. FEM: the leaves hiding a target fruit from camera0, then
-    those within ``fem_radius`` (m) of it, at most ``max_fem_leaves`` (each
+    those hiding the other fruits, then those within ``fem_radius`` (m) of
+    a target, at most ``max_fem_leaves`` (each
     about ``fem_target_tets`` tetrahedra, material from ``plant_scene.leaf``);
     every other leaf is static (welded, visual; with collision geometry if
     ``static_leaf_collision``; off: a welded leaf would stop the arm like a

@@ -5,8 +5,8 @@ and droop drawn from the seed), fruits of every colour on short shoots and
 curved stalks (the multi-fruit plant's fruit placement), leaves hung in
 front of the placed fruits and tuned to their occlusion (the multi-fruit
 plant's leaf tuning). Only the leaves that hide a target fruit from camera0,
-then those near it, become FEM leaves (at most
-``greenhouse.max_fem_leaves``); the rest are static.
+then those hiding the other fruits, then those near a target, become FEM
+leaves (at most ``greenhouse.max_fem_leaves``); the rest are static.
 
 Pure function of the config (deterministic in ``greenhouse.seed``); world
 frame W, metres.
@@ -297,18 +297,21 @@ def _NodeLeaf(g, lc, node, stem, az, stem_radius, fruit_meshes, rng):
 
 def _ChooseFem(g, targets, occluders, fruits, surfs, blocked) -> list[int]:
     """The FEM leaves: each target's occluders (most hiding first, the
-    targets in turn), then the leaves within ``fem_radius`` of a target
-    fruit's surface (nearest first); at most ``max_fem_leaves``; never a
-    blocked leaf."""
+    targets in turn), then the other fruits' occluders (a planner revealing
+    every fruit moves those too: a static leaf cannot be grasped), then the
+    leaves within ``fem_radius`` of a target fruit's surface (nearest
+    first); at most ``max_fem_leaves``; never a blocked leaf."""
     chosen: list[int] = []
 
     def take(j):
         if j not in chosen and j not in blocked and len(chosen) < g.max_fem_leaves:
             chosen.append(int(j))
-    for rank in range(max([len(occluders[i]) for i in targets] or [0])):
-        for i in targets:
-            if rank < len(occluders[i]):
-                take(occluders[i][rank])
+    others = [i for i in range(len(fruits)) if i not in targets]
+    for group in (targets, others):
+        for rank in range(max([len(occluders[i]) for i in group] or [0])):
+            for i in group:
+                if rank < len(occluders[i]):
+                    take(occluders[i][rank])
     near = []
     for i in targets:
         for j, s in enumerate(surfs):

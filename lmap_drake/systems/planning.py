@@ -69,7 +69,8 @@ from lmap_drake.planning.candidates import GenerateCandidates
 from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.continuation import HeldGrasp, PlanContinuation
 from lmap_drake.planning.result import CandidateSet, PlanResult
-from lmap_drake.planning.selection import SelectFromPredictions
+from lmap_drake.planning.selection import RejectAll, SelectFromPredictions
+from lmap_drake.planning.targets import HeldLeaf, HeldLeafScene, OccluderScene
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
 from lmap_drake.shape.completion import MERGE_DISTANCE, FruitsOverlap, PointsOnFruit
@@ -132,6 +133,13 @@ class ActionCandidates(LeafSystem):
             output.set_value(CandidateSet("baseline", scene))
             return
         try:
+            # a plant of several leaves: the leaf to move is the target's
+            # main occluder, every other leaf an obstacle (as PlanTarget)
+            scene, why = OccluderScene(scene, self._X_WC, self._scenario.planner,
+                                       self._image_tan)
+            if why:
+                output.set_value(CandidateSet("no_feasible_action", scene, message=why))
+                return
             cset = GenerateCandidates(self.Context(scene, q), self._scenario.planner,
                                       self._scenario.deformation)
         except Exception as err:  # noqa: BLE001 - a stage failure becomes a status
@@ -182,8 +190,10 @@ class ActionSelection(LeafSystem):
             # The leaf as seen cannot be modelled (no grasp hangs from a
             # branch node, ...): no action can be judged safe, as in the
             # multi-fruit path (planning.lmap.PredictLive).
-            output.set_value(PlanResult("no_feasible_action", cfg.method, candidates=list(
-                cset.candidates), message=f"deformation model: {err}"))
+            cands = [dc.replace(c) for c in cset.candidates]
+            RejectAll(cands, f"deformation model: {err}")
+            output.set_value(PlanResult("no_feasible_action", cfg.method, candidates=cands,
+                                        message=f"deformation model: {err}"))
             return
         except Exception as err:  # noqa: BLE001 - a stage failure becomes a status
             output.set_value(PlanResult("stage_error", cfg.method, candidates=list(
@@ -193,7 +203,8 @@ class ActionSelection(LeafSystem):
         q = self.get_input_port(2).Eval(context)
         ctx = self._candidates.Context(cset.scene, q)
         try:
-            result = SelectFromPredictions(ctx, cset, list(predictions), self._scenario.planner)
+            result = SelectFromPredictions(ctx, cset, list(predictions), cfg,
+                                           min_gain=cfg.min_visibility_gain)
         except Exception as err:  # noqa: BLE001
             output.set_value(PlanResult("stage_error", cfg.method,
                                         message=_StageError("action_selection", err)))
@@ -227,6 +238,8 @@ class ContinuationPlanning(LeafSystem):
             return
         scene = self.get_input_port(1).Eval(context)
         q = self.get_input_port(2).Eval(context)
+        # several leaves in view: the held one is the leaf (the others obstacles)
+        scene = HeldLeafScene(scene, self._candidates.robot.TcpPose(q).translation())
         try:
             plan = PlanContinuation(self._candidates.Context(scene, q), cfg,
                                     self._scenario.deformation, HeldGrasp.After(plans))
@@ -419,16 +432,18 @@ class PlantPlanning(LeafSystem):
         # more, and an interrupted episode has spent its motions there
         def never_seen(k):
             return OccludingLeaves(plant.fruits[k], plant, self._X_WC, cfg.visibility_voxel,
-                                   self._image_tan,
+                                   self._image_tan, min_gain=cfg.min_visibility_gain,
                                    seen_before_W=_ShownFruitPoints(plant, k, per_fruit[k]))
         again = _SecondReveals(per_fruit, moved, occ, cfg, never_seen)
         order = [k for k in order if not handled[k]] + [k for k in order if k in again]
         if not order:
             n = sum(handled)
+            skipped = "".join(f"; fruit {plant.fruit_ids[k]} is no target: {o['implausible']}"
+                              for k, o in enumerate(occ) if "implausible" in o)
             return PlanResult("no_action_needed", cfg.method,
                               message=f"every fruit is visible or handled ({len(plant.fruits)} "
                                       f"seen, {n} handled; visible "
-                                      f"{', '.join(f'{v:.2f}' for v in visible)})")
+                                      f"{', '.join(f'{v:.2f}' for v in visible)}){skipped}")
         k = order[0]
         occ_k = again.get(k, occ[k])
         t = PlanTarget(plant, k, self._X_WC, self._robot, self._q.Eval(context), cfg, dcfg,
@@ -546,21 +561,3 @@ class TargetFocus(LeafSystem):
 
     def _calc(self, context, output) -> None:
         output.set_value(TargetCenter(self._status.Eval(context)))
-
-
-def HeldLeaf(semantic: SemanticScene, p_WT: np.ndarray, radius: float = 0.04) -> int:
-    """The leaf in the gripper: the instance with the most points within
-    ``radius`` (m) of the TCP at ``p_WT``, else (the pads hide the leaf
-    there, and the robot self-filter drops what is next to them) the
-    instance of the leaf point nearest the TCP; -1 without leaf points."""
-    pts = np.asarray(semantic.leaf_points_W, float).reshape(-1, 3)
-    ids = np.asarray(semantic.leaf_instance)
-    if len(pts) == 0 or len(ids) != len(pts) or not np.any(ids >= 0):
-        return -1
-    pts, ids = pts[ids >= 0], ids[ids >= 0]
-    d = np.linalg.norm(pts - p_WT, axis=1)
-    near = d < radius
-    if near.any():
-        u, n = np.unique(ids[near], return_counts=True)
-        return int(u[np.argmax(n)])
-    return int(ids[np.argmin(d)])

@@ -211,3 +211,69 @@ def test_a_leaf_hiding_only_what_a_view_has_shown_gains_nothing():
     # nothing shown before: the same as without
     none = OccludingLeaves(A, plant, X_WC, seen_before_W=np.zeros((0, 3)))
     assert none["leaves"] == plain["leaves"] and none["visible"] == plain["visible"]
+
+
+def _single_scene(plant, k=0):
+    """The single-fruit path's scene: every leaf point as the leaf, the
+    fruit ``k`` the target, the other fruits obstacles."""
+    from lmap_drake.types import SceneEstimate
+    return SceneEstimate(semantic=plant.semantic, fruit=plant.fruits[k],
+                         other_fruits=[f for m, f in enumerate(plant.fruits) if m != k])
+
+
+def test_the_single_fruit_path_moves_an_occluder_of_its_fruit_not_every_leaf():
+    from types import SimpleNamespace
+    from lmap_drake.planning.targets import OccluderScene
+    plant, leaves = _plant()
+    cfg = SimpleNamespace(visibility_voxel=0.003, min_visibility_gain=0.05)
+    occ = OccludingLeaves(plant.fruits[1], plant, X_WC)
+    scene, why = OccluderScene(_single_scene(plant, 1), X_WC, cfg)
+    assert why == ""
+    # B's leaf is leaf 2: the others are obstacles, not part of the grasped leaf
+    assert occ["leaves"][0]["leaf_id"] == 2
+    assert np.array_equal(scene.semantic.leaf_points_W, leaves[2])
+    assert len(scene.other_leaves_W) == len(leaves[0]) + len(leaves[1])
+    # A: one of its two half-occluders, the one hiding more
+    scene_a, _ = OccluderScene(_single_scene(plant, 0), X_WC, cfg)
+    best = OccludingLeaves(plant.fruits[0], plant, X_WC)["leaves"][0]["leaf_id"]
+    assert np.array_equal(scene_a.semantic.leaf_points_W, leaves[best])
+
+
+def test_the_single_fruit_path_is_unchanged_with_one_leaf_and_says_when_no_leaf_hides():
+    import dataclasses as dc
+    from types import SimpleNamespace
+    from lmap_drake.planning.targets import OccluderScene
+    plant, leaves = _plant()
+    cfg = SimpleNamespace(visibility_voxel=0.003, min_visibility_gain=0.05)
+    one = dc.replace(plant.semantic, leaf_instance=np.zeros(len(plant.semantic.leaf_instance),
+                                                            int))
+    scene = _single_scene(dc.replace(plant, semantic=one), 1)
+    same, why = OccluderScene(scene, X_WC, cfg)
+    assert same is scene and why == ""
+    # leaves far to the side of B hide nothing of it: nothing to move, said so
+    far = dc.replace(plant.semantic, leaf_points_W=np.vstack(leaves[:2]) + [[-0.3, 0, 0]],
+                     leaf_instance=plant.semantic.leaf_instance[:len(np.vstack(leaves[:2]))])
+    scene = _single_scene(dc.replace(plant, semantic=far), 1)
+    none, why = OccluderScene(scene, X_WC, cfg)
+    assert "no leaf alone hides the fruit" in why
+    assert len(none.semantic.leaf_points_W) == 0 and len(none.other_leaves_W) == len(
+        far.leaf_points_W)
+
+
+def test_a_phantom_fruit_is_no_target():
+    from types import SimpleNamespace
+    from lmap_drake.planning.targets import FruitImplausible, FruitOrder
+    plant, _ = _plant()
+    A = plant.fruits[0]
+    pts = plant.semantic.fruit_points_W[plant.semantic.fruit_instance == 4]
+    assert FruitImplausible(A, pts) == ""
+    # a leaf patch completed as a fruit: its points far from the surface
+    assert "from the completed surface" in FruitImplausible(A, pts + [0, -0.02, 0])
+    # a completed 'fruit' the size of a melon
+    huge = _fruit([0.45, 0.0, 0.30], r=0.07)
+    assert "outside a pepper's" in FruitImplausible(huge, pts)
+    cfg = SimpleNamespace(visibility_voxel=0.003, min_visibility_gain=0.02,
+                          early_stop_fraction=0.95)
+    plant.fruits[0] = huge
+    order, occ = FruitOrder(plant, X_WC, cfg)
+    assert 0 not in order and "implausible" in occ[0] and 1 in order

@@ -469,3 +469,19 @@ def test_continuation_from_the_held_leaf():
                                                   ctx.robot, s.robot.initial_q),
                                   s.planner, s.deformation, held)
     assert robot_free.seen_init > done.seen_init
+
+
+def test_a_plan_below_the_visibility_margin_is_not_ok_and_the_counts_cover_every_check():
+    from lmap_drake.episode.records import PlanRecord
+    ok = _plan(_scene())
+    assert ok.status == "ok"
+    gain = (ok.chosen.seen - ok.seen_init) / ok.seen_max
+    assert gain >= 0.05        # the default margin
+    # a margin above the best gain: no action is ok, every one says why
+    strict = _plan(_scene(), planner={"min_visibility_gain": min(1.0, gain + 0.01)})
+    assert strict.status == "no_feasible_action" and strict.chosen is None
+    assert any("not above the current" in c.reason for c in strict.candidates)
+    rec = PlanRecord(strict)
+    assert rec["num_feasible"] == 0
+    assert sum(rec["rejected"].values()) == rec["num_candidates"]
+    assert any("not above the current" in k for k in rec["rejected"])
