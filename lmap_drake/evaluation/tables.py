@@ -408,6 +408,15 @@ def FruitTable(records: list[dict], revealed: float = 0.9) -> dict | None:
                                                for f in fruits if f.get("action"))
                                   for k in SHAPE_KEYS},
             "wall_seconds_by_fruits": {k: _mean_std(v) for k, v in sorted(walls.items())},
+            # targets whose plan moved a leaf: was it a true occluder of
+            # the fruit (render labels; None when it could not be told)
+            "moves": sum(bool(t.get("motions")) for r in rs for t in r.get("targets", [])),
+            "moves_of_true_occluder": sum(bool(t.get("motions")) and t.get("leaf_is_occluder")
+                                          is True for r in rs for t in r.get("targets", [])),
+            "no_feasible_action_targets": sum(
+                str(t.get("outcome", "")).startswith("no_feasible_action")
+                for r in rs for t in r.get("targets", [])),
+            "phantom_targets": sum(r.get("phantom_targets", 0) or 0 for r in rs),
             "revealed_threshold": revealed}
     return out
 

@@ -117,6 +117,14 @@ def TruthFruitOfPoints(points_W: np.ndarray, label_image, K, X_WC: np.ndarray,
     fruit instance most of them land on, and the fraction of them on any
     fruit. Fewer than ``min_fraction`` on a fruit: (None, fraction), a
     phantom (e.g. a stalk the segmenter took for a fruit)."""
+    return TruthInstanceOfPoints(points_W, label_image, K, X_WC, FRUIT, min_fraction)
+
+
+def TruthInstanceOfPoints(points_W: np.ndarray, label_image, K, X_WC: np.ndarray,
+                          class_id: int, min_fraction: float = 0.5
+                          ) -> tuple[int | None, float]:
+    """``TruthFruitOfPoints`` for any class (``labels.LEAF``: which true
+    leaf, by its ground-truth index, a leaf instance's points are of)."""
     p = np.asarray(points_W, float).reshape(-1, 3)
     cls, inst = DecodeLabels(np.asarray(getattr(label_image, "data", label_image)).squeeze())
     if len(p) == 0:
@@ -129,7 +137,7 @@ def TruthFruitOfPoints(points_W: np.ndarray, label_image, K, X_WC: np.ndarray,
     c, i = cls[v[inside], u[inside]], inst[v[inside], u[inside]]
     if len(c) == 0:
         return None, 0.0
-    on_fruit = c == FRUIT
+    on_fruit = c == class_id
     fraction = float(np.mean(on_fruit))
     if fraction < min_fraction:
         return None, fraction

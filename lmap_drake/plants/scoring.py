@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from lmap_drake.labels import LEAF
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.plants.outcome import (FruitShapeErrors, ShapeErrors, Summarize,
-                                       TruthFruitOfInstance)
+                                       TruthFruitOfInstance, TruthInstanceOfPoints)
 from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.scenario import Scenario
 from lmap_drake.shape.completion import DroppedFragments
@@ -107,6 +108,17 @@ def ScorePlantEpisode(record: dict, sim: PlantWorldSim, scenario: Scenario, view
         c = np.asarray(t["target"]["center_W"], float)
         return int(np.argmin([np.linalg.norm(f.center_W - c) for f in model.fruits])), None
 
+    def true_leaf(t):
+        """The true leaf (ground-truth index) target ``t`` moved: where
+        its leaf instance's points land in the labels of the view it was
+        planned in; None without a leaf, labels or a majority on a leaf."""
+        est, k = t.get("initial_estimate"), t.get("view_plan")
+        if t["target"].get("leaf_id") is None or est is None or k is None \
+                or not 0 <= k < len(label) or label[k] is None:
+            return None
+        return TruthInstanceOfPoints(est.semantic.leaf_points_W, label[k], K,
+                                     est.semantic.X_WC, LEAF)[0]
+
     def dropped(est):
         sem = getattr(est, "semantic", None)
         return None if sem is None else DroppedFragments(sem.flags)
@@ -124,7 +136,12 @@ def ScorePlantEpisode(record: dict, sim: PlantWorldSim, scenario: Scenario, view
             if i is not None:
                 targets.setdefault(i, []).append(t)
             worst = worst_load(t)
+            leaf = true_leaf(t)
+            occluders = [] if i is None else list(model.fruits[i].occluders)
             rows.append({"fruit": i, "phantom": i is None,
+                         # the true leaf moved and whether it hides that fruit
+                         "leaf_true": leaf, "true_occluders": occluders,
+                         "leaf_is_occluder": None if leaf is None else leaf in occluders,
                          "points_on_fruit": None if on_fruit is None else round(on_fruit, 3),
                          "fruit_id": t["target"].get("fruit_id"),
                          "center_W": t["target"]["center_W"],
