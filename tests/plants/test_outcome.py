@@ -36,3 +36,19 @@ def test_a_target_is_matched_to_the_fruit_its_points_land_on_or_is_a_phantom():
     assert TruthFruitOfInstance(plant, 1, label, K) == (0, 1.0)
     assert TruthFruitOfInstance(plant, 0, label, K) == (1, 1.0)
     assert TruthFruitOfInstance(plant, 7, label, K) is None
+
+
+def test_a_moved_leaf_instance_is_matched_to_the_true_leaf_it_lands_on():
+    """The same projection for leaves: points on leaf 7's pixels are leaf 7;
+    points mostly on a fruit are no leaf."""
+    from lmap_drake.labels import LEAF
+    from lmap_drake.plants.outcome import TruthInstanceOfPoints
+    K = types.SimpleNamespace(fx=100.0, fy=100.0, cx=50.0, cy=50.0)
+    label = np.zeros((100, 100), np.int32)
+    label[:, :50] = EncodeLabel(LEAF, 7)
+    label[:, 50:] = EncodeLabel(FRUIT, 0)
+    uu = np.linspace(5, 45, 20)
+    left = np.c_[(uu - 50.0) * 0.5 / 100.0, np.zeros(20), np.full(20, 0.5)]
+    assert TruthInstanceOfPoints(left, label, K, np.eye(4), LEAF) == (7, 1.0)
+    right = left + [0.25, 0, 0]
+    assert TruthInstanceOfPoints(right, label, K, np.eye(4), LEAF)[0] is None
