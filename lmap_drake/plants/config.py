@@ -8,6 +8,7 @@ scenario. World frame W, metres."""
 import dataclasses as dc
 
 import numpy as np
+from pydrake.common.schema import Transform
 from pydrake.geometry import Rgba
 
 from lmap_drake.config_checks import CheckRules, Need
@@ -15,6 +16,7 @@ from lmap_drake.errors import ConfigError
 from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
 from lmap_drake.plants.generator import PlantGenerationError
 from lmap_drake.plants.greenhouse_model import ValidateGreenhouseConfig
+from lmap_drake.plants.mesh_plant_files import ValidateMeshPlant
 from lmap_drake.plants.multi import ValidateMultiConfig
 from lmap_drake.plants.pepper import PepperShapeOf
 
@@ -294,6 +296,49 @@ class GreenhouseConfig:
 
 
 @dc.dataclass
+class MeshPlantConfig:
+    """``plant_scene.kind: mesh_plant``: a plant made of mesh files (OBJ,
+    PLY, STL, glTF, GLB; ``lmap_drake/plants/mesh_plant_files.py``, format
+    in docs/how-to/bring-your-own-plant.md). Exactly one of: ``folder``
+    (``stems/ leaves/ fruits/`` subfolders, or a ``plant.yaml`` manifest
+    in it, which then lists the parts), ``manifest`` (a manifest YAML; its
+    file paths relative to it) or ``file`` (one glTF / OBJ whose parts are
+    named ``stem*`` / ``leaf*`` / ``fruit*``). Relative paths: from the
+    current directory, then the repository root. ``scale``: metres per file
+    unit (0.001 for millimetres; times the manifest's ``scale``);
+    ``up_axis``: y | z | auto (y for glTF / GLB, z otherwise). ``X_W_plant``:
+    the pose of the files' frame in W (default: its origin at [0.5, 0, 0.1],
+    the default ``p_W_branch_base``). ``targets``: fruit names (file stem or
+    part name) that are targets; empty: the manifest's ``target: true``
+    fruits, else every fruit. FEM: the leaves hiding a target from camera0
+    (most first), then those within ``fem_radius`` (m) of one, at most
+    ``max_fem_leaves``, become thin tetrahedral slabs (about
+    ``fem_target_tets`` tets, thickness and material from
+    ``plant_scene.leaf``) fixed at the petiole end nearest a stem; every
+    other leaf is welded (visual, textured where given; collision only
+    with ``static_leaf_collision``). A textured leaf card is cut to its
+    texture's alpha outline (alpha below ``alpha_threshold`` is outside).
+    ``fruit_color`` / ``plant_scene.leaf.color`` / ``plant_scene.branch.color``
+    colour parts without colour or texture; ``dressing``: the greenhouse
+    dressing (pipes, slab, glass) around the plant."""
+    folder: str = ""
+    manifest: str = ""
+    file: str = ""
+    scale: float = 1.0
+    up_axis: str = "auto"
+    X_W_plant: Transform = dc.field(
+        default_factory=lambda: Transform(translation=[0.5, 0.0, 0.1]))
+    targets: list[str] = dc.field(default_factory=list)
+    max_fem_leaves: int = 3
+    fem_radius: float = 0.06
+    fem_target_tets: int = 500
+    alpha_threshold: float = 0.5
+    static_leaf_collision: bool = False
+    fruit_color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
+    dressing: bool = False
+
+
+@dc.dataclass
 class PlantSceneConfig:
     """The plant in front of the robot. ``kind: procedural`` builds the
     branch, pepper and FEM leaf from the sub-configs, with the leaf swung so
@@ -302,8 +347,8 @@ class PlantSceneConfig:
     pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
     on side shoots and several FEM leaves (``multi``,
     ``lmap_drake/plants/multi.py``); ``kind: greenhouse`` a dense greenhouse
-    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``). World
-    frame, metres.
+    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``); ``kind: mesh_plant`` a plant from
+    mesh files (``mesh_plant``). World frame, metres.
 
     ``sleep_distance`` / ``sleep_speed``: a leaf at rest (every vertex
     slower than ``sleep_speed``, m/s), not held and farther than
@@ -339,6 +384,7 @@ class PlantSceneConfig:
     outcome: OutcomeConfig = dc.field(default_factory=OutcomeConfig)
     multi: MultiPlantConfig = dc.field(default_factory=MultiPlantConfig)
     greenhouse: GreenhouseConfig = dc.field(default_factory=GreenhouseConfig)
+    mesh_plant: MeshPlantConfig = dc.field(default_factory=MeshPlantConfig)
     sleep_distance: float = 0.03
     sleep_speed: float = 0.002
     fem_threads: int = 0
@@ -405,6 +451,11 @@ _RULES = {
     "outcome.fruit_penetration": ">=0",
     "outcome.fruit_contact_force": ">=0",
     "outcome.sample_period": ">0",
+    "mesh_plant.scale": ">0",
+    "mesh_plant.max_fem_leaves": "[0,8]",
+    "mesh_plant.fem_radius": "[0,0.3]",
+    "mesh_plant.fem_target_tets": "[100,5000]",
+    "mesh_plant.alpha_threshold": "(0,1)",
     "sleep_distance": ">=0",
     "sleep_speed": ">=0",
     "fem_threads": ">=0",
@@ -417,7 +468,8 @@ _RULES = {
     "leaf_size": "3x>0",
 }
 _ENUMS = {
-    "kind": ("placeholder", "procedural", "multi", "greenhouse"),
+    "kind": ("placeholder", "procedural", "multi", "greenhouse", "mesh_plant"),
+    "mesh_plant.up_axis": ("auto", "y", "z"),
     "leaf.shape": ("ovate", "elliptic"),
     "fruit.variant": ("blocky", "elongated", "conical"),  # plants.pepper.VARIANTS
 }
@@ -453,8 +505,10 @@ def ValidatePlantSceneConfig(ps: PlantSceneConfig, path: str = "plant_scene") ->
     Need(not fr.mesh_file or ps.kind == "procedural", f"{path}.fruit.mesh_file",
          f"needs {path}.kind: procedural (a multi-fruit plant takes a file per fruit: "
          f"{path}.multi.fruits[i].fruit.mesh_file)")
-    if ps.kind in ("multi", "greenhouse"):
+    if ps.kind in ("multi", "greenhouse", "mesh_plant"):
+        check = {"multi": ValidateMultiConfig, "greenhouse": ValidateGreenhouseConfig,
+                 "mesh_plant": ValidateMeshPlant}[ps.kind]
         try:
-            (ValidateMultiConfig if ps.kind == "multi" else ValidateGreenhouseConfig)(ps)
+            check(ps)
         except PlantGenerationError as err:
             raise ConfigError(err.key, err.detail) from None

@@ -20,7 +20,7 @@ from lmap_drake.plants.leaf import BoundaryTriangles
 from lmap_drake.plants.pepper import PepperShapeOf
 
 MAX_FRUITS, MIN_FRUITS = 4, 2
-MULTI_KINDS = ("multi", "greenhouse")   # plant_scene.kind values with several fruits and leaves
+MULTI_KINDS = ("multi", "greenhouse", "mesh_plant")   # kinds with several fruits and leaves
 MAX_LEAVES, MIN_LEAVES = 6, 2
 OCCLUDER_MIN = 0.02        # a leaf hiding at least this fraction of a fruit is one of its occluders
 FRUIT_GAP = 0.005          # m, fruit to fruit and fruit to other shoots
@@ -34,6 +34,9 @@ def NumPlantFruits(ps) -> int:
         return len(ps.multi.fruits)
     if ps.kind == "greenhouse":
         return len(ps.greenhouse.fruits) + int(ps.greenhouse.num_random_fruits)
+    if ps.kind == "mesh_plant":
+        from lmap_drake.plants.mesh_plant_files import LoadMeshPlantParts
+        return sum(p.kind == "fruit" for p in LoadMeshPlantParts(ps.mesh_plant))
     return 1
 
 
