@@ -321,21 +321,25 @@ class MeshPlantConfig:
     ``fruit_color`` / ``plant_scene.leaf.color`` / ``plant_scene.branch.color``
     colour parts without colour or texture; ``dressing``: the greenhouse
     dressing (pipes, slab, glass) around the plant."""
+    # the plant folder: stems/ leaves/ fruits/ subfolders, or a plant.yaml manifest in it
     folder: str = ""
-    manifest: str = ""
-    file: str = ""
-    scale: float = 1.0
-    up_axis: str = "auto"
+    manifest: str = ""  # a manifest YAML listing the files and their part types
+    file: str = ""  # one glTF / GLB / OBJ whose parts are named stem* / leaf* / fruit*
+    scale: float = 1.0  # metres per file unit (0.001: millimetres), times the manifest's scale
+    up_axis: str = "auto"  # the files' up axis: z | y | auto (y for glTF / GLB, else z)
+    # the pose of the files' frame in W (m); default: its origin at the default p_W_branch_base
     X_W_plant: Transform = dc.field(
         default_factory=lambda: Transform(translation=[0.5, 0.0, 0.1]))
+    # target fruits by name (file stem / part name); empty: the manifest's, else all
     targets: list[str] = dc.field(default_factory=list)
-    max_fem_leaves: int = 3
-    fem_radius: float = 0.06
-    fem_target_tets: int = 500
-    alpha_threshold: float = 0.5
-    static_leaf_collision: bool = False
+    max_fem_leaves: int = 3  # at most this many leaves become FEM (0-8)
+    fem_radius: float = 0.06  # m: a leaf this near a target fruit may become FEM
+    fem_target_tets: int = 500  # about this many tetrahedra per FEM leaf (100-5000)
+    alpha_threshold: float = 0.5  # a card texture's alpha below this is outside the leaf
+    static_leaf_collision: bool = False  # welded leaves get collision geometry
+    # RGBA (0-1) of a fruit without colour or texture in its file or the manifest
     fruit_color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
-    dressing: bool = False
+    dressing: bool = False  # the greenhouse dressing (slab, pipes, glass) around the plant
 
 
 @dc.dataclass
