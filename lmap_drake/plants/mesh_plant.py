@@ -15,7 +15,8 @@ leaves near the target fruits made FEM slabs. World frame W, metres.
   FEM leaves (``greenhouse._ChooseFem``: the targets' occluders, most hiding
   first, then the leaves within ``fem_radius``; never a leaf within half a
   slab of a fruit). An FEM leaf is the leaf's outline retriangulated at the
-  element size of ``fem_target_tets``, mapped onto its surface and extruded
+  element size of ``fem_target_tets``, mapped onto its surface (a leaf
+  folded over its best-fit plane: its own triangles) and extruded
   along the surface normal into two tet layers ``plant_scene.leaf.thickness``
   thick (``leaf.ExtrudeToTets``); fixed at the nodes within max(4 mm, 1.2
   elements) of its point nearest a stem (the petiole end, or the manifest's
@@ -156,10 +157,14 @@ def _LeafSurface(part: MeshPart, X) -> tuple:
 
 def FemLeafSlab(sheet, attach_W, normal_W, thickness: float, target_tets: int,
                 shoot: int) -> MultiLeaf:
-    """The FEM slab of a leaf sheet (W; see the module docstring)."""
+    """The FEM slab of a leaf sheet (W; see the module docstring); a folded
+    leaf's (``sheet.flat`` false) from its own triangles."""
     h = float(np.sqrt(13.86 * sheet.area / target_tets))
-    q, F = TriangulatePolygon(sheet.outline, h)
-    P = sheet.Map(q)
+    if sheet.flat:
+        q, F = TriangulatePolygon(sheet.outline, h)
+        P = sheet.Map(q)
+    else:
+        q, F, P = sheet.param, sheet.F, sheet.V
     surf = trimesh.Trimesh(P, F, process=False)
     trimesh.repair.fix_winding(surf)
     F = np.asarray(surf.faces)

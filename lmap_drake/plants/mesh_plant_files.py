@@ -61,15 +61,20 @@ class LeafSheet:
     """A leaf as a sheet: ``outline`` (K, 2) in a flat parameter domain
     (m), the source triangles (``V`` (N, 3) P or W frame, m; ``F``) and
     their parameter coordinates ``param`` (N, 2); ``tex_scale`` (2,): for a
-    card, texture uv = param / tex_scale (None otherwise)."""
+    card, texture uv = param / tex_scale (None otherwise). ``flat``: the
+    parameter map is one-to-one (no face flips over in it); a folded leaf
+    is not, and is used as its source triangles (``area``: theirs)."""
     outline: np.ndarray
     V: np.ndarray
     F: np.ndarray
     param: np.ndarray
     tex_scale: np.ndarray | None = None
+    flat: bool = True
 
     @property
     def area(self) -> float:
+        if not self.flat:
+            return float(trimesh.Trimesh(self.V, self.F, process=False).area)
         x, y = self.outline[:, 0], self.outline[:, 1]
         return float(0.5 * abs(x @ np.roll(y, -1) - y @ np.roll(x, -1)))
 
@@ -363,8 +368,13 @@ def SurfaceSheet(mesh: trimesh.Trimesh) -> LeafSheet:
     param = np.c_[(m.vertices - c) @ e1, (m.vertices - c) @ e2]
     loop = BoundaryLoop(m)
     outline = param[loop] if len(loop) >= 3 else np.zeros((0, 2))
-    return LeafSheet(outline=outline, V=np.asarray(m.vertices), F=np.asarray(m.faces),
-                     param=param)
+    a, b, d = (param[m.faces[:, k]] for k in range(3))
+    signed = (b - a)[:, 0] * (d - a)[:, 1] - (b - a)[:, 1] * (d - a)[:, 0]
+    flips = min((signed > 0).sum(), (signed < 0).sum())
+    sheet = LeafSheet(outline=outline, V=np.asarray(m.vertices), F=np.asarray(m.faces),
+                      param=param)
+    sheet.flat = bool(flips == 0 and sheet.area >= 0.97 * 0.5 * np.abs(signed).sum())
+    return sheet
 
 
 def _LeafSheet(part: MeshPart, threshold: float) -> None:

@@ -240,3 +240,24 @@ def test_scene_builds_in_the_station_and_renders_labels(plant):
     assert card.sum() > 100
     mean = rgb2[card][:, :3].astype(float).mean(0)
     assert mean[1] > 1.5 * mean[0] and mean[1] > 1.5 * mean[2], mean   # the texture's green
+
+
+def test_folded_leaf_becomes_a_slab_of_its_own_triangles():
+    """A leaf whose blade curls back under itself flips over its best-fit
+    plane: its FEM slab is made from its own triangles, not a flat outline."""
+    from lmap_drake.plants.mesh_plant import FemLeafSlab
+    from lmap_drake.plants.mesh_plant_files import SurfaceSheet
+    x = np.linspace(0, 0.06, 7)
+    top = np.c_[x, np.zeros(7), np.zeros(7)]
+    bend = np.c_[[0.07, 0.075, 0.07], np.zeros(3), [-0.004, -0.01, -0.016]]
+    bottom = np.c_[x[::-1], np.zeros(7), np.full(7, -0.02)]
+    line = np.vstack([top, bend, bottom])
+    V = np.vstack([line, line + [0, 0.04, 0]])
+    n = len(line)
+    F = [f for k in range(n - 1) for f in ([k, k + 1, n + k], [k + 1, n + k + 1, n + k])]
+    mesh = trimesh.Trimesh(V, F, process=False)
+    sheet = SurfaceSheet(mesh)
+    assert not sheet.flat and abs(sheet.area - mesh.area) < 1e-9
+    leaf = FemLeafSlab(sheet, np.zeros(3), np.array([0, 0, 1.0]), 0.002, 500, 0)
+    assert len(leaf.rest_W) == 3 * len(V) and np.all(TetVolumes(leaf.rest_W, leaf.tets) > 0)
+    assert leaf.fixed.sum() >= 3 and leaf.uv[:, 0].max() > 0.07
