@@ -351,8 +351,9 @@ class PlantSceneConfig:
     pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
     on side shoots and several FEM leaves (``multi``,
     ``lmap_drake/plants/multi.py``); ``kind: greenhouse`` a dense greenhouse
-    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``); ``kind: mesh_plant`` a plant from
-    mesh files (``mesh_plant``). World frame, metres.
+    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``);
+    ``kind: mesh_plant`` a plant from mesh files (``mesh_plant``). World
+    frame, metres.
 
     ``sleep_distance`` / ``sleep_speed``: a leaf at rest (every vertex
     slower than ``sleep_speed``, m/s), not held and farther than

@@ -173,7 +173,8 @@ def FemLeafSlab(sheet, attach_W, normal_W, thickness: float, target_tets: int,
         vn = -vn
     nodes, tets = ExtrudeToTets(q, F, layers=2)
     n = len(q)
-    rest = np.tile(P, (3, 1)) + ((nodes[:, 2] - 1.0) * 0.5 * thickness)[:, None] * np.tile(vn, (3, 1))
+    offset = (nodes[:, 2] - 1.0) * 0.5 * thickness           # layers 0, 1, 2: below, mid, above
+    rest = np.tile(P, (3, 1)) + offset[:, None] * np.tile(vn, (3, 1))
     tets = OrientTets(rest, tets)
     a = P[int(np.argmin(np.linalg.norm(P - attach_W, axis=1)))]
     fixed = np.linalg.norm(rest - a, axis=1) <= max(0.004, 1.2 * h)
@@ -217,7 +218,9 @@ def BuildMeshPlant(cfg, p_WC) -> MeshPlantModel:
     for i, p in enumerate(fruit_parts):
         color = _TexColor(p, mp.fruit_color)
         fruits.append(_Fruit(i, p, X, stem_pts, stem_owner, color))
-        fruit_visuals.append(PartVisual(fruits[-1].mesh_W, color, p.uv, p.image))
+        textured = p.uv is not None and p.image is not None
+        fruit_visuals.append(PartVisual(p.render.copy().apply_transform(X), color, p.uv, p.image)
+                             if textured else PartVisual(fruits[-1].mesh_W, color))
     stem_meshes = [v.mesh for v in stem_visuals]
     views = [FruitView(f.mesh_W, [g.mesh_W for k, g in enumerate(fruits) if k != i]
                        + stem_meshes, p_WC) for i, f in enumerate(fruits)]

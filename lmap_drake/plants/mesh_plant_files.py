@@ -33,7 +33,7 @@ from lmap_drake.errors import InputError
 from lmap_drake.limits import MAX_MESH_FACES, CheckYamlLimits, ReadBounded
 from lmap_drake.plants.fruit_mesh import (MAX_EXTENT, MIN_EXTENT, UNITS, FruitMeshError,
                                           ResolveMeshPath, _CheckMeshSize, _repair)
-from lmap_drake.plants.multi import MultiConfigError
+from lmap_drake.plants.generator import PlantGenerationError
 
 KEY = "plant_scene.mesh_plant"
 SUFFIXES = (".obj", ".ply", ".stl", ".gltf", ".glb")
@@ -50,10 +50,14 @@ MIN_LEAF_AREA = 1e-4             # m^2 (1 cm^2)
 ALPHA_SIDE = 256                 # px: alpha masks are read at most this large
 
 
-class MeshPlantError(MultiConfigError):
+class MeshPlantError(PlantGenerationError):
     """A bad plant file or ``plant_scene.mesh_plant`` value; ``key`` names
-    the scenario key (and the manifest entry), ``detail`` the file and what
-    is wrong."""
+    the scenario key, ``detail`` the file (and manifest entry) and what is
+    wrong."""
+
+    def __init__(self, key: str, detail: str):
+        super().__init__(f"{key} {detail}")
+        self.key, self.detail = key, detail
 
 
 @dc.dataclass
@@ -111,7 +115,9 @@ class MeshPart:
     (a leaf card: the cut-out surface); ``uv`` / ``image``: texture
     coordinates per vertex and the RGBA texture (PIL) or None; ``color``:
     RGBA 0-1 from the manifest or the file's material, or None; ``sheet``:
-    a leaf's ``LeafSheet``; ``card``: cut from an alpha texture."""
+    a leaf's ``LeafSheet``; ``card``: cut from an alpha texture; ``render``:
+    a fruit's mesh as the file gives it (``mesh`` is the repaired solid;
+    ``uv`` belongs to ``render``)."""
     kind: str
     name: str
     source: str
@@ -125,6 +131,7 @@ class MeshPart:
     sheet: LeafSheet | None = None
     card: bool = False
     repairs: list = dc.field(default_factory=list)
+    render: trimesh.Trimesh | None = None
 
 
 def _Unit(v):
@@ -541,6 +548,7 @@ def _Cached(folder, manifest, file, scale, up_axis, threshold, stamps) -> list[M
     for p in parts:
         if p.kind == "fruit":
             _CheckExtent(p.key, p.source, "the fruit", p.mesh, scale, MIN_EXTENT, MAX_EXTENT)
+            p.render = p.mesh.copy()
             try:
                 p.repairs = _repair(p.key, p.source, p.mesh)
             except FruitMeshError as err:

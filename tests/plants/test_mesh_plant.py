@@ -141,9 +141,13 @@ def test_named_parts_in_one_glb_y_up(tmp_path):
     scene = trimesh.Scene()
     z_to_y = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1.0]])
     stem = trimesh.creation.cylinder(0.006, segment=[[0, 0, 0], [0, 0, 0.5]])
-    fruit = trimesh.creation.icosphere(subdivisions=3)
-    fruit.apply_scale(0.035)
-    fruit.apply_translation(FRUIT_C)
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.035)
+    V = sphere.triangles.reshape(-1, 3)                   # textured, unwelded (as STL)
+    uv = np.c_[np.arctan2(V[:, 1], V[:, 0]) / (2 * np.pi) + 0.5, V[:, 2] / 0.07 + 0.5]
+    fruit = trimesh.Trimesh(V + FRUIT_C, np.arange(len(V)).reshape(-1, 3), process=False,
+                            visual=trimesh.visual.TextureVisuals(
+                                uv=uv, material=trimesh.visual.material.SimpleMaterial(
+                                    image=Image.new("RGB", (8, 8), (200, 30, 20)))))
     leaf = _ellipse_leaf([-0.07, 0.0, 0.2], 0.06, 0.03)
     for name, m in (("Stem_main", stem), ("leaf.001", leaf), ("fruit_a", fruit),
                     ("ignore_pot", trimesh.creation.box([0.1, 0.1, 0.1]))):
@@ -156,6 +160,11 @@ def test_named_parts_in_one_glb_y_up(tmp_path):
         ("fruit", "fruit_a"), ("leaf", "leaf.001"), ("stem", "Stem_main")]
     f = next(p for p in parts if p.kind == "fruit")
     np.testing.assert_allclose(f.mesh.center_mass, FRUIT_C, atol=1e-4)   # back to z up
+    assert f.image is not None and len(f.uv) == len(f.render.vertices) != len(f.mesh.vertices)
+    model = GetPlantModel(s)                 # rendered as the file has it, textured
+    vis = model.fruit_visuals[0]
+    assert vis.image is not None and len(vis.uv) == len(vis.mesh.vertices)
+    assert model.fruits[0].mesh_W.is_watertight
 
 
 def _bad(folder, what):
