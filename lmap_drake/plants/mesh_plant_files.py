@@ -5,13 +5,8 @@ manifest YAML that lists files with a part type, or as the parts of one
 glTF / OBJ named by prefix; OBJ, PLY, STL, glTF and GLB through trimesh.
 
 Every part is returned in the plant frame P (metres: the files' units times
-``scale``; z up: a Y-up file is turned). A leaf becomes a ``LeafSheet``: a
-flat 2D parameter domain (metres) with the leaf outline in it and a map to
-the 3D surface. A textured card whose texture has an alpha channel is cut
-to the alpha outline (the largest opaque region's contour, in texture
-space, mapped onto the card); any other leaf is its surface projected on
-its best-fit plane, the outline its boundary (a closed, two-sided leaf: its
-side facing the plane normal).
+``scale``; z up: a Y-up file is turned). A leaf becomes a ``LeafSheet``
+(``mesh_plant_leaves``: an alpha card cut to its outline, or a surface).
 
 Bad files raise ``MeshPlantError`` naming the scenario key and the file
 (missing, unreadable, empty, non-finite, wrong size for the units, a leaf
@@ -34,6 +29,7 @@ from lmap_drake.limits import MAX_MESH_FACES, CheckYamlLimits, ReadBounded
 from lmap_drake.plants.fruit_mesh import (MAX_EXTENT, MIN_EXTENT, UNITS, FruitMeshError,
                                           ResolveMeshPath, _CheckMeshSize, _repair)
 from lmap_drake.plants.generator import PlantGenerationError
+from lmap_drake.plants.mesh_plant_leaves import CardSheet, LeafSheet, SurfaceSheet
 
 KEY = "plant_scene.mesh_plant"
 SUFFIXES = (".obj", ".ply", ".stl", ".gltf", ".glb")
@@ -47,7 +43,6 @@ PREFIXES = (("stem", "stem"), ("stalk", "stem"), ("branch", "stem"), ("shoot", "
 LEAF_EXTENT = (0.01, 0.6)        # m, a leaf's largest extent
 PLANT_EXTENT = (0.05, 4.0)       # m, the whole plant's
 MIN_LEAF_AREA = 1e-4             # m^2 (1 cm^2)
-ALPHA_SIDE = 256                 # px: alpha masks are read at most this large
 
 
 class MeshPlantError(PlantGenerationError):
@@ -58,55 +53,6 @@ class MeshPlantError(PlantGenerationError):
     def __init__(self, key: str, detail: str):
         super().__init__(f"{key} {detail}")
         self.key, self.detail = key, detail
-
-
-@dc.dataclass
-class LeafSheet:
-    """A leaf as a sheet: ``outline`` (K, 2) in a flat parameter domain
-    (m), the source triangles (``V`` (N, 3) P or W frame, m; ``F``) and
-    their parameter coordinates ``param`` (N, 2); ``tex_scale`` (2,): for a
-    card, texture uv = param / tex_scale (None otherwise). ``flat``: the
-    parameter map is one-to-one (no face flips over in it); a folded leaf
-    is not, and is used as its source triangles (``area``: theirs)."""
-    outline: np.ndarray
-    V: np.ndarray
-    F: np.ndarray
-    param: np.ndarray
-    tex_scale: np.ndarray | None = None
-    flat: bool = True
-
-    @property
-    def area(self) -> float:
-        if not self.flat:
-            return float(trimesh.Trimesh(self.V, self.F, process=False).area)
-        x, y = self.outline[:, 0], self.outline[:, 1]
-        return float(0.5 * abs(x @ np.roll(y, -1) - y @ np.roll(x, -1)))
-
-    def Map(self, q: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
-        """Per-vertex ``values`` (default: the 3D positions ``V``)
-        interpolated at parameter points ``q`` (M, 2): barycentric in the
-        source triangle holding the point (the nearest one, clamped, for a
-        point outside all)."""
-        values = self.V if values is None else values
-        A, B, C = (self.param[self.F[:, k]] for k in range(3))
-        e0, e1 = B - A, C - A
-        det = e0[:, 0] * e1[:, 1] - e0[:, 1] * e1[:, 0]
-        det = np.where(np.abs(det) < 1e-18, 1e-18, det)
-        out = []
-        for s in range(0, len(q), 256):
-            d = q[s:s + 256, None, :] - A[None]
-            b1 = (d[..., 0] * e1[None, :, 1] - d[..., 1] * e1[None, :, 0]) / det
-            b2 = (e0[None, :, 0] * d[..., 1] - e0[None, :, 1] * d[..., 0]) / det
-            bary = np.stack([1 - b1 - b2, b1, b2], -1)
-            f = np.argmax(bary.min(-1), axis=1)
-            w = np.clip(bary[np.arange(len(f)), f], 0, None)
-            w /= np.maximum(w.sum(1, keepdims=True), 1e-12)
-            out.append(np.einsum("mk,mkd->md", w, values[self.F[f]]))
-        return np.vstack(out) if out else np.zeros((0, values.shape[1]))
-
-    def Transformed(self, X: np.ndarray) -> "LeafSheet":
-        """The sheet moved by the 4x4 rigid transform ``X``."""
-        return dc.replace(self, V=self.V @ X[:3, :3].T + X[:3, 3])
 
 
 @dc.dataclass
@@ -268,124 +214,8 @@ def _Part(kind, name, source, key, geoms, scale, up, entry) -> MeshPart:
 
 # --- leaves -----------------------------------------------------------------
 
-def _AlphaOutline(image, threshold: float) -> np.ndarray | None:
-    """The largest opaque region's outline (K, 2) in texture uv (v up), or
-    None if the image has no transparent pixel (not a cut-out card)."""
-    import contourpy
-    im = image
-    if max(im.size) > ALPHA_SIDE:
-        f = ALPHA_SIDE / max(im.size)
-        im = im.resize((max(2, int(im.size[0] * f)), max(2, int(im.size[1] * f))))
-    a = np.asarray(im.getchannel("A"), float) / 255.0
-    if a.min() >= threshold:
-        return None
-    h, w = a.shape
-    padded = np.pad(a, 1)
-    lines = contourpy.contour_generator(z=padded).lines(threshold)
-    best, best_area = None, 0.0
-    for ln in lines:
-        if len(ln) < 4:
-            continue
-        x, y = ln[:, 0], ln[:, 1]
-        area = 0.5 * abs(x @ np.roll(y, -1) - y @ np.roll(x, -1))
-        if area > best_area:
-            best, best_area = ln, area
-    if best is None:
-        return np.zeros((0, 2))
-    u = (best[:, 0] - 1 + 0.5) / w
-    v = 1.0 - (best[:, 1] - 1 + 0.5) / h
-    pts = np.c_[u, v]
-    if np.allclose(pts[0], pts[-1]):
-        pts = pts[:-1]
-    return pts
-
-
-def _CardSheet(part: MeshPart, threshold: float) -> LeafSheet | None:
-    """The cut-out sheet of a textured card with an alpha outline, else None."""
-    if part.image is None or "A" not in part.image.getbands():
-        return None
-    outline_uv = _AlphaOutline(part.image, threshold)
-    if outline_uv is None:
-        return None
-    V, F, uv = np.asarray(part.mesh.vertices), np.asarray(part.mesh.faces), part.uv
-    # metres per texture unit along u and v (the card's affine maps, area weighted)
-    e_u, e_v, wsum = np.zeros(2), np.zeros(2), 0.0
-    for f in F:
-        duv = np.c_[uv[f[1]] - uv[f[0]], uv[f[2]] - uv[f[0]]]
-        dP = np.c_[V[f[1]] - V[f[0]], V[f[2]] - V[f[0]]]
-        if abs(np.linalg.det(duv)) < 1e-12:
-            continue
-        J = dP @ np.linalg.inv(duv)                 # (3, 2): dP/du, dP/dv
-        area = 0.5 * float(np.linalg.norm(np.cross(dP[:, 0], dP[:, 1])))
-        e_u += area * np.array([np.linalg.norm(J[:, 0]), 1.0])
-        e_v += area * np.array([np.linalg.norm(J[:, 1]), 1.0])
-        wsum += area
-    if wsum <= 0:
-        raise MeshPlantError(part.key, f"{part.source}: the leaf card's texture coordinates "
-                                       f"span no area")
-    scale = np.array([e_u[0] / e_u[1], e_v[0] / e_v[1]])
-    return LeafSheet(outline=outline_uv * scale, V=V, F=F, param=uv * scale, tex_scale=scale)
-
-
-def BoundaryLoop(mesh: trimesh.Trimesh) -> np.ndarray:
-    """The vertex indices of the longest boundary loop of an open mesh."""
-    edges = mesh.edges_sorted
-    single = trimesh.grouping.group_rows(edges, require_count=1)
-    if not len(single):
-        return np.zeros(0, int)
-    nxt: dict = {}
-    for a, b in edges[single]:
-        nxt.setdefault(int(a), []).append(int(b))
-        nxt.setdefault(int(b), []).append(int(a))
-    seen, best = set(), []
-    for start in nxt:
-        if start in seen:
-            continue
-        loop, prev, cur = [start], None, start
-        seen.add(start)
-        while True:
-            options = [x for x in nxt[cur] if x != prev and x not in seen]
-            if not options:
-                break
-            prev, cur = cur, options[0]
-            seen.add(cur)
-            loop.append(cur)
-        if len(loop) > len(best):
-            best = loop
-    return np.asarray(best, int)
-
-
-def SurfaceSheet(mesh: trimesh.Trimesh) -> LeafSheet:
-    """A leaf surface as a sheet: projected on its best-fit plane; a closed
-    (two-sided) surface keeps the faces facing the plane normal."""
-    m = trimesh.Trimesh(np.asarray(mesh.vertices, float), np.asarray(mesh.faces),
-                        process=False)
-    m.merge_vertices()
-    m.update_faces(m.nondegenerate_faces())
-    m.remove_unreferenced_vertices()
-    if len(m.faces) == 0:
-        return LeafSheet(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3), int),
-                         np.zeros((0, 2)))
-    c = m.vertices.mean(0)
-    _, _, Vt = np.linalg.svd(m.vertices - c, full_matrices=False)
-    e1, e2, n = Vt[0], Vt[1], Vt[2]
-    if m.is_watertight or not len(BoundaryLoop(m)):
-        up = m.face_normals @ n >= 0
-        m = m.submesh([up], append=True) if up.any() else m
-    param = np.c_[(m.vertices - c) @ e1, (m.vertices - c) @ e2]
-    loop = BoundaryLoop(m)
-    outline = param[loop] if len(loop) >= 3 else np.zeros((0, 2))
-    a, b, d = (param[m.faces[:, k]] for k in range(3))
-    signed = (b - a)[:, 0] * (d - a)[:, 1] - (b - a)[:, 1] * (d - a)[:, 0]
-    flips = min((signed > 0).sum(), (signed < 0).sum())
-    sheet = LeafSheet(outline=outline, V=np.asarray(m.vertices), F=np.asarray(m.faces),
-                      param=param)
-    sheet.flat = bool(flips == 0 and sheet.area >= 0.97 * 0.5 * np.abs(signed).sum())
-    return sheet
-
-
 def _LeafSheet(part: MeshPart, threshold: float) -> None:
-    sheet = _CardSheet(part, threshold)
+    sheet = CardSheet(part.mesh.vertices, part.mesh.faces, part.uv, part.image, threshold)
     part.card = sheet is not None
     if sheet is None:
         sheet = SurfaceSheet(part.mesh)

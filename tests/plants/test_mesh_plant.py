@@ -105,6 +105,16 @@ def test_alpha_card_is_cut_to_its_outline(plant, tmp_path):
     r = ((P[:, 0] - np.mean(CARD_X)) / ELLIPSE[0]) ** 2 + \
         ((P[:, 2] - np.mean(CARD_Z)) / ELLIPSE[1]) ** 2
     assert np.all(np.abs(r - 1) < 0.08), r.min()
+    # a card of a leaf atlas: only the part of the texture its uv cover counts
+    from lmap_drake.plants.mesh_plant_leaves import CardSheet
+    atlas = np.zeros((100, 200, 4), np.uint8)
+    yy, xx = np.mgrid[0:100, 0:200]
+    atlas[..., 3] = np.where((xx - 50) ** 2 + (yy - 50) ** 2 <= 30 ** 2, 255, 0)    # small leaf
+    atlas[10:95, 105:195, 3] = 255                                                  # big one
+    V = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, 0.1], [0, 0, 0.1]])
+    uv = np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1.0]])                 # the left half
+    sheet = CardSheet(V, [[0, 1, 2], [0, 2, 3]], uv, Image.fromarray(atlas, "RGBA"), 0.5)
+    assert abs(sheet.area - np.pi * 0.03 ** 2) / (np.pi * 0.03 ** 2) < 0.03, sheet.area
     # a card without transparent pixels is not cut: the whole quad
     opaque = WritePlant(tmp_path / "opaque", card_opaque=True)
     parts = LoadMeshPlantParts(_scenario(opaque).plant_scene.mesh_plant)
@@ -255,7 +265,7 @@ def test_folded_leaf_becomes_a_slab_of_its_own_triangles():
     """A leaf whose blade curls back under itself flips over its best-fit
     plane: its FEM slab is made from its own triangles, not a flat outline."""
     from lmap_drake.plants.mesh_plant import FemLeafSlab
-    from lmap_drake.plants.mesh_plant_files import SurfaceSheet
+    from lmap_drake.plants.mesh_plant_leaves import SurfaceSheet
     x = np.linspace(0, 0.06, 7)
     top = np.c_[x, np.zeros(7), np.zeros(7)]
     bend = np.c_[[0.07, 0.075, 0.07], np.zeros(3), [-0.004, -0.01, -0.016]]
