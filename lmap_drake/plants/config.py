@@ -8,8 +8,8 @@ scenario. World frame W, metres."""
 import dataclasses as dc
 
 import numpy as np
-from pydrake.common.schema import Transform
 from pydrake.geometry import Rgba
+from pydrake.math import RigidTransform, RollPitchYaw
 
 from lmap_drake.config_checks import CheckRules, Need
 from lmap_drake.errors import ConfigError
@@ -296,6 +296,17 @@ class GreenhouseConfig:
 
 
 @dc.dataclass
+class PlantPose:
+    """A pose in W: ``translation`` (m), then turned by ``rpy_deg`` (roll,
+    pitch, yaw in degrees, about the fixed axes x, y, z in turn)."""
+    translation: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
+    rpy_deg: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def GetRigidTransform(self) -> RigidTransform:
+        return RigidTransform(RollPitchYaw(np.deg2rad(self.rpy_deg)), self.translation)
+
+
+@dc.dataclass
 class MeshPlantConfig:
     """``plant_scene.kind: mesh_plant``: a plant made of mesh files (OBJ,
     PLY, STL, glTF, GLB; ``lmap_drake/plants/mesh_plant_files.py``, format
@@ -327,9 +338,8 @@ class MeshPlantConfig:
     file: str = ""  # one glTF / GLB / OBJ whose parts are named stem* / leaf* / fruit*
     scale: float = 1.0  # metres per file unit (0.001: millimetres), times the manifest's scale
     up_axis: str = "auto"  # the files' up axis: z | y | auto (y for glTF / GLB, else z)
-    # the pose of the files' frame in W (m); default: its origin at the default p_W_branch_base
-    X_W_plant: Transform = dc.field(
-        default_factory=lambda: Transform(translation=[0.5, 0.0, 0.1]))
+    # the pose of the files' frame in W; default: its origin at the default p_W_branch_base
+    X_W_plant: PlantPose = dc.field(default_factory=PlantPose)
     # target fruits by name (file stem / part name); empty: the manifest's, else all
     targets: list[str] = dc.field(default_factory=list)
     max_fem_leaves: int = 3  # at most this many leaves become FEM (0-8)
@@ -457,6 +467,8 @@ _RULES = {
     "outcome.fruit_contact_force": ">=0",
     "outcome.sample_period": ">0",
     "mesh_plant.scale": ">0",
+    "mesh_plant.X_W_plant.translation": "3xfinite",
+    "mesh_plant.X_W_plant.rpy_deg": "3xfinite",
     "mesh_plant.max_fem_leaves": "[0,8]",
     "mesh_plant.fem_radius": "[0,0.3]",
     "mesh_plant.fem_target_tets": "[100,5000]",

@@ -199,7 +199,7 @@ def BuildMeshPlant(cfg, p_WC) -> MeshPlantModel:
     parts = LoadMeshPlantParts(mp)
     target_idx = TargetFruits(parts, mp)
     p_WC = np.asarray(p_WC, float)
-    X = mp.X_W_plant.GetDeterministicValue().GetAsMatrix4()
+    X = mp.X_W_plant.GetRigidTransform().GetAsMatrix4()
     stems = [p for p in parts if p.kind == "stem"]
     fruit_parts = [p for p in parts if p.kind == "fruit"]
     leaf_parts = [p for p in parts if p.kind == "leaf"]

@@ -95,7 +95,7 @@ def AddMeshPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConfi
                "fruit_geometry_ids": fruit_ids, "leaf_body_ids": [], "leaf_geometry_ids": []}
     mp = cfg.mesh_plant
     if mp.dressing:
-        AddGreenhouseDressing(plant, mp.X_W_plant.GetDeterministicValue().translation(),
+        AddGreenhouseDressing(plant, mp.X_W_plant.GetRigidTransform().translation(),
                               np.asarray(model.p_WC, float), None)
     if not with_leaves:
         return handles

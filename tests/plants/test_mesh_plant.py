@@ -280,3 +280,12 @@ def test_folded_leaf_becomes_a_slab_of_its_own_triangles():
     leaf = FemLeafSlab(sheet, np.zeros(3), np.array([0, 0, 1.0]), 0.002, 500, 0)
     assert len(leaf.rest_W) == 3 * len(V) and np.all(TetVolumes(leaf.rest_W, leaf.tets) > 0)
     assert leaf.fixed.sum() >= 3 and leaf.uv[:, 0].max() > 0.07
+
+
+def test_pose_places_the_files_frame(plant):
+    s = _scenario(plant, X_W_plant="{translation: [0.4, 0.1, 0.0], rpy_deg: [0, 0, 90]}")
+    f = GetPlantModel(s).fruits[0]
+    x, y, z = FRUIT_C
+    np.testing.assert_allclose(f.center_W, [0.4 - y, 0.1 + x, z], atol=1e-4)
+    with pytest.raises(ScenarioError, match=r"plant_scene\.mesh_plant\.X_W_plant\.rpy_deg"):
+        _scenario(plant, X_W_plant="{rpy_deg: [0, 90]}")
