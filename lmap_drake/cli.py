@@ -82,7 +82,7 @@ def cmd_run(args) -> int:
     t0 = time.time()
     status = "done"
     with folder as out:
-        if args.hardware or (scenario.plant_scene.kind in ("procedural", "multi", "greenhouse")
+        if args.hardware or (scenario.plant_scene.kind in ("procedural", "multi", "greenhouse", "mesh_plant")
                              and not args.scripted):
             from lmap_drake.episode import RunLmapEpisode
             files, status = RunLmapEpisode(scenario, out, progress=_stage,

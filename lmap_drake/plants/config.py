@@ -9,12 +9,14 @@ import dataclasses as dc
 
 import numpy as np
 from pydrake.geometry import Rgba
+from pydrake.math import RigidTransform, RollPitchYaw
 
 from lmap_drake.config_checks import CheckRules, Need
 from lmap_drake.errors import ConfigError
 from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
 from lmap_drake.plants.generator import PlantGenerationError
 from lmap_drake.plants.greenhouse_model import ValidateGreenhouseConfig
+from lmap_drake.plants.mesh_plant_files import ValidateMeshPlant
 from lmap_drake.plants.multi import ValidateMultiConfig
 from lmap_drake.plants.pepper import PepperShapeOf
 
@@ -295,6 +297,63 @@ class GreenhouseConfig:
 
 
 @dc.dataclass
+class PlantPose:
+    """A pose in W: ``translation`` (m), then turned by ``rpy_deg`` (roll,
+    pitch, yaw in degrees, about the fixed axes x, y, z in turn)."""
+    translation: list[float] = dc.field(default_factory=lambda: [0.5, 0.0, 0.1])
+    rpy_deg: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def GetRigidTransform(self) -> RigidTransform:
+        return RigidTransform(RollPitchYaw(np.deg2rad(self.rpy_deg)), self.translation)
+
+
+@dc.dataclass
+class MeshPlantConfig:
+    """``plant_scene.kind: mesh_plant``: a plant made of mesh files (OBJ,
+    PLY, STL, glTF, GLB; ``lmap_drake/plants/mesh_plant_files.py``, format
+    in docs/how-to/bring-your-own-plant.md). Exactly one of: ``folder``
+    (``stems/ leaves/ fruits/`` subfolders, or a ``plant.yaml`` manifest
+    in it, which then lists the parts), ``manifest`` (a manifest YAML; its
+    file paths relative to it) or ``file`` (one glTF / OBJ whose parts are
+    named ``stem*`` / ``leaf*`` / ``fruit*``). Relative paths: from the
+    current directory, then the repository root. ``scale``: metres per file
+    unit (0.001 for millimetres; times the manifest's ``scale``);
+    ``up_axis``: y | z | auto (y for glTF / GLB, z otherwise). ``X_W_plant``:
+    the pose of the files' frame in W (default: its origin at [0.5, 0, 0.1],
+    the default ``p_W_branch_base``). ``targets``: fruit names (file stem or
+    part name) that are targets; empty: the manifest's ``target: true``
+    fruits, else every fruit. FEM: the leaves hiding a target from camera0
+    (most first), then those within ``fem_radius`` (m) of one, at most
+    ``max_fem_leaves``, become thin tetrahedral slabs (about
+    ``fem_target_tets`` tets, thickness and material from
+    ``plant_scene.leaf``) fixed at the petiole end nearest a stem; every
+    other leaf is welded (visual, textured where given; collision only
+    with ``static_leaf_collision``). A textured leaf card is cut to its
+    texture's alpha outline (alpha below ``alpha_threshold`` is outside).
+    ``fruit_color`` / ``plant_scene.leaf.color`` / ``plant_scene.branch.color``
+    colour parts without colour or texture; ``dressing``: the greenhouse
+    dressing (pipes, slab, glass) around the plant."""
+    # the plant folder: stems/ leaves/ fruits/ subfolders, or a plant.yaml manifest in it
+    folder: str = ""
+    manifest: str = ""  # a manifest YAML listing the files and their part types
+    file: str = ""  # one glTF / GLB / OBJ whose parts are named stem* / leaf* / fruit*
+    scale: float = 1.0  # metres per file unit (0.001: millimetres), times the manifest's scale
+    up_axis: str = "auto"  # the files' up axis: z | y | auto (y for glTF / GLB, else z)
+    # the pose of the files' frame in W; default: its origin at the default p_W_branch_base
+    X_W_plant: PlantPose = dc.field(default_factory=PlantPose)
+    # target fruits by name (file stem / part name); empty: the manifest's, else all
+    targets: list[str] = dc.field(default_factory=list)
+    max_fem_leaves: int = 3  # at most this many leaves become FEM (0-8)
+    fem_radius: float = 0.06  # m: a leaf this near a target fruit may become FEM
+    fem_target_tets: int = 500  # about this many tetrahedra per FEM leaf (100-5000)
+    alpha_threshold: float = 0.5  # a card texture's alpha below this is outside the leaf
+    static_leaf_collision: bool = False  # welded leaves get collision geometry
+    # RGBA (0-1) of a fruit without colour or texture in its file or the manifest
+    fruit_color: Rgba = dc.field(default_factory=lambda: Rgba(0.75, 0.05, 0.05, 1.0))
+    dressing: bool = False  # the greenhouse dressing (slab, pipes, glass) around the plant
+
+
+@dc.dataclass
 class PlantSceneConfig:
     """The plant in front of the robot. ``kind: procedural`` builds the
     branch, pepper and FEM leaf from the sub-configs, with the leaf swung so
@@ -303,7 +362,8 @@ class PlantSceneConfig:
     pepper mesh) for fast tests; ``kind: multi`` a plant with several fruits
     on side shoots and several FEM leaves (``multi``,
     ``lmap_drake/plants/multi.py``); ``kind: greenhouse`` a dense greenhouse
-    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``). World
+    pepper plant (``greenhouse``, ``lmap_drake/plants/greenhouse.py``);
+    ``kind: mesh_plant`` a plant from mesh files (``mesh_plant``). World
     frame, metres.
 
     ``sleep_distance`` / ``sleep_speed``: a leaf at rest (every vertex
@@ -340,6 +400,7 @@ class PlantSceneConfig:
     outcome: OutcomeConfig = dc.field(default_factory=OutcomeConfig)
     multi: MultiPlantConfig = dc.field(default_factory=MultiPlantConfig)
     greenhouse: GreenhouseConfig = dc.field(default_factory=GreenhouseConfig)
+    mesh_plant: MeshPlantConfig = dc.field(default_factory=MeshPlantConfig)
     sleep_distance: float = 0.03
     sleep_speed: float = 0.002
     fem_threads: int = 0
@@ -406,6 +467,13 @@ _RULES = {
     "outcome.fruit_penetration": ">=0",
     "outcome.fruit_contact_force": ">=0",
     "outcome.sample_period": ">0",
+    "mesh_plant.scale": ">0",
+    "mesh_plant.X_W_plant.translation": "3xfinite",
+    "mesh_plant.X_W_plant.rpy_deg": "3xfinite",
+    "mesh_plant.max_fem_leaves": "[0,8]",
+    "mesh_plant.fem_radius": "[0,0.3]",
+    "mesh_plant.fem_target_tets": "[100,5000]",
+    "mesh_plant.alpha_threshold": "(0,1)",
     "sleep_distance": ">=0",
     "sleep_speed": ">=0",
     "fem_threads": ">=0",
@@ -418,7 +486,8 @@ _RULES = {
     "leaf_size": "3x>0",
 }
 _ENUMS = {
-    "kind": ("placeholder", "procedural", "multi", "greenhouse"),
+    "kind": ("placeholder", "procedural", "multi", "greenhouse", "mesh_plant"),
+    "mesh_plant.up_axis": ("auto", "y", "z"),
     "leaf.shape": ("ovate", "elliptic"),
     "fruit.variant": ("blocky", "elongated", "conical"),  # plants.pepper.VARIANTS
 }
@@ -454,8 +523,10 @@ def ValidatePlantSceneConfig(ps: PlantSceneConfig, path: str = "plant_scene") ->
     Need(not fr.mesh_file or ps.kind == "procedural", f"{path}.fruit.mesh_file",
          f"needs {path}.kind: procedural (a multi-fruit plant takes a file per fruit: "
          f"{path}.multi.fruits[i].fruit.mesh_file)")
-    if ps.kind in ("multi", "greenhouse"):
+    if ps.kind in ("multi", "greenhouse", "mesh_plant"):
+        check = {"multi": ValidateMultiConfig, "greenhouse": ValidateGreenhouseConfig,
+                 "mesh_plant": ValidateMeshPlant}[ps.kind]
         try:
-            (ValidateMultiConfig if ps.kind == "multi" else ValidateGreenhouseConfig)(ps)
+            check(ps)
         except PlantGenerationError as err:
             raise ConfigError(err.key, err.detail) from None

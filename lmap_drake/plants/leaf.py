@@ -58,8 +58,15 @@ def Outline(shape: LeafShape, spacing: float) -> np.ndarray:
 def TriangulateLeaf(shape: LeafShape) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh (uv (N, 2), faces (F, 3)) of the leaf outline with
     elements of about ``shape.element_size``."""
-    h = shape.element_size
-    poly = Outline(shape, h)
+    return TriangulatePolygon(Outline(shape, shape.element_size), shape.element_size)
+
+
+def TriangulatePolygon(poly: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle mesh (points (N, 2), faces (F, 3)) of the closed polygon
+    ``poly`` (K, 2) with elements of about ``h`` (the polygon's units): the
+    boundary resampled at ``h``, a hexagonal grid inside, Delaunay, the
+    triangles outside the polygon and the slivers dropped."""
+    poly = np.asarray(poly, float)
     # Resample the boundary at spacing ~h.
     seg = np.diff(np.vstack([poly, poly[:1]]), axis=0)
     pts = [poly[i] + seg[i] * f for i in range(len(poly))

@@ -17,10 +17,11 @@ from lmap_drake.config_checks import IsFiniteNumber
 from lmap_drake.plants.fruit_mesh import FruitMeshError, LoadFruitMeshOf
 from lmap_drake.plants.generator import PlantGenerationError
 from lmap_drake.plants.leaf import BoundaryTriangles
+from lmap_drake.plants.mesh_plant_files import LoadMeshPlantParts
 from lmap_drake.plants.pepper import PepperShapeOf
 
 MAX_FRUITS, MIN_FRUITS = 4, 2
-MULTI_KINDS = ("multi", "greenhouse")   # plant_scene.kind values with several fruits and leaves
+MULTI_KINDS = ("multi", "greenhouse", "mesh_plant")   # kinds with several fruits and leaves
 MAX_LEAVES, MIN_LEAVES = 6, 2
 OCCLUDER_MIN = 0.02        # a leaf hiding at least this fraction of a fruit is one of its occluders
 FRUIT_GAP = 0.005          # m, fruit to fruit and fruit to other shoots
@@ -29,11 +30,13 @@ FRUIT_GAP = 0.005          # m, fruit to fruit and fruit to other shoots
 def NumPlantFruits(ps) -> int:
     """The fruits a ``plant_scene`` asks for: ``multi.fruits``; greenhouse:
     ``greenhouse.fruits`` plus ``num_random_fruits`` (at most: a random fruit
-    that does not fit is left out); 1 otherwise."""
+    that does not fit is left out); mesh_plant: its fruit parts; 1 otherwise."""
     if ps.kind == "multi":
         return len(ps.multi.fruits)
     if ps.kind == "greenhouse":
         return len(ps.greenhouse.fruits) + int(ps.greenhouse.num_random_fruits)
+    if ps.kind == "mesh_plant":
+        return sum(p.kind == "fruit" for p in LoadMeshPlantParts(ps.mesh_plant))
     return 1
 
 

@@ -16,6 +16,8 @@ from pydrake.systems.framework import Diagram
 
 from lmap_drake.plants.config import PlantSceneConfig
 from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant
+from lmap_drake.plants.mesh_plant_scene import AddMeshPlant
+from lmap_drake.plants.scene import AddMultiPlant, AddPlaceholderPlant, AddProceduralPlant
 from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.scenario import Scenario
 from lmap_drake.station.station import MakeStation
@@ -58,35 +60,49 @@ def _CachedGreenhousePlantModel(plant_scene_yaml: str, p_WC: tuple):
     return GenerateGreenhousePlant(cfg, np.array(p_WC))
 
 
+@functools.lru_cache(maxsize=8)
+def _CachedMeshPlantModel(plant_scene_yaml: str, p_WC: tuple, stamps: tuple):
+    from pydrake.common.yaml import yaml_load_typed
+    from lmap_drake.plants.mesh_plant import BuildMeshPlant
+    cfg = yaml_load_typed(schema=PlantSceneConfig, data=plant_scene_yaml)
+    return BuildMeshPlant(cfg, np.array(p_WC))
+
+
+def _AddMulti(kind: str):
+    return {"greenhouse": AddGreenhousePlant, "mesh_plant": AddMeshPlant}.get(kind,
+                                                                             AddMultiPlant)
+
+
 def GetPlantModel(scenario: Scenario):
     """The generated plant of a procedural scenario (``PlantModel``) or of a
     ``kind: multi`` one (``MultiPlantModel``); cached, deterministic in the
-    scenario; ``kind: greenhouse``: a ``GreenhousePlantModel``."""
+    scenario; ``kind: greenhouse``: a ``GreenhousePlantModel``; ``kind:
+    mesh_plant``: a ``MeshPlantModel`` (cached also per file stamps)."""
     from pydrake.common.yaml import yaml_dump_typed
     kind = scenario.plant_scene.kind
     if kind not in ("procedural",) + MULTI_KINDS:
-        raise ValueError("GetPlantModel needs plant_scene.kind: procedural, multi or greenhouse")
+        raise ValueError("GetPlantModel needs plant_scene.kind: procedural, multi, greenhouse "
+                         "or mesh_plant")
     p_WC = scenario.cameras["camera0"].X_PB.GetDeterministicValue().translation()
     cached = {"procedural": _CachedPlantModel, "multi": _CachedMultiPlantModel,
-              "greenhouse": _CachedGreenhousePlantModel}[kind]
+              "greenhouse": _CachedGreenhousePlantModel}.get(kind)
     # the keys that only steer the simulation do not make another plant
     shape = dc.replace(scenario.plant_scene, sleep_distance=0.0, sleep_speed=0.0, fem_threads=0)
-    return cached(yaml_dump_typed(shape, schema=PlantSceneConfig),
-                  tuple(float(x) for x in p_WC))
+    args = (yaml_dump_typed(shape, schema=PlantSceneConfig), tuple(float(x) for x in p_WC))
+    if kind == "mesh_plant":
+        from lmap_drake.plants.mesh_plant_files import FileStamps
+        return _CachedMeshPlantModel(*args, FileStamps(scenario.plant_scene.mesh_plant))
+    return cached(*args)
 
 
 def PlantWorldAdder(scenario: Scenario, leaf_grasp: LeafGrasp | None = None):
     """``add_world(plant, scene_graph)`` for ``MakeStation``: the procedural
     plant (FEM leaf; with ``leaf_grasp`` the grasped leaf region fixed to the
     gripper base) or the rigid placeholder plant."""
-    from lmap_drake.plants.scene import AddMultiPlant, AddPlaceholderPlant, AddProceduralPlant
-
     def add(plant, scene_graph) -> None:
         if scenario.plant_scene.kind in MULTI_KINDS:
-            add_multi = (AddGreenhousePlant if scenario.plant_scene.kind == "greenhouse"
-                         else AddMultiPlant)
-            handles = add_multi(plant, scene_graph, GetPlantModel(scenario),
-                                scenario.plant_scene)
+            handles = _AddMulti(scenario.plant_scene.kind)(
+                plant, scene_graph, GetPlantModel(scenario), scenario.plant_scene)
             if leaf_grasp is not None:
                 from pydrake.geometry import Box
                 plant.mutable_deformable_model().AddFixedConstraint(
@@ -168,14 +184,12 @@ def UnoccludedFruitPixels(scenario: Scenario, fruit: int | None = None) -> int:
     from pydrake.systems.sensors import RgbdSensor
 
     from lmap_drake.labels import FRUIT, DecodeLabels
-    from lmap_drake.plants.scene import AddMultiPlant, AddProceduralPlant
 
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
     if scenario.plant_scene.kind in MULTI_KINDS:
-        add_multi = (AddGreenhousePlant if scenario.plant_scene.kind == "greenhouse"
-                     else AddMultiPlant)
-        add_multi(plant, sg, GetPlantModel(scenario), scenario.plant_scene, with_leaves=False)
+        _AddMulti(scenario.plant_scene.kind)(plant, sg, GetPlantModel(scenario),
+                                             scenario.plant_scene, with_leaves=False)
     else:
         AddProceduralPlant(plant, sg, GetPlantModel(scenario), scenario.plant_scene,
                            with_leaf=False)

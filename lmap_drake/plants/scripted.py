@@ -35,7 +35,7 @@ def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float,
     blade normal), approaching within the blade plane along the direction
     from the robot's shoulder to the grasp point (the natural reach)."""
     length = world.scenario.plant_scene.leaf.length
-    if world.scenario.plant_scene.kind == "greenhouse":   # leaves of their own lengths
+    if world.scenario.plant_scene.kind in ("greenhouse", "mesh_plant"):   # own lengths
         length = float(world.leaf_refs[leaf].uv[:, 0].max())
     u = length - from_tip
     _, p = LeafPoint(world, u, v, leaf)
