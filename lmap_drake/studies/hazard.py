@@ -74,6 +74,7 @@ from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.energy import EquivalentTurnDeg, HingeRotationDeg, PetioleBendingEnergy
 from lmap_drake.planning.motion import MotionError, PlanActionPath, TimeJointPath
 from lmap_drake.planning.targets import FruitOrder, PlanTarget, TargetScene
+from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.plants.scripted import ApproachAndGrasp, OracleSceneEstimate
 from lmap_drake.planning.config import PlannerConfig
@@ -470,7 +471,7 @@ def RunHazardStudy(a: HazardStudyOptions) -> int:
         t0 = time.perf_counter()
         s = LoadScenario(filename=str(a.scenario_file), scenario_name=name)
         s._name = name
-        evaluate = EvaluateMultiScenario if s.plant_scene.kind in ("multi", "greenhouse") else EvaluateScenario
+        evaluate = EvaluateMultiScenario if s.plant_scene.kind in MULTI_KINDS else EvaluateScenario
         res = evaluate(s, a, lambda m: print(m, file=sys.stderr))
         res["correlation"] = Correlations(res["rows"])
         res["seconds"] = round(time.perf_counter() - t0, 1)

@@ -47,6 +47,7 @@ from lmap_drake.perception.segnet import CropBox, SegNetInputs
 from lmap_drake.planning.candidates import GraspCandidates
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.plants.leaf import TurnHeldLeaf
+from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.plants.suite import RandomMultiSuite, RandomSuite
 from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
 from lmap_drake.scenario import Scenario
@@ -227,7 +228,7 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
     if box is None or not (truth == 3).any():
         raise ValueError("no fruit in view")
     return {"inputs": x[:, box[0], box[1]].astype(np.float16), "truth": truth[box],
-            "fruit_kind": kind, "multi": s.plant_scene.kind in ("multi", "greenhouse"), "held": bool(held)}
+            "fruit_kind": kind, "multi": s.plant_scene.kind in MULTI_KINDS, "held": bool(held)}
 
 
 def _work(args) -> str:
