@@ -54,7 +54,7 @@ class PlantKindError(InputError):
 
 # Plant kinds an episode runs on (``plant_scene.kind``); ``placeholder`` has
 # no leaf and no fruit to reveal.
-EVAL_KINDS = ("procedural", "multi")
+EVAL_KINDS = ("procedural",) + MULTI_KINDS   # kinds with a simulated leaf to move
 
 
 def ScenarioHash(scenario) -> str:
