@@ -9,42 +9,16 @@ import pytest
 
 from lmap_drake.errors import InputError
 from lmap_drake.paths import REPO_ROOT
-from lmap_drake.perception.points import Intrinsics
-from lmap_drake.perception.recording import CapturedView, SaveRecording
-from lmap_drake.plants.plant_station import MakePlantStation
-from lmap_drake.scenario import LoadScenario
 from lmap_drake.studies.segmentation import EvalRecordings
-
-# the perception tests' small camera (320x240), beside the fruit
-CAMERA = ("cameras: {camera0: {name: camera0, width: 320, height: 240, "
-          "focal: !FocalLength {x: 228.4, y: 228.5}, center_x: 160.0, center_y: 120.0, "
-          "X_PB: {base_frame: world, translation: [0.25, -0.55, 0.45], "
-          "rotation: !Rpy {deg: [-105.0, 0.0, -25.0]}}}}")
-
-
-def _Record(folder, with_label: bool, fruit_rgb=None):
-    text = [CAMERA] + ([f"plant_scene: {{fruit_color: {{rgba: [{fruit_rgb}, 1.0]}}}}"]
-                       if fruit_rgb else [])
-    s = LoadScenario(scenario_text=text)
-    station = MakePlantStation(s)
-    ctx = station.CreateDefaultContext()
-    rgb = np.array(station.GetOutputPort("camera0.rgb_image").Eval(ctx).data)
-    depth = np.array(station.GetOutputPort("camera0.depth_image").Eval(ctx).data[..., 0])
-    label = np.array(station.GetOutputPort("camera0.label_image").Eval(ctx).data[..., 0])
-    K = Intrinsics.FromCameraConfig(s.cameras["camera0"])
-    view = CapturedView(0, 0.0, 0.0, rgb, depth, label if with_label else None,
-                        np.zeros(6), np.zeros(6), np.full(3, np.nan))
-    cam = {"width": K.width, "height": K.height, "fx": K.fx, "fy": K.fy, "cx": K.cx,
-           "cy": K.cy}
-    SaveRecording(folder, [view], cam, np.eye(4), "simulation")
+from recorded_views import RecordView
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
-    _Record(root / "run_red", True)
-    _Record(root / "run_green", True, "0.15, 0.45, 0.08")
-    _Record(root / "run_unlabelled", False)   # a hardware-like recording: skipped
+    RecordView(root / "run_red", True)
+    RecordView(root / "run_green", True, "0.15, 0.45, 0.08")
+    RecordView(root / "run_unlabelled", False)   # a hardware-like recording: skipped
     (root / "notes").mkdir()                  # not a run: ignored
     return root
 
