@@ -166,9 +166,11 @@ def FineTuneSegmenter(args) -> dict:
             "held_out_iou_before": before, "held_out_iou_after": after}
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".partial")
+    tmp_json = out.with_name(out.name + ".json.partial")
     SaveSegNet(net, tmp, meta)
-    tmp.replace(out)                              # complete or not at all
-    out.with_suffix(".json").write_text(json.dumps(meta, indent=2))
+    tmp_json.write_text(json.dumps(meta, indent=2))
+    tmp_json.replace(out.with_suffix(".json"))
+    tmp.replace(out)                              # the weights last: complete or not at all
     print(f"held-out IoU ({len(held)} views) before: {before}")
     print(f"held-out IoU after {args.steps} steps: {after}")
     print(f"weights: {out} (use: {{perception: {{segnet_weights: {out.resolve()}}}}})")

@@ -61,7 +61,7 @@ def runs(tmp_path_factory):
     # simulated samples in make_segnet_data.py's format
     sim = root / "sim"
     sim.mkdir()
-    v = RecordView(root / "sim_run", extra="plant_scene: {fruit_color: {rgba: [0.95, 0.45, 0.05, 1]}}")
+    v = RecordView(root / "sim_run", fruit_rgb="0.95, 0.45, 0.05")
     K = Intrinsics(320, 240, 228.4, 228.5, 160.0, 120.0)
     cls, _ = DecodeLabels(v.label)
     np.savez(sim / "000001.npz", inputs=SegNetInputs(v.rgb, v.depth, K, 1.5).astype(np.float16),
