@@ -28,7 +28,9 @@ reveal a fruit that is not there), summed in each backend's
 ``instances`` and averaged per view in ``phantom_fruits_per_view``
 (``phantom_fruits_per_view_no_overlap``: those with no true fruit pixel at
 all). ``fruit_colors`` gives per view the fruit IoU of each true fruit
-colour (the fruit pixels of the other colours left out). Multi-fruit plants:
+colour (the fruit pixels of the other colours left out; phantom fruit
+counts against every colour) and its recall (the share of that colour's
+fruit pixels called fruit). Multi-fruit plants:
 
     python scripts/eval_segmentation.py --scenario_file diagrams/multi_suite.yaml \
         --settle 0.3 --backends segnet --out out/seg_multi.json
@@ -133,7 +135,9 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     for color, ids in sorted(colors.items()):
         mine = (cls == FRUIT) & np.isin(inst, ids)
         p = pred & ~((truth == FRUIT) & ~mine)
-        row["fruit_colors"][color] = round(float((p & mine).sum() / max((p | mine).sum(), 1)), 4)
+        row["fruit_colors"][color] = {
+            "fruit_iou": round(float((p & mine).sum() / max((p | mine).sum(), 1)), 4),
+            "fruit_recall": round(float((pred & mine).sum() / max(mine.sum(), 1)), 4)}
     return row
 
 
@@ -148,8 +152,9 @@ def Summary(rows: list[dict]) -> dict:
             "counts": {k: v for k, v in m.items() if k.endswith("_n")},
             "mean_non_green": _mean([r for r in rows if r["fruit_color"] != "green"]),
             "mean_green": _mean([r for r in rows if r["fruit_color"] == "green"]),
-            "per_fruit_color": {c: {"fruit_iou": round(float(np.mean(
-                [r["fruit_colors"][c] for r in rows if c in r["fruit_colors"]])), 4),
+            "per_fruit_color": {c: {k: round(float(np.mean(
+                [r["fruit_colors"][c][k] for r in rows if c in r["fruit_colors"]])), 4)
+                for k in ("fruit_iou", "fruit_recall")} | {
                 "views": sum(c in r["fruit_colors"] for r in rows)} for c in colors},
             "phantom_fruits_per_view": round(sum(r["phantoms"] for r in rows) / n, 3),
             "phantom_fruits_per_view_no_overlap": round(

@@ -4,7 +4,6 @@ and fruit colour, a picture per view; bad folders fail in one line."""
 import json
 import runpy
 
-import numpy as np
 import pytest
 
 from lmap_drake.errors import InputError
@@ -37,8 +36,10 @@ def test_recordings_give_means_per_backend_view_and_fruit_colour(runs, tmp_path)
             assert all(0 <= r["confidence"] <= 1 for r in row["instance_confidences"])
     assert d["label"]["mean"] == {"fruit_iou": 1.0, "leaf_iou": 1.0, "branch_iou": 1.0}
     assert d["label"]["phantom_fruits_per_view"] == 0.0
-    assert d["label"]["per_fruit_color"]["green"] == {"fruit_iou": 1.0, "views": 1}
-    assert d["label"]["views"]["run_red/view0"]["fruit_colors"] == {"red": 1.0}
+    assert d["label"]["per_fruit_color"]["green"] == {"fruit_iou": 1.0, "fruit_recall": 1.0,
+                                                      "views": 1}
+    assert d["label"]["views"]["run_red/view0"]["fruit_colors"] == {
+        "red": {"fruit_iou": 1.0, "fruit_recall": 1.0}}
     # segnet on the scene it was trained for
     assert d["segnet"]["per_fruit_color"]["red"]["fruit_iou"] >= 0.8
     assert res["segnet"]["views_evaluated"] == 2
