@@ -13,6 +13,8 @@
                     [--distances D,..] [--random_seeds K] [--scenario_names A,B]
                     [--workers W] [--output DIR] [--resume] [--debug]
                     [--engine pool|ray [--address HOST:PORT]] [--sweep FILE]
+    lmap-drake train-segmenter --recordings DIR [--annotations COCO.json] --out W.pt
+                    [--init W] [--sim_data DIR] [--sim_fraction F] [--steps N]
 
 Exit codes: 0 done (or planned, with --plan-only), 1 error, 2 bad input
 (scenario, weights, calibration, recording, bag, output folder, arguments),
@@ -31,6 +33,7 @@ from lmap_drake.errors import (EXIT_ABORTED, EXIT_BAD_INPUT, InputError, OneLine
                                RunMain)
 from lmap_drake.limits import MAX_SCENARIOS
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE, DEFAULT_SCENARIO_NAME
+from lmap_drake.studies.segmenter_finetune_args import AddArguments as AddTrainSegmenterArgs
 
 
 class UsageError(InputError):
@@ -431,6 +434,12 @@ def _RunEval(args, folder, methods, distances, sweep, points, labels) -> dict:
     return RunEvaluation(specs, suite_file, out, **run_args)
 
 
+def cmd_train_segmenter(args) -> int:
+    from lmap_drake.studies.segmenter_finetune import FineTuneSegmenter
+    FineTuneSegmenter(args)
+    return 0
+
+
 def main(argv=None) -> int:
     """The entry point: one top-level handler turns every error into a
     one-line message and an exit code (``lmap_drake.errors``)."""
@@ -567,6 +576,10 @@ def _main(argv=None) -> int:
                     help="continue OUTPUT/episodes.jsonl: skip episodes already recorded "
                          "(errors are re-run)")
     ev.set_defaults(func=cmd_eval)
+    ts = sub.add_parser("train-segmenter", help="fine-tune the segmentation network on "
+                        "annotated recordings (COCO or LabelMe polygons)")
+    AddTrainSegmenterArgs(ts)
+    ts.set_defaults(func=cmd_train_segmenter)
     args = parser.parse_args(argv)
     return args.func(args)
 

@@ -4,8 +4,12 @@ free space): the ``perception`` section of the scenario. Lengths in metres."""
 # reads the field types)
 
 import dataclasses as dc
+import importlib.util
+from pathlib import Path
 
 from lmap_drake.config_checks import CheckRules
+from lmap_drake.errors import ConfigError
+from lmap_drake.paths import REPO_ROOT
 
 
 @dc.dataclass
@@ -14,7 +18,8 @@ class PerceptionConfig:
     ``lmap_drake/perception/``. Lengths in metres."""
     # segnet (the default: trained RGB-D network, no labels) | color_depth
     # (classical colour + depth) | label (the simulator's labels: an oracle
-    # for ablations) | grounded_sam (local GroundingDINO + SAM files)
+    # for ablations) | sam (SAM prompted by sam_prompts' instances, local
+    # checkpoint, extra .[foundation]) | grounded_sam (local GroundingDINO + SAM files)
     segmenter: str = "segnet"
     # segnet: weights (relative to the repository root; made by
     # scripts/train_segnet.py) and torch device.
@@ -39,8 +44,16 @@ class PerceptionConfig:
     # SAM checkpoint), never downloaded; SAM model type; torch device.
     grounded_sam_config: str = ""
     grounded_sam_checkpoint: str = ""  # grounded_sam: GroundingDINO checkpoint (.pth)
-    sam_checkpoint: str = ""  # grounded_sam: SAM checkpoint (.pth)
-    sam_model_type: str = "vit_h"  # grounded_sam: the SAM checkpoint's model, vit_h | vit_l | vit_b
+    # sam, grounded_sam: SAM checkpoint (.pth, e.g. sam_vit_b_01ec64.pth;
+    # relative to the repository root unless absolute), never downloaded
+    sam_checkpoint: str = ""
+    # sam, grounded_sam: the checkpoint's model, vit_h | vit_l | vit_b, or auto
+    # (any SAM configuration: read from the checkpoint)
+    sam_model_type: str = "vit_h"
+    # sam: the backend whose instances prompt SAM, segnet | color_depth | label
+    sam_prompts: str = "segnet"
+    sam_device: str = "cpu"  # sam: torch device of SAM ("cpu", "cuda", ...)
+    sam_min_prompt_pixels: int = 30  # sam: smaller prompting instances are not given to SAM
     grounded_sam_device: str = "cpu"  # grounded_sam: torch device of both models
     box_threshold: float = 0.25  # grounded_sam: GroundingDINO box score threshold, [0, 1]
     text_threshold: float = 0.25  # grounded_sam: GroundingDINO text (phrase) threshold, [0, 1]
@@ -86,6 +99,7 @@ _RULES = {
     "box_threshold": "[0,1]",
     "text_threshold": "[0,1]",
     "nms_threshold": "[0,1]",
+    "sam_min_prompt_pixels": ">=1",
     "fusion_match_distance": ">=0",
     "robot_filter_distance": ">=0",
     "background_stride": ">=1",
@@ -94,11 +108,26 @@ _RULES = {
     "flying_pixel_jump": ">=0",
 }
 _ENUMS = {
-    "segmenter": ("segnet", "color_depth", "label", "grounded_sam"),  # segmentation.SEGMENTERS
-    "sam_model_type": ("vit_h", "vit_l", "vit_b"),
+    "segmenter": ("segnet", "color_depth", "label", "sam", "grounded_sam"),  # SEGMENTERS
+    "sam_model_type": ("vit_h", "vit_l", "vit_b", "auto"),
+    "sam_prompts": ("segnet", "color_depth", "label"),
 }
 
 
 def ValidatePerceptionConfig(cfg: PerceptionConfig, path: str = "perception") -> None:
-    """Raises ``ConfigError`` (key path, what is wrong) on a bad value."""
+    """Raises ``ConfigError`` (key path, what is wrong) on a bad value; for
+    ``segmenter: sam`` also when the SAM checkpoint or package is missing."""
     CheckRules(cfg, path, _RULES, _ENUMS)
+    if cfg.segmenter == "sam":
+        if not cfg.sam_checkpoint:
+            raise ConfigError(f"{path}.sam_checkpoint", "must name the local SAM checkpoint "
+                              "(.pth) for segmenter: sam; nothing is downloaded (see "
+                              "docs/how-to/foundation-segmenter.md)")
+        file = Path(cfg.sam_checkpoint)
+        file = file if file.is_absolute() else REPO_ROOT / file
+        if not file.is_file():
+            raise ConfigError(f"{path}.sam_checkpoint", f"no file at {file}; nothing is "
+                              "downloaded (see docs/how-to/foundation-segmenter.md)")
+        if importlib.util.find_spec("segment_anything") is None:
+            raise ConfigError(f"{path}.segmenter", "sam needs the package 'segment_anything' "
+                              "(not installed): pip install -e '.[foundation]'")

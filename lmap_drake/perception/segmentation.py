@@ -1,7 +1,7 @@
 """Per-pixel semantic segmentation of an RGB-D view into background, branch,
 leaf and fruit (ids from ``lmap_drake.labels``) with instance ids.
 
-Four backends behind one interface (``Segmenter.Segment``), chosen by
+Five backends behind one interface (``Segmenter.Segment``), chosen by
 ``PerceptionConfig.segmenter``:
 
 - ``segnet`` (the default): a small RGB-D U-Net trained here on randomised
@@ -14,11 +14,17 @@ Four backends behind one interface (``Segmenter.Segment``), chosen by
   leaves; geometry finds the branch (thin, long, straight structures after a
   metric-size morphological opening of the plant mask split at depth
   discontinuities) and green fruit (curved, non-planar green regions).
-- ``grounded_sam``: adapter for GroundingDINO + SAM with local weights
-  (prompts ``branch. leaf. sweet pepper.``, box/text thresholds 0.25, NMS
-  0.8 as in the authors' code). Missing files raise
+- ``sam`` and ``grounded_sam``: foundation models from local files
+  (``lmap_drake/perception/foundation.py``, the optional extra
+  ``.[foundation]``): SAM prompted by segnet's (or color_depth's)
+  instances, and GroundingDINO + SAM. Missing files raise
   ``MissingWeightsError`` naming the path and the config key; nothing is
   downloaded.
+
+Every instance carries a confidence in [0, 1] (``Segmentation.confidence``,
+keyed by (class id, instance index)): segnet's mean softmax probability of
+the instance's class over its pixels, SAM's predicted mask IoU times its
+prompt's, 1 for the labels; color_depth has no score model and gives 0.5.
 
 Images: ``rgb`` HxWx3 (or x4) uint8, ``depth`` HxW float metres along the
 optical axis (NaN/inf/0 = no return), ``label`` HxW render labels.
@@ -33,10 +39,11 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from lmap_drake.errors import WeightsError
 from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
 from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
 
-SEGMENTERS = ("segnet", "color_depth", "label", "grounded_sam")
+SEGMENTERS = ("segnet", "color_depth", "label", "sam", "grounded_sam")
 CLASS_IDS = {"branch": BRANCH, "leaf": LEAF, "fruit": FRUIT}
 
 
@@ -44,20 +51,53 @@ class SegmenterError(ValueError):
     """Bad segmenter name or missing input."""
 
 
-class MissingWeightsError(FileNotFoundError):
+class MissingWeightsError(WeightsError):
     """A model file named in the perception config does not exist."""
 
 
 @dc.dataclass
 class Segmentation:
     """``class_map`` HxW int64 (labels ids, 0 = background), ``instance_map``
-    HxW int64 (per-class instance index, -1 = background), ``flags``."""
+    HxW int64 (per-class instance index, -1 = background), ``flags``,
+    ``confidence`` {(class id, instance index): score in [0, 1]}."""
     class_map: np.ndarray
     instance_map: np.ndarray
     flags: list[str] = dc.field(default_factory=list)
+    confidence: dict = dc.field(default_factory=dict)
 
     def mask(self, class_id: int) -> np.ndarray:
         return self.class_map == class_id
+
+    def Instances(self) -> list[tuple[int, int, int, float]]:
+        """(class id, instance index, pixels, confidence) of every instance
+        (confidence NaN where the backend gave none)."""
+        out = []
+        fg = self.class_map != BACKGROUND
+        pairs, counts = np.unique(np.stack([self.class_map[fg], self.instance_map[fg]]),
+                                  axis=1, return_counts=True)
+        for (c, i), n in zip(pairs.T, counts):
+            if i >= 0:
+                out.append((int(c), int(i), int(n),
+                            float(self.confidence.get((int(c), int(i)), np.nan))))
+        return out
+
+
+def InstanceConfidence(class_map: np.ndarray, instance_map: np.ndarray,
+                       score: np.ndarray | float) -> dict:
+    """{(class id, instance): mean of ``score`` (HxW, or a constant) over the
+    instance's pixels}, rounded to 4 digits."""
+    out = {}
+    fg = (class_map != BACKGROUND) & (instance_map >= 0)
+    if not fg.any():
+        return out
+    key = class_map[fg] * (int(instance_map.max()) + 1) + instance_map[fg]
+    uniq, inv = np.unique(key, return_inverse=True)
+    vals = np.broadcast_to(np.asarray(score, np.float64), class_map.shape)[fg]
+    means = np.bincount(inv, weights=vals) / np.bincount(inv)
+    stride = int(instance_map.max()) + 1
+    for k, m in zip(uniq, means):
+        out[(int(k // stride), int(k % stride))] = round(float(m), 4)
+    return out
 
 
 def _rgb3(rgb) -> np.ndarray:
@@ -118,9 +158,9 @@ class LabelSegmenter(Segmenter):
             raise SegmenterError("the 'label' segmenter needs camera0.label_image "
                                  "(simulation only); connect it or choose color_depth")
         cls, inst = DecodeLabels(np.asarray(getattr(label, "data", label)))
-        cls = np.where(cls == ROBOT, BACKGROUND, cls)
-        inst = np.where(cls == BACKGROUND, -1, inst)
-        return Segmentation(cls.astype(np.int64), inst.astype(np.int64))
+        cls = np.where(cls == ROBOT, BACKGROUND, cls).astype(np.int64)
+        inst = np.where(cls == BACKGROUND, -1, inst).astype(np.int64)
+        return Segmentation(cls, inst, [], InstanceConfidence(cls, inst, 1.0))
 
 
 # ----------------------------------------------------------------------------
@@ -306,145 +346,7 @@ class ColorDepthSegmenter(Segmenter):
             cls = new
             # the fill may grow from any plant pixel, including the edges
         inst = InstancesFromComponents(cls, d, max(2 * p.depth_edge, 0.02))
-        return Segmentation(cls, inst, flags)
-
-
-# ----------------------------------------------------------------------------
-# GroundedSAM adapter.
-
-GROUNDED_SAM_PROMPT = "branch. leaf. sweet pepper."
-
-
-def PhraseToClass(phrase: str) -> int:
-    """GroundingDINO phrase -> class id (BACKGROUND when unrecognised)."""
-    p = phrase.lower()
-    if "pepper" in p or "sweet" in p or "fruit" in p:
-        return FRUIT
-    if "leaf" in p or "leaves" in p:
-        return LEAF
-    if "branch" in p or "stem" in p:
-        return BRANCH
-    return BACKGROUND
-
-
-def BoxNms(boxes_xyxy: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:
-    """Indices kept by greedy non-maximum suppression, best score first."""
-    boxes = np.asarray(boxes_xyxy, float).reshape(-1, 4)
-    order = list(np.argsort(-np.asarray(scores, float), kind="stable"))
-    area = (boxes[:, 2] - boxes[:, 0]).clip(0) * (boxes[:, 3] - boxes[:, 1]).clip(0)
-    keep = []
-    while order:
-        i = order.pop(0)
-        keep.append(i)
-        rest = []
-        for j in order:
-            xx1, yy1 = max(boxes[i, 0], boxes[j, 0]), max(boxes[i, 1], boxes[j, 1])
-            xx2, yy2 = min(boxes[i, 2], boxes[j, 2]), min(boxes[i, 3], boxes[j, 3])
-            inter = max(0.0, xx2 - xx1) * max(0.0, yy2 - yy1)
-            iou = inter / max(area[i] + area[j] - inter, 1e-12)
-            if iou <= iou_threshold:
-                rest.append(j)
-        order = rest
-    return np.asarray(keep, dtype=np.int64)
-
-
-def ComposeMasks(masks: np.ndarray, phrases: list[str], shape) -> Segmentation:
-    """Instance masks (N, H, W) with phrases -> class and instance maps.
-    Larger masks are painted first so smaller (usually nearer, e.g. a fruit
-    seen through leaves) ones stay on top."""
-    cls = np.zeros(shape, np.int64)
-    inst = np.full(shape, -1, np.int64)
-    masks = np.asarray(masks, bool).reshape(-1, *shape)
-    counters = {BRANCH: 0, LEAF: 0, FRUIT: 0}
-    order = np.argsort(-masks.reshape(len(masks), -1).sum(axis=1), kind="stable")
-    for k in order:
-        c = PhraseToClass(phrases[k])
-        if c == BACKGROUND or not masks[k].any():
-            continue
-        cls[masks[k]] = c
-        inst[masks[k]] = counters[c]
-        counters[c] += 1
-    return Segmentation(cls, inst)
-
-
-class GroundedSamSegmenter(Segmenter):
-    """GroundingDINO (text-prompted boxes) + SAM (box-prompted masks) with
-    local weights. Pixels beyond ``depth_cut`` are blacked out before the
-    models see the image (paper Sec. III-A-1)."""
-    name = "grounded_sam"
-
-    FILES = (("grounded_sam_config", "GroundingDINO model config (.py)"),
-             ("grounded_sam_checkpoint", "GroundingDINO checkpoint (.pth)"),
-             ("sam_checkpoint", "SAM checkpoint (.pth)"))
-
-    def __init__(self, cfg):
-        self.cfg = cfg
-        for key, what in self.FILES:
-            path = getattr(cfg, key, "")
-            if not path:
-                raise MissingWeightsError(
-                    f"grounded_sam segmenter: perception.{key} is not set; it must name the "
-                    f"local {what}. Nothing is downloaded: put the file on disk and set "
-                    f"the key, or use segmenter: color_depth.")
-            if not Path(path).is_file():
-                raise MissingWeightsError(
-                    f"grounded_sam segmenter: {what} not found at '{path}' "
-                    f"(perception.{key}). Nothing is downloaded: put the file there, or "
-                    f"use segmenter: color_depth.")
-        self._dino = None
-        self._sam = None
-
-    def _load(self):
-        if self._dino is not None:
-            return
-        try:
-            from groundingdino.util.inference import load_model  # noqa: F401
-            from segment_anything import SamPredictor, sam_model_registry
-        except ImportError as err:
-            raise SegmenterError(
-                "grounded_sam segmenter: the weights exist but the packages "
-                "'groundingdino' and 'segment_anything' are not importable "
-                f"({err}); install them in .venv or use segmenter: color_depth") from err
-        from groundingdino.util.inference import load_model
-        c = self.cfg
-        self._dino = load_model(c.grounded_sam_config, c.grounded_sam_checkpoint,
-                                device=c.grounded_sam_device)
-        sam = sam_model_registry[c.sam_model_type](checkpoint=c.sam_checkpoint)
-        sam.to(device=c.grounded_sam_device)
-        self._sam = SamPredictor(sam)
-
-    def Segment(self, rgb, depth, label=None) -> Segmentation:
-        import torch
-        from PIL import Image
-        self._load()
-        import groundingdino.datasets.transforms as T
-        from groundingdino.util.inference import predict
-        c = self.cfg
-        img = _rgb3(rgb).copy()
-        d = _depth2(depth)
-        img[~ValidDepthMask(d, c.depth_cut)] = 0
-        H, W = img.shape[:2]
-        transform = T.Compose([T.RandomResize([800], max_size=1333), T.ToTensor(),
-                               T.Normalize([0.485, 0.456, 0.406], [0.229, 0.224, 0.225])])
-        image_t, _ = transform(Image.fromarray(img), None)
-        boxes, logits, phrases = predict(self._dino, image_t, GROUNDED_SAM_PROMPT,
-                                         box_threshold=c.box_threshold,
-                                         text_threshold=c.text_threshold,
-                                         device=c.grounded_sam_device)
-        if len(boxes) == 0:
-            return Segmentation(np.zeros((H, W), np.int64), np.full((H, W), -1, np.int64),
-                                ["no_detections"])
-        b = boxes.cpu().numpy() * np.array([W, H, W, H])
-        xyxy = np.stack([b[:, 0] - b[:, 2] / 2, b[:, 1] - b[:, 3] / 2,
-                         b[:, 0] + b[:, 2] / 2, b[:, 1] + b[:, 3] / 2], axis=1)
-        keep = BoxNms(xyxy, logits.cpu().numpy(), c.nms_threshold)
-        xyxy, phrases = xyxy[keep], [phrases[i] for i in keep]
-        self._sam.set_image(img)
-        tb = self._sam.transform.apply_boxes_torch(
-            torch.as_tensor(xyxy, dtype=torch.float32, device=self._sam.device), (H, W))
-        masks, _, _ = self._sam.predict_torch(point_coords=None, point_labels=None,
-                                              boxes=tb, multimask_output=False)
-        return ComposeMasks(masks[:, 0].cpu().numpy(), phrases, (H, W))
+        return Segmentation(cls, inst, flags, InstanceConfidence(cls, inst, 0.5))
 
 
 def SnapFruitToDepthEdges(cls: np.ndarray, depth: np.ndarray, front: float = 0.01,
@@ -527,15 +429,22 @@ class SegNetSegmenter(Segmenter):
         if box is None:
             return Segmentation(cls, np.full(d.shape, -1, np.int64), ["no_valid_depth"])
         x = SegNetInputs(rgb, d, self.K, self.depth_cut)
-        cls[box] = PredictLogits(self.net, x[:, box[0], box[1]], self.device).argmax(0)
+        logits = PredictLogits(self.net, x[:, box[0], box[1]], self.device)
+        cls[box] = logits.argmax(0)
         with np.errstate(invalid="ignore"):
             cls[np.isfinite(d) & (d > self.depth_cut)] = BACKGROUND
         cls = SnapFruitToDepthEdges(cls, d)
-        return Segmentation(cls, InstancesFromComponents(cls, d, 0.02))
+        inst = InstancesFromComponents(cls, d, 0.02)
+        e = np.exp(logits - logits.max(0))
+        prob = np.zeros((len(e),) + d.shape)
+        prob[:, box[0], box[1]] = e / e.sum(0)
+        p_cls = np.take_along_axis(prob, cls[None], 0)[0]  # probability of the class given
+        return Segmentation(cls, inst, [], InstanceConfidence(cls, inst, p_cls))
 
 
 def _CopySegmentation(seg: Segmentation) -> Segmentation:
-    return Segmentation(seg.class_map.copy(), seg.instance_map.copy(), list(seg.flags))
+    return Segmentation(seg.class_map.copy(), seg.instance_map.copy(), list(seg.flags),
+                        dict(seg.confidence))
 
 
 def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
@@ -549,8 +458,11 @@ def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
             if hasattr(cfg, f):
                 setattr(params, f, getattr(cfg, f))
         return ColorDepthSegmenter(K, params)
-    if name == "grounded_sam":
-        return GroundedSamSegmenter(cfg)
+    if name in ("sam", "grounded_sam"):
+        from lmap_drake.perception import foundation  # cycle: it builds on this module
+        if name == "sam":
+            return foundation.SamSegmenter(cfg, K)
+        return foundation.GroundedSamSegmenter(cfg)
     if name == "segnet":
         from lmap_drake.paths import REPO_ROOT
         path = Path(cfg.segnet_weights)

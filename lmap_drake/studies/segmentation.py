@@ -1,4 +1,5 @@
-"""Segmentation IoU per backend and scenario against the simulator's labels.
+"""Segmentation IoU per backend against the simulator's labels: on
+scenarios rendered here, or on recorded runs' views that carry labels.
 
     python scripts/eval_segmentation.py --out out/seg.json
     python scripts/eval_segmentation.py --scenario_file diagrams/default.yaml \
@@ -13,7 +14,8 @@ Default scenarios: every scenario in diagrams/suite.yaml if that file exists,
 otherwise Defaults and OneOfEverything from diagrams/default.yaml.
 
 Writes JSON: ``{backend: {"mean": {"fruit_iou", "leaf_iou", "branch_iou"},
-"mean_non_green": {...}, "mean_green": {...}, "scenarios": {name: {...}}}}``.
+"mean_non_green": {...}, "mean_green": {...}, "phantom_fruits_per_view",
+"per_fruit_color": {colour: {"fruit_iou", "views"}}, "scenarios": {name: {...}}}}``.
 IoU is over pixels; the robot counts as background. A class absent from both
 the truth and the prediction has IoU null and is left out of the means.
 ``fruit_color`` (red / orange / yellow / green, from the rendered truth
@@ -23,10 +25,24 @@ more with the truth fractions of their pixels (fruit / branch / leaf;
 ``FruitInstanceTruth``); ``phantoms`` counts those mostly not fruit (a
 side shoot or stalk taken for a fruit: the planner would complete and
 reveal a fruit that is not there), summed in each backend's
-``instances``. Multi-fruit plants:
+``instances`` and averaged per view in ``phantom_fruits_per_view``
+(``phantom_fruits_per_view_no_overlap``: those with no true fruit pixel at
+all). ``fruit_colors`` gives per view the fruit IoU of each true fruit
+colour (the fruit pixels of the other colours left out; phantom fruit
+counts against every colour) and its recall (the share of that colour's
+fruit pixels called fruit). Multi-fruit plants:
 
     python scripts/eval_segmentation.py --scenario_file diagrams/multi_suite.yaml \
         --settle 0.3 --backends segnet --out out/seg_multi.json
+
+Recorded runs (``EvalRecordings``): every ``DIR/*/recording/`` whose views
+carry ``view<k>_label.npy``; the same keys with ``views`` ({"<run>/view<k>":
+row}) instead of ``scenarios``, and a picture per view (the colour image,
+the truth and each backend's classes over it, phantom fruit boxed) in
+``<out>_views/``:
+
+    python scripts/eval_segmentation.py --recordings out/ --backends segnet,color_depth,label \
+        --out out/seg_recordings.json
 """
 from __future__ import annotations
 
@@ -40,10 +56,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from lmap_drake.errors import InputError
+from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels
 from lmap_drake.paths import REPO_ROOT as REPO
 from lmap_drake.perception.points import Intrinsics
+from lmap_drake.perception.recording import LoadRecording
 from lmap_drake.perception.segmentation import (ClassIou, FruitInstanceTruth, MakeSegmenter,
                                                 RgbToHsv, TruthClassMap)
+from lmap_drake.viz import SavePng
 from lmap_drake.plants.suite import RandomSuite, SuiteYaml
 from lmap_drake.plants.plant_station import RenderStill
 from lmap_drake.scenario import LoadScenario, RawYaml
@@ -65,10 +85,15 @@ def _scenario_names(path: Path) -> list[str]:
 
 
 def _fruit_color(rgb: np.ndarray, truth: np.ndarray) -> str | None:
+    """Colour name of the pixels ``truth == 3`` (None: none; "unknown": too
+    few lit pixels to tell)."""
     m = truth == 3
     if m.sum() == 0:
         return None
-    h = RgbToHsv(rgb[..., :3])[..., 0][m]
+    hsv = RgbToHsv(rgb[..., :3])
+    if (m & (hsv[..., 2] >= 0.08)).sum() < 10:
+        return "unknown"
+    h = hsv[..., 0][m & (hsv[..., 2] >= 0.08)]
     hue = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(h))))) % 360)
     if hue >= 330 or hue < 15:
         return "red"
@@ -86,6 +111,57 @@ def _mean(rows: list[dict]) -> dict:
         out[key] = float(np.mean(vals)) if vals else None
         out[key.replace("_iou", "_n")] = len(vals)
     return out
+
+
+def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
+    """One view's figures for one backend's ``seg``: IoU per class, fruit
+    instances with the truth of their pixels, phantoms (mostly not fruit;
+    and with no fruit pixel at all), fruit IoU per true fruit colour."""
+    row = {}
+    for key, c in CLASSES:
+        v = ClassIou(seg.class_map, truth, c)
+        row[key] = None if math.isnan(v) else round(v, 4)
+    row["flags"] = seg.flags
+    row["fruit_instances"] = FruitInstanceTruth(seg, truth)
+    row["phantoms"] = sum(r["fruit"] < 0.5 for r in row["fruit_instances"])
+    row["phantoms_no_overlap"] = sum(r["fruit"] == 0.0 for r in row["fruit_instances"])
+    cls, inst = DecodeLabels(label)
+    colors = {}
+    for i in np.unique(inst[cls == FRUIT]):
+        colors.setdefault(_fruit_color(rgb, np.where((cls == FRUIT) & (inst == i), 3, 0)),
+                          []).append(i)
+    pred = seg.class_map == FRUIT
+    row["fruit_colors"] = {}
+    for color, ids in sorted(colors.items()):
+        mine = (cls == FRUIT) & np.isin(inst, ids)
+        p = pred & ~((truth == FRUIT) & ~mine)
+        row["fruit_colors"][color] = {
+            "fruit_iou": round(float((p & mine).sum() / max((p | mine).sum(), 1)), 4),
+            "fruit_recall": round(float((pred & mine).sum() / max(mine.sum(), 1)), 4)}
+    return row
+
+
+def Summary(rows: list[dict]) -> dict:
+    """Means over the rows (views) without an error: per class, per fruit
+    colour, phantoms per view."""
+    rows = [r for r in rows if "error" not in r]
+    m = _mean(rows)
+    colors = sorted({c for r in rows for c in r["fruit_colors"]})
+    n = max(len(rows), 1)
+    return {"mean": {k: v for k, v in m.items() if k.endswith("_iou")},
+            "counts": {k: v for k, v in m.items() if k.endswith("_n")},
+            "mean_non_green": _mean([r for r in rows if r["fruit_color"] != "green"]),
+            "mean_green": _mean([r for r in rows if r["fruit_color"] == "green"]),
+            "per_fruit_color": {c: {k: round(float(np.mean(
+                [r["fruit_colors"][c][k] for r in rows if c in r["fruit_colors"]])), 4)
+                for k in ("fruit_iou", "fruit_recall")} | {
+                "views": sum(c in r["fruit_colors"] for r in rows)} for c in colors},
+            "phantom_fruits_per_view": round(sum(r["phantoms"] for r in rows) / n, 3),
+            "phantom_fruits_per_view_no_overlap": round(
+                sum(r["phantoms_no_overlap"] for r in rows) / n, 3),
+            "instances": {"fruit_instances": sum(len(r["fruit_instances"]) for r in rows),
+                          "phantoms": sum(r["phantoms"] for r in rows)},
+            "views_evaluated": len(rows)}
 
 
 def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
@@ -108,26 +184,15 @@ def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
                 t1 = time.time()
                 seg = MakeSegmenter(cfg, K).Segment(rgb, depth, label)
                 row["seconds"] = round(time.time() - t1, 3)
-                for key, c in CLASSES:
-                    v = ClassIou(seg.class_map, truth, c)
-                    row[key] = None if math.isnan(v) else round(v, 4)
-                row["flags"] = seg.flags
-                row["fruit_instances"] = FruitInstanceTruth(seg, truth)
-                row["phantoms"] = sum(r["fruit"] < 0.5 for r in row["fruit_instances"])
+                row.update(ViewRow(seg, truth, label, rgb))
             except Exception as err:  # e.g. grounded_sam without weights
                 row["error"] = f"{type(err).__name__}: {err}"
             results[backend]["scenarios"][name] = row
             log(f"{name:24s} {backend:12s} " + (row.get("error") or " ".join(
                 f"{k}={row[k]}" for k, _ in CLASSES)) + f"  fruit={color}")
         log(f"  ({time.time() - t0:.1f} s)")
-    for backend, res in results.items():
-        rows = [r for r in res["scenarios"].values() if "error" not in r]
-        res["mean"] = {k: v for k, v in _mean(rows).items() if k.endswith("_iou")}
-        res["counts"] = {k: v for k, v in _mean(rows).items() if k.endswith("_n")}
-        res["mean_non_green"] = _mean([r for r in rows if r["fruit_color"] != "green"])
-        res["mean_green"] = _mean([r for r in rows if r["fruit_color"] == "green"])
-        res["instances"] = {"fruit_instances": sum(len(r["fruit_instances"]) for r in rows),
-                            "phantoms": sum(r["phantoms"] for r in rows)}
+    for res in results.values():
+        res.update(Summary(list(res["scenarios"].values())))
     return results
 
 
@@ -164,3 +229,135 @@ def EvalSegmentation(out, scenario_file: Path | None = None, scenario_names: lis
               f"instances {res[b]['instances']['phantoms']} of "
               f"{res[b]['instances']['fruit_instances']}")
     return res
+
+
+# ----------------------------------------------------------------------------
+# Recorded runs.
+
+CLASS_COLORS = {BRANCH: (150, 90, 30), LEAF: (40, 200, 60), FRUIT: (240, 40, 200)}
+
+
+class RecordingsError(InputError):
+    """The recordings folder is missing or holds no labelled view."""
+
+
+def LabelledRecordings(folder) -> list[tuple[str, object]]:
+    """(run name, ``Recording``) of every ``folder/*/recording/`` (or
+    ``folder`` itself when it is a run) with at least one labelled view,
+    sorted by name; ``RecordingsError`` naming the folder when there is
+    none, a recording's own ``RecordingError`` when one is malformed."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RecordingsError(f"--recordings {folder}: no such folder")
+    runs = [folder] if (folder / "recording" / "recording.json").is_file() else sorted(
+        d for d in folder.iterdir() if (d / "recording" / "recording.json").is_file())
+    out = []
+    for run in runs:
+        rec = LoadRecording(run)
+        if any(v.label is not None for v in rec.views):
+            out.append((run.name, rec))
+    if not out:
+        raise RecordingsError(f"--recordings {folder}: no run folder with a labelled "
+                              f"recording (<run>/recording/view<k>_label.npy) in it")
+    return out
+
+
+def _Intrinsics(cam: dict) -> Intrinsics:
+    return Intrinsics(int(cam["width"]), int(cam["height"]), float(cam["fx"]),
+                      float(cam["fy"]), float(cam["cx"]), float(cam["cy"]))
+
+
+def OverlayClasses(rgb: np.ndarray, class_map: np.ndarray, title: str,
+                   boxes: list = ()) -> np.ndarray:
+    """HxWx3 picture: the classes' colours (branch brown, leaf green, fruit
+    magenta) over the dimmed image, ``boxes`` (x0, y0, x1, y1) drawn in
+    red, ``title`` top left."""
+    from PIL import Image, ImageDraw
+    img = rgb[..., :3].astype(np.float64) * 0.5
+    for c, col in CLASS_COLORS.items():
+        m = class_map == c
+        img[m] = 0.4 * img[m] + 0.6 * np.array(col)
+    im = Image.fromarray(img.clip(0, 255).astype(np.uint8))
+    draw = ImageDraw.Draw(im)
+    for b in boxes:
+        draw.rectangle([int(x) for x in b], outline=(255, 0, 0), width=2)
+    draw.rectangle([0, 0, 8 + 7 * len(title), 14], fill=(0, 0, 0))
+    draw.text((4, 2), title, fill=(255, 255, 255))
+    return np.asarray(im)
+
+
+def _PhantomBoxes(seg, truth: np.ndarray, min_pixels: int = 50) -> list:
+    boxes = []
+    fruit = seg.class_map == FRUIT
+    for i in np.unique(seg.instance_map[fruit]):
+        m = fruit & (seg.instance_map == i)
+        if m.sum() >= min_pixels and np.mean(truth[m] == FRUIT) < 0.5:
+            ys, xs = np.nonzero(m)
+            boxes.append((xs.min(), ys.min(), xs.max(), ys.max()))
+    return boxes
+
+
+def EvalRecordings(out, recordings, backends=("segnet", "color_depth", "label"),
+                   scenario_text: str = "{}", pictures: bool = True) -> dict:
+    """Evaluates ``backends`` on every labelled view of the recorded runs
+    under ``recordings`` (``LabelledRecordings``) with the perception
+    settings of the default scenario plus ``scenario_text``; writes ``out``
+    (JSON, keys as in the module docstring) and, with ``pictures``, one PNG
+    per view into ``<out>_views/``. Bad input (folder, recordings, backend
+    files) fails before anything is written."""
+    backends = list(backends)
+    perception = LoadScenario(scenario_text=scenario_text).perception
+    runs = LabelledRecordings(recordings)
+    segmenters = {}
+    for name, rec in runs:       # each backend built (weights read) before any view
+        key = tuple(sorted(rec.camera.items()))
+        for b in backends:
+            if (b, key) not in segmenters:
+                segmenters[(b, key)] = MakeSegmenter(dc.replace(perception, segmenter=b),
+                                                     _Intrinsics(rec.camera))
+    out = Path(out)
+    views_dir = out.with_name(out.stem + "_views")
+    results = {b: {"views": {}} for b in backends}
+    todo = [(name, rec, v) for name, rec in runs for v in rec.views if v.label is not None]
+    for name, rec, v in tqdm(todo, desc="eval_segmentation", unit="view", file=sys.stderr):
+        key = tuple(sorted(rec.camera.items()))
+        rgb = np.ascontiguousarray(v.rgb[..., :3])
+        truth = TruthClassMap(v.label)
+        view_name = f"{name}/view{v.index}"
+        panels = [OverlayClasses(rgb, np.zeros_like(truth), f"{view_name} rgb"),
+                  OverlayClasses(rgb, truth, "truth")]
+        for b in backends:
+            t0 = time.time()
+            seg = segmenters[(b, key)].Segment(rgb, v.depth, v.label)
+            row = {"fruit_color": _fruit_color(rgb, truth), "seconds": round(time.time() - t0, 3),
+                   "truth_pixels": {k.replace("_iou", ""): int((truth == c).sum())
+                                    for k, c in CLASSES}}
+            row.update(ViewRow(seg, truth, v.label, rgb))
+            row["instance_confidences"] = [
+                {"class": c, "instance": i, "pixels": n, "confidence": conf}
+                for c, i, n, conf in seg.Instances()]
+            results[b]["views"][view_name] = row
+            panels.append(OverlayClasses(rgb, seg.class_map, f"{b}: fruit {row['fruit_iou']} "
+                                         f"leaf {row['leaf_iou']} phantoms {row['phantoms']}",
+                                         _PhantomBoxes(seg, truth)))
+        if pictures:
+            views_dir.mkdir(parents=True, exist_ok=True)
+            grid = panels + [np.zeros_like(panels[0])] * (len(panels) % 2)
+            SavePng(np.concatenate([np.concatenate(grid[i:i + 2], axis=1)
+                                    for i in range(0, len(grid), 2)], axis=0),
+                    views_dir / f"{name}_view{v.index}.png")
+    for res in results.values():
+        res.update(Summary(list(res["views"].values())))
+    results["_meta"] = {"recordings": str(recordings), "runs": [n for n, _ in runs],
+                        "views": len(todo), "scenario_text": scenario_text,
+                        "pictures": str(views_dir) if pictures else None}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".partial")
+    tmp.write_text(json.dumps(results, indent=2))
+    tmp.replace(out)                   # an interrupted run leaves no complete-looking JSON
+    for b in backends:
+        r = results[b]
+        print(f"{b:12s} mean {r['mean']}  per fruit colour "
+              f"{ {c: v['fruit_iou'] for c, v in r['per_fruit_color'].items()} }  phantom "
+              f"fruit per view {r['phantom_fruits_per_view']} ({len(todo)} views)")
+    return results

@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels, EncodeLabel
-from lmap_drake.perception.segmentation import (BoxNms, ClassIou, ColorDepthParams,
+from lmap_drake.perception.foundation import BoxNms, ComposeMasks
+from lmap_drake.perception.segmentation import (ClassIou, ColorDepthParams,
                                                 ColorDepthSegmenter,
-                                                ComposeMasks, DepthEdges, LabelSegmenter,
+                                                DepthEdges, LabelSegmenter,
                                                 MakeSegmenter, MissingWeightsError,
                                                 SegmenterError, TruthClassMap)
 from lmap_drake.perception.config import PerceptionConfig
