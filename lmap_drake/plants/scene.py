@@ -149,10 +149,13 @@ def LeafBodyName(multi: bool, j: int) -> str:
     return f"leaf_{j}" if multi else "leaf"
 
 
-def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
+def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int,
+               texture: tuple[str, str] | None = None):
     """Registers one FEM leaf (rest mesh ``rest_W`` (N, 3) world, m) fixed to
     the world at its ``fixed`` vertices (none: a free leaf); returns (body
-    id, geometry id)."""
+    id, geometry id). ``texture`` (OBJ path, PNG path): the camera renders
+    the OBJ (the leaf's surface with texture coordinates, embedded in and
+    driven by the tetrahedra) with the PNG as its texture."""
     from pydrake.geometry import AddContactMaterial, Sphere
     from pydrake.multibody.fem import DeformableBodyConfig
 
@@ -167,7 +170,10 @@ def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
     ill.AddProperty("phong", "diffuse", leaf_cfg.color)
     gi.set_illustration_properties(ill)
     per = PerceptionProperties()
-    per.AddProperty("phong", "diffuse", leaf_cfg.color)
+    per.AddProperty("phong", "diffuse", leaf_cfg.color if texture is None else Rgba(1, 1, 1, 1))
+    if texture is not None:
+        per.AddProperty("deformable", "embedded_mesh", texture[0])
+        per.AddProperty("phong", "diffuse_map", texture[1])
     per.AddProperty("label", "id", RenderLabel(label))
     gi.set_perception_properties(per)
     body_cfg = DeformableBodyConfig()
