@@ -10,6 +10,7 @@ from scipy import ndimage
 from lmap_drake.labels import FRUIT, LEAF, DecodeLabels
 
 CHAR_W, LINE_H = 6, 11          # PIL's default bitmap font, px
+RADII = (8, 22, 40, 60, 85, 115, 150, 190)     # px, label distances tried in turn
 FOCUS_FRUIT = (255, 0, 200)
 FOCUS_LEAF_COLORS = [(255, 140, 0), (0, 230, 255), (255, 255, 255), (170, 120, 255)]
 
@@ -49,9 +50,9 @@ def _Overlap(a, b) -> float:
 
 def PlaceLabels(anchors, sizes, shape, taken=()) -> list[tuple[int, int]]:
     """Top-left corners (u, v px) for label boxes of ``sizes`` (w, h px)
-    near ``anchors`` (u, v px), in order: the first of 24 candidate spots
-    around its anchor (right, left, above, below, the diagonals, at three
-    distances) that stays inside an image of ``shape`` (H, W) and overlaps
+    near ``anchors`` (u, v px), in order: the first of 64 candidate spots
+    around its anchor (right, left, above, below, the diagonals, at eight
+    growing distances) that stays inside an image of ``shape`` (H, W) and overlaps
     no box placed before it nor ``taken`` (boxes u0, v0, u1, v1); the least
     overlapping spot if every one does."""
     H, W = shape[:2]
@@ -59,7 +60,7 @@ def PlaceLabels(anchors, sizes, shape, taken=()) -> list[tuple[int, int]]:
     out = []
     for (u, v), (w, h) in zip(anchors, sizes):
         best, best_cost = None, np.inf
-        for r in (8, 22, 40):
+        for r in RADII:
             for du, dv in ((r, -h // 2), (-r - w, -h // 2), (-w // 2, -r - h), (-w // 2, r),
                            (r, -r - h), (-r - w, -r - h), (r, r), (-r - w, r)):
                 x0 = int(np.clip(u + du, 0, max(W - w, 0)))

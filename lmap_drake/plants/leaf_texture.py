@@ -242,13 +242,26 @@ def _Remove(folder: Path, pid: int) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+_FILES: dict = {}       # inputs' hash -> (OBJ path, PNG path), this process
+
+
 def LeafTextureFiles(seed: int, index: int, color, vertices, faces, uv,
                      normal_W) -> tuple[str, str]:
     """(OBJ path, PNG path) of leaf ``index``'s textured surface (vertices
     and faces in W, m; ``uv`` its leaf coordinates; the blade ends at the
-    largest u)."""
-    (u0, u1), vh = LeafUvBounds(uv)
-    tex = LeafTexture(seed, index, color, (u0, u1), vh, u1)
-    png = TextureFiles.Write(PngBytes(tex.rgb), ".png")
-    obj = TextureFiles.Write(LeafObjText(vertices, faces, uv, normal_W), ".obj")
-    return obj, png
+    largest u). Kept per process by their inputs: an episode builds its
+    plant again at every grasp."""
+    V = np.ascontiguousarray(vertices, float)
+    F = np.ascontiguousarray(faces, np.int64)
+    UV = np.ascontiguousarray(uv, float)
+    key = hashlib.sha1(np.asarray([seed, index, len(V), len(F)], np.int64).tobytes()
+                       + np.asarray(color, float).tobytes() + V.tobytes() + F.tobytes()
+                       + UV.tobytes() + np.asarray(normal_W, float).tobytes()).hexdigest()
+    paths = _FILES.get(key)
+    if paths is None or not all(os.path.exists(p) for p in paths):
+        (u0, u1), vh = LeafUvBounds(UV)
+        tex = LeafTexture(seed, index, color, (u0, u1), vh, u1)
+        png = TextureFiles.Write(PngBytes(tex.rgb), ".png")
+        obj = TextureFiles.Write(LeafObjText(V, F, UV, normal_W), ".obj")
+        paths = _FILES[key] = (obj, png)
+    return paths
