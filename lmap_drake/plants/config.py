@@ -274,9 +274,9 @@ class GreenhouseConfig:
     every leaf (FEM and static) rendered with its own procedural texture
     (``lmap_drake/plants/leaf_texture.py``: base-to-tip colour gradient,
     lighter midrib and lateral veins, mottling, a greyer, darker lower side,
-    a painted gloss band), deterministic in ``seed`` and the leaf's index;
-    false: flat colours (upper and lower side). Labels are the same either
-    way."""
+    a painted gloss band), deterministic in ``seed`` and the leaf's index,
+    and every fruit with streaks, darker shoulders and a gloss band; false:
+    flat colours (upper and lower side). Labels are the same either way."""
     seed: int = 0
     num_stems: int = 2
     stem_length: float = 0.75

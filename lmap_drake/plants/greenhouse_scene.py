@@ -2,7 +2,7 @@
 greenhouse dressing to the station's MultibodyPlant: stems, shoots and
 fruits as the multi-fruit plant (``scene.AddMultiPlant``), the FEM leaves
 (own colours), the static leaves (welded, two-tone: upper and lower side;
-with ``greenhouse.textures`` every leaf textured instead, see
+with ``greenhouse.textures`` every leaf and fruit textured instead, see
 ``leaf_texture``),
 the strings, and static dressing (heating pipes, rails, a slab, a bright
 glass wall, optionally a neighbouring row). Dressing is visual only and
@@ -14,17 +14,18 @@ import dataclasses as dc
 import numpy as np
 import trimesh
 from pydrake.geometry import (Box, CollisionFilterDeclaration, Cylinder, GeometryInstance,
-                              GeometrySet, IllustrationProperties, Mesh, PerceptionProperties,
+                              GeometrySet, IllustrationProperties, PerceptionProperties,
                               RenderLabel, Rgba)
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 
 from lmap_drake.labels import BRANCH, LEAF, EncodeLabel
-from lmap_drake.plants.leaf_texture import InsideTets, LeafTextureFiles
+from lmap_drake.plants.leaf_texture import FruitTextureFiles, InsideTets, LeafTextureFiles
 from lmap_drake.plants.multi_geometry import BranchTube
 from lmap_drake.plants.config import PlantSceneConfig
 from lmap_drake.plants.scene import (AddFemLeaf, AddMultiPlant, LeafBodyName,
-                                     RegisterLabeledGeometry, _CylinderBetween, _ObjMesh)
+                                     RegisterLabeledGeometry, RegisterTexturedVisual,
+                                     _CylinderBetween, _ObjMesh)
 
 STRING_RADIUS = 0.0012
 STRING_COLOR = Rgba(0.92, 0.9, 0.82, 1.0)
@@ -48,21 +49,6 @@ def _Visual(plant, name: str, X: RigidTransform, shape, rgba: Rgba) -> None:
     plant.RegisterVisualGeometry(plant.world_body(), gi)
 
 
-def _TexturedLeaf(plant, name: str, obj: str, png: str, rgba: Rgba, label: int) -> None:
-    """A welded, textured leaf surface (``obj`` with texture ``png``;
-    ``rgba`` for the illustration role), labelled ``label``."""
-    gi = GeometryInstance(RigidTransform(), Mesh(obj), name)
-    ill = IllustrationProperties()
-    ill.AddProperty("phong", "diffuse", rgba)
-    per = PerceptionProperties()
-    per.AddProperty("phong", "diffuse", Rgba(1.0, 1.0, 1.0, 1.0))   # multiplies the texture
-    per.AddProperty("phong", "diffuse_map", png)
-    per.AddProperty("label", "id", RenderLabel(label))
-    gi.set_illustration_properties(ill)
-    gi.set_perception_properties(per)
-    plant.RegisterVisualGeometry(plant.world_body(), gi)
-
-
 def LeafTexturePaths(g, index: int, color, surface: trimesh.Trimesh, uv, normal_W):
     """(OBJ path, PNG path) of leaf ``index``'s textured surface, or None
     (``g.textures`` off, or no leaf coordinates)."""
@@ -76,6 +62,10 @@ def _EmbeddedSurface(leaf) -> trimesh.Trimesh:
     hair inside the tetrahedra (``InsideTets``)."""
     surface = leaf.Surface()
     return trimesh.Trimesh(InsideTets(leaf.rest_W, leaf.tets), surface.faces, process=False)
+
+
+def _RgbTuple(c) -> tuple:
+    return (c.r(), c.g(), c.b()) if isinstance(c, Rgba) else tuple(c)[:3]
 
 
 def _Rgba(c) -> Rgba:
@@ -96,8 +86,13 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     not with the stems, shoots or static leaves (their petioles sit inside
     the stems; static leaves would pin them). Static leaf ``s`` is labelled
     ``EncodeLabel(LEAF, len(model.leaves) + s)``."""
-    handles = AddMultiPlant(plant, scene_graph, model, cfg, with_leaves=False)
     g = cfg.greenhouse
+    fruit_texture = None
+    if g.textures:
+        def fruit_texture(i, f, mesh):
+            return FruitTextureFiles(g.seed, i, _RgbTuple(f.color), mesh, f.X_WO)
+    handles = AddMultiPlant(plant, scene_graph, model, cfg, with_leaves=False,
+                            fruit_texture=fruit_texture)
     world = plant.world_body()
     for s, pts in enumerate(model.strings_W):
         for k in range(len(pts) - 1):
@@ -116,8 +111,8 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     for s, lf in enumerate(model.static_leaves):
         tex = LeafTexturePaths(g, K + s, lf.color, lf.surface_W, lf.uv, lf.normal_W)
         if tex is not None:
-            _TexturedLeaf(plant, f"static_leaf_{s}", *tex, _Rgba(lf.color),
-                          EncodeLabel(LEAF, K + s))
+            RegisterTexturedVisual(plant, world, f"static_leaf_{s}", *tex, _Rgba(lf.color),
+                                   EncodeLabel(LEAF, K + s))
         upper, lower = UpperLowerSides(lf.surface_W, lf.normal_W) if tex is None else (None,
                                                                                         None)
         for part, color, tag in ((upper, lf.color, "upper"), (lower, lf.color_below, "lower")):

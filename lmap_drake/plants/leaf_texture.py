@@ -24,6 +24,10 @@ from the petiole base, m; v across it, m):
   painted into the texture as a soft highlight band along the blade (it
   does not move with the light).
 
+Fruits (``FruitTexture``, ``FruitObjText``): their colour with darker
+shoulders, fine streaks along the axis and a painted gloss band, projected
+across the fruit.
+
 The diffuse colour of a textured geometry multiplies the texture
 (RenderEngineVtk), so textured geometry is registered with a white diffuse
 colour. Labels do not depend on the texture.
@@ -184,6 +188,55 @@ def LeafObjText(vertices, faces, uv, normal_W) -> str:
     lines += [f"f {i}/{a}/{a} {j}/{b}/{b} {k}/{c}/{c}"
               for (i, j, k), (a, b, c) in zip(F + 1, off)]
     return "\n".join(lines) + "\n"
+
+
+FRUIT_TEX = 96          # px, the fruit texture's side
+
+
+def FruitTexture(seed: int, index: int, color) -> np.ndarray:
+    """Fruit ``index``'s texture (FRUIT_TEX square, RGB uint8; u across the
+    fruit, v along its axis, v = 1 at the stalk): its colour ``color`` (RGB(A)
+    0-1) with a gradient along the axis (darker shoulders at the stalk, a
+    paler blossom end), fine streaks along the axis and a painted gloss
+    highlight (a soft vertical band: RenderEngineVtk has no specular
+    property). Deterministic in its arguments."""
+    rng = _Rng(seed, index, 0xF417)
+    c = np.clip(np.asarray(color, float)[:3], 0, 1)
+    n = FRUIT_TEX
+    x = (np.arange(n) + 0.5) / n
+    X, Y = np.meshgrid(x, 1.0 - x)                      # Y: 1 at the stalk (top row)
+    shade = 1.0 - 0.22 * np.clip((Y - 0.6) / 0.4, 0, 1) ** 1.5 + 0.08 * (1.0 - Y)
+    streak = ndimage.gaussian_filter(rng.standard_normal((n, n)), (12.0, 0.8), mode="wrap")
+    streak /= max(float(streak.std()), 1e-9)
+    out = c * (shade * (1.0 + 0.06 * streak))[..., None]
+    x_g = rng.uniform(0.3, 0.42)
+    band = np.exp(-((X - x_g) / 0.07) ** 2) * np.clip(np.sin(np.pi * (Y * 0.9 + 0.05)), 0, 1)
+    out = out + 0.45 * band[..., None] * (1.0 - out)
+    return np.round(255.0 * np.clip(out, 0, 1)).astype(np.uint8)
+
+
+def FruitObjText(mesh, X_WO) -> str:
+    """OBJ text of a fruit surface (W, m) with texture coordinates from a
+    projection along the fruit frame's y axis: u across (O's x), v along
+    its axis (O's z, 1 at the top); smooth vertex normals."""
+    V = np.asarray(mesh.vertices, float)
+    F = np.asarray(mesh.faces, np.int64)
+    X = np.asarray(X_WO, float)
+    p_O = (V - X[:3, 3]) @ X[:3, :3]
+    lo, hi = p_O.min(axis=0), p_O.max(axis=0)
+    t = (p_O - lo) / np.maximum(hi - lo, 1e-9)
+    vn = _SideNormals(V, F)
+    lines = [f"v {x:.7f} {y:.7f} {z:.7f}" for x, y, z in V]
+    lines += [f"vt {a:.6f} {b:.6f}" for a, b in t[:, [0, 2]]]
+    lines += [f"vn {a:.6f} {b:.6f} {c:.6f}" for a, b, c in vn]
+    lines += [f"f {i}/{i}/{i} {j}/{j}/{j} {k}/{k}/{k}" for i, j, k in F + 1]
+    return "\n".join(lines) + "\n"
+
+
+def FruitTextureFiles(seed: int, index: int, color, mesh, X_WO) -> tuple[str, str]:
+    """(OBJ path, PNG path) of fruit ``index``'s textured surface."""
+    png = TextureFiles.Write(PngBytes(FruitTexture(seed, index, color)), ".png")
+    return TextureFiles.Write(FruitObjText(mesh, X_WO), ".obj"), png
 
 
 def InsideTets(vertices, tets, frac: float = 1e-3) -> np.ndarray:

@@ -22,7 +22,8 @@ from lmap_drake.plants.greenhouse import GenerateGreenhousePlant
 from lmap_drake.plants.greenhouse_model import GreenhouseConfigError, ValidateGreenhouseConfig
 from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant
 from lmap_drake.plants.leaf import BoundaryTriangles
-from lmap_drake.plants.leaf_texture import (LUMA, InsideTets, LeafObjText, LeafTexture,
+from lmap_drake.plants.leaf_texture import (FRUIT_TEX, LUMA, FruitObjText, FruitTexture,
+                                            InsideTets, LeafObjText, LeafTexture,
                                             LeafTextureFiles)
 from lmap_drake.station.config import DefaultCameraConfig
 
@@ -58,6 +59,31 @@ def test_texture_has_lighter_veins_a_gradient_mottling_and_a_darker_greyer_lower
     # lower side: darker and greyer than the upper side
     assert lum[between & ~up].mean() < 0.9 * lum[between & up].mean()
     assert sat[between & ~up].mean() < 0.8 * sat[between & up].mean()
+
+
+def test_fruit_texture_has_darker_shoulders_streaks_and_a_gloss_band():
+    red = (0.72, 0.04, 0.04)
+    t = FruitTexture(2, 1, red)
+    assert np.array_equal(t, FruitTexture(2, 1, red)) and not np.array_equal(t, FruitTexture(2, 0, red))
+    lum = t.astype(float) @ LUMA
+    n = FRUIT_TEX
+    col = lum[n // 4: 3 * n // 4].mean(axis=0)             # across the fruit, mid-height
+    assert col.max() > 1.5 * np.median(col)                 # the gloss band
+    assert lum[: n // 10].mean() < 0.9 * lum[n // 3: n // 2].mean()   # shoulders (top rows)
+    far = np.argsort(col)[: n // 3]                         # away from the band
+    assert lum[n // 3: n // 2][:, far].std(axis=1).mean() > 1.0       # streaks across
+
+
+def test_fruit_obj_maps_its_axis_to_v():
+    import trimesh
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
+    X = np.eye(4)
+    X[:3, 3] = [0.5, 0.0, 0.3]
+    text = FruitObjText(mesh, X)
+    vt = np.array([[float(x) for x in ln.split()[1:]] for ln in text.splitlines()
+                   if ln.startswith("vt ")])
+    top = np.argmax(mesh.vertices[:, 2])
+    assert vt.min() >= 0 and vt.max() <= 1 and vt[top, 1] == pytest.approx(1.0)
 
 
 def _leaf():
