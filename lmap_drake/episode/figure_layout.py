@@ -103,6 +103,26 @@ def GroundTruthFocus(label_image: np.ndarray, fruits: dict) -> list[dict]:
     return out
 
 
+def PointsBox(uv, shape, pad: int = 2) -> tuple | None:
+    """The box (u0, v0, u1, v1 px) around the finite image points ``uv``
+    (N x 2) inside an image of ``shape`` (H, W), or None without any."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    H, W = shape[:2]
+    ok = np.all(np.isfinite(uv), axis=1)
+    uv = uv[ok]
+    uv = uv[(uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)]
+    if not len(uv):
+        return None
+    lo, hi = uv.min(axis=0) - pad, uv.max(axis=0) + pad
+    return (int(lo[0]), int(lo[1]), int(hi[0]) + 1, int(hi[1]) + 1)
+
+
+def MaskBox(mask: np.ndarray) -> tuple | None:
+    """The box (u0, v0, u1, v1 px) around ``mask``'s pixels, or None."""
+    v, u = np.nonzero(mask)
+    return PointsBox(np.c_[u, v], mask.shape, 0) if len(u) else None
+
+
 def MaskAnchor(mask: np.ndarray) -> tuple[float, float]:
     """A pixel (u, v) inside ``mask``: its interior point farthest from the rim."""
     d = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from lmap_drake.episode.figure_layout import (GroundTruthFocus, InstanceEdges, MaskAnchor, Outline,
-                                              PlaceLabels, TextBox)
+from lmap_drake.episode.figure_layout import (GroundTruthFocus, InstanceEdges, MaskAnchor,
+                                              MaskBox, Outline, PlaceLabels, PointsBox, TextBox)
 from lmap_drake.labels import BRANCH, CLASS_NAMES, FRUIT, LEAF
 from lmap_drake.perception.points import ProjectPoints
 from lmap_drake.viz import PNG_COMPRESS_LEVEL, RgbArray, SavePng
@@ -61,8 +61,10 @@ def Overlay(rgb, class_map: np.ndarray, alpha: float = 0.5, title: str = "",
     taken = _Legend(draw, legend)
     if focus:
         texts = [f["text"] for f in focus]
+        boxes = [MaskBox(np.asarray(f["mask"], bool)) for f in focus]   # labels off the masks
         corners = PlaceLabels([MaskAnchor(np.asarray(f["mask"], bool)) for f in focus],
-                              [TextBox(t) for t in texts], cls.shape, taken)
+                              [TextBox(t) for t in texts], cls.shape,
+                              taken + [b for b in boxes if b is not None])
         for f, t, (u, v) in zip(focus, texts, corners):
             w, h = TextBox(t)
             draw.line([(u + w / 2, v + h / 2), MaskAnchor(np.asarray(f["mask"], bool))],
@@ -221,10 +223,16 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
     draw = ImageDraw.Draw(img)
     w, h = img.size
 
+    drawn = []                 # boxes of the point sets drawn: labels go beside them
+
     def dots(points, color, every=1, r=1):
         if points is None or len(points) == 0:
             return
-        for u, v in ProjectPoints(np.asarray(points)[::every], K, X_WC):
+        uv_all = ProjectPoints(np.asarray(points)[::every], K, X_WC)
+        box = PointsBox(uv_all, (h, w))
+        if box is not None:
+            drawn.append(box)
+        for u, v in uv_all:
             if np.isfinite(u) and 0 <= u < w and 0 <= v < h:
                 draw.ellipse([u - r, v - r, u + r, v + r], fill=color)
     tags = []                  # (anchor u, v; text; colour)
@@ -273,7 +281,8 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
     legend = [("observed leaf", (255, 225, 0)), ("predicted leaf", (60, 255, 60)),
               ("fruit estimate", (255, 0, 200)), ("grasp + motion", (0, 120, 255))]
     taken = _Legend(draw, [(t, (255, 255, 255)) for t in lines] + legend)
-    corners = PlaceLabels([t[0] for t in tags], [TextBox(t[1]) for t in tags], (h, w), taken)
+    corners = PlaceLabels([t[0] for t in tags], [TextBox(t[1]) for t in tags], (h, w),
+                          taken + drawn)
     for (anchor, text, color), (u, v) in zip(tags, corners):
         bw, bh = TextBox(text)
         draw.line([(u + bw / 2, v + bh / 2), anchor], fill=color, width=1)
