@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from lmap_drake.episode.figure_layout import (GroundTruthFocus, InstanceEdges, MaskAnchor,
+                                              MaskBox, Outline, PlaceLabels, PointsBox, TextBox)
 from lmap_drake.labels import BRANCH, CLASS_NAMES, FRUIT, LEAF
 from lmap_drake.perception.points import ProjectPoints
 from lmap_drake.viz import PNG_COMPRESS_LEVEL, RgbArray, SavePng
@@ -18,32 +20,84 @@ from lmap_drake.viz import PNG_COMPRESS_LEVEL, RgbArray, SavePng
 OVERLAY_COLORS = {BRANCH: (0, 170, 255), LEAF: (255, 225, 0), FRUIT: (255, 0, 200)}
 
 
-def Overlay(rgb, class_map: np.ndarray, alpha: float = 0.5, title: str = "") -> np.ndarray:
+def Overlay(rgb, class_map: np.ndarray, alpha: float = 0.5, title: str = "",
+            instance_map: np.ndarray | None = None, focus: list | None = None) -> np.ndarray:
     """The RGB image, desaturated, with each segmented class (a HxW map of
     ``lmap_drake.labels`` ids) tinted in a contrasting colour and outlined,
-    and a legend: a glance shows what the segmenter found."""
+    and a legend: a glance shows what the segmenter found.
+
+    Dense plants: ``instance_map`` (the segmenter's instances) outlines every
+    instance, so touching leaves stay apart; ``focus`` (dicts ``mask``,
+    ``text``, ``color``, ``kind``: ``figure_layout.GroundTruthFocus``) fades
+    the other segments and draws each focus mask thick in its colour with
+    its label, the labels placed apart from each other and the legend."""
     from PIL import ImageDraw
     from scipy import ndimage
     base = RgbArray(rgb).astype(float)
     grey = base.mean(axis=2, keepdims=True)
     base = 0.5 * base + 0.5 * grey
     cls = np.asarray(class_map)
+    a_cls = 0.2 if focus else alpha
+    edges = (InstanceEdges(cls, instance_map) if instance_map is not None
+             else np.zeros(cls.shape, bool))
     for c, color in OVERLAY_COLORS.items():
         m = cls == c
         if not m.any():
             continue
-        base[m] = (1 - alpha) * base[m] + alpha * np.asarray(color, float)
-        edge = m & ~ndimage.binary_erosion(m)
-        base[edge] = color
+        base[m] = (1 - a_cls) * base[m] + a_cls * np.asarray(color, float)
+        edge = (m & ~ndimage.binary_erosion(m)) | (m & edges)
+        base[edge] = (0.6 * np.asarray(color, float) + 0.4 * base[edge]) if focus else color
+    for f in focus or ():
+        m = np.asarray(f["mask"], bool)
+        base[m] = 0.55 * base[m] + 0.45 * np.asarray(f["color"], float)
+        base[Outline(m, 2)] = f["color"]
     img = Image.fromarray(np.clip(base, 0, 255).astype(np.uint8))
     draw = ImageDraw.Draw(img)
-    y = 4
-    for text, color in ([(title, (255, 255, 255))] if title else []) + [
-            (CLASS_NAMES[c], OVERLAY_COLORS[c]) for c in (BRANCH, LEAF, FRUIT)]:
-        draw.rectangle([4, y, 4 + 7 * len(text) + 6, y + 13], fill=(0, 0, 0))
-        draw.text((7, y + 1), text, fill=color)
-        y += 16
+    legend = ([(title, (255, 255, 255))] if title else []) + [
+        (CLASS_NAMES[c], OVERLAY_COLORS[c]) for c in (BRANCH, LEAF, FRUIT)]
+    if focus:
+        legend.append(("thick: target fruits and the leaves hiding them (ground truth)",
+                       (255, 255, 255)))
+    taken = _Legend(draw, legend)
+    if focus:
+        texts = [f["text"] for f in focus]
+        boxes = [MaskBox(np.asarray(f["mask"], bool)) for f in focus]   # labels off the masks
+        corners = PlaceLabels([MaskAnchor(np.asarray(f["mask"], bool)) for f in focus],
+                              [TextBox(t) for t in texts], cls.shape,
+                              taken + [b for b in boxes if b is not None])
+        for f, t, (u, v) in zip(focus, texts, corners):
+            w, h = TextBox(t)
+            draw.line([(u + w / 2, v + h / 2), MaskAnchor(np.asarray(f["mask"], bool))],
+                      fill=f["color"], width=1)
+            draw.rectangle([u, v, u + w, v + h], fill=(0, 0, 0), outline=f["color"])
+            draw.text((u + 3, v + 1), t, fill=f["color"])
     return np.asarray(img)
+
+
+def _Legend(draw, lines, x: int = 4, y: int = 4) -> list[tuple]:
+    """Draws ``lines`` ((text, colour)) on black boxes from (x, y) down;
+    returns the boxes (u0, v0, u1, v1) the legend covers."""
+    boxes = []
+    for text, color in lines:
+        box = (x, y, x + 7 * len(text) + 6, y + 13)
+        draw.rectangle(box, fill=(0, 0, 0))
+        draw.text((x + 3, y + 1), text, fill=color)
+        boxes.append(box)
+        y += 16
+    return boxes
+
+
+def _Focus(result, images) -> list:
+    """The ground-truth focus of a simulated view (``GroundTruthFocus``): the
+    target fruits of the plant model and the leaves hiding them; none on
+    hardware or for a plant without targets."""
+    model = getattr(result.world, "model", None)
+    fruits = getattr(model, "fruits", None)
+    if not fruits or getattr(result.world, "hardware", False):
+        return []
+    targets = getattr(model, "targets", None) or range(len(fruits))
+    occ = {int(i): list(getattr(fruits[i], "occluders", []) or []) for i in targets}
+    return GroundTruthFocus(images["label_image"].data, occ)
 
 
 def _EpisodeSegmenter(result):
@@ -82,7 +136,8 @@ def SaveEpisodeFigures(result, out: Path) -> list[str]:
         seg = segmenter.Segment(images["rgb_image"].data, images["depth_image"].data,
                                 images["label_image"].data)
         SavePng(Overlay(images["rgb_image"], seg.class_map,
-                        title=f"segmenter: {segmenter.name} ({tag})"),
+                        title=f"segmenter: {segmenter.name} ({tag})",
+                        instance_map=seg.instance_map, focus=_Focus(result, images)),
                 out / f"rgb_{tag}_segmented.png")
         files.append(f"rgb_{tag}_segmented.png")
     st = result.status
@@ -156,20 +211,36 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
     point and the pull (blue arrow), and a caption with the predicted
     energy and visibility. ``K``: ``perception.points.Intrinsics``; ``X_WC``
     4x4, the camera's pose in W. ``observed_leaf`` False leaves the observed
-    leaf out; ``max_dots`` caps the dots per point set."""
+    leaf out; ``max_dots`` caps the dots per point set. Dense plants: the
+    image is faded (greyed, lightened) so the drawing stands out from the
+    canopy, and the target fruit and the grasp carry labels placed clear of
+    the legend and of each other."""
     from PIL import ImageDraw
     base = RgbArray(rgb).astype(float)
-    base = 0.45 * base + 0.55 * base.mean(axis=2, keepdims=True)
+    base = 0.3 * base + 0.7 * base.mean(axis=2, keepdims=True)
+    base = 0.8 * base + 0.2 * 255.0
     img = Image.fromarray(np.clip(base, 0, 255).astype(np.uint8))
     draw = ImageDraw.Draw(img)
     w, h = img.size
 
+    drawn = []                 # boxes of the point sets drawn: labels go beside them
+
     def dots(points, color, every=1, r=1):
         if points is None or len(points) == 0:
             return
-        for u, v in ProjectPoints(np.asarray(points)[::every], K, X_WC):
+        uv_all = ProjectPoints(np.asarray(points)[::every], K, X_WC)
+        box = PointsBox(uv_all, (h, w))
+        if box is not None:
+            drawn.append(box)
+        for u, v in uv_all:
             if np.isfinite(u) and 0 <= u < w and 0 <= v < h:
                 draw.ellipse([u - r, v - r, u + r, v + r], fill=color)
+    tags = []                  # (anchor u, v; text; colour)
+
+    def centre(points):
+        uv = ProjectPoints(np.asarray(points).reshape(-1, 3), K, X_WC)
+        uv = uv[np.all(np.isfinite(uv), axis=1)]
+        return tuple(uv.mean(axis=0)) if len(uv) else None
     if estimate is not None:
         if observed_leaf:
             dots(estimate.semantic.leaf_points_W, (255, 225, 0), max(1, len(
@@ -177,6 +248,9 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
         if estimate.fruit is not None:
             dots(estimate.fruit.vertices_W, (255, 0, 200),
                  max(4, len(estimate.fruit.vertices_W) // max_dots))
+            c_uv = centre(estimate.fruit.vertices_W)
+            if c_uv is not None:
+                tags.append((c_uv, "target fruit", (255, 0, 200)))
     lines = [f"plan: {plan.status} ({plan.method})"]
     c = plan.chosen
     if c is not None:
@@ -188,6 +262,7 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
         if np.all(np.isfinite(uv)):
             draw.line([tuple(x) for x in uv], fill=(0, 120, 255), width=3)
             draw.ellipse([u0 - 5, v0 - 5, u0 + 5, v0 + 5], outline=(0, 120, 255), width=2)
+            tags.append(((u0, v0), f"grasp {a.grasp_id}", (0, 120, 255)))
             d = uv[-1] - uv[max(0, len(uv) - 4)]
             if np.linalg.norm(d) > 1:
                 d /= np.linalg.norm(d)
@@ -205,11 +280,14 @@ def PlanOnImage(rgb, plan, estimate, K, X_WC: np.ndarray,
         lines.append(plan.message[:90])
     legend = [("observed leaf", (255, 225, 0)), ("predicted leaf", (60, 255, 60)),
               ("fruit estimate", (255, 0, 200)), ("grasp + motion", (0, 120, 255))]
-    y = 4
-    for text, color in [(t, (255, 255, 255)) for t in lines] + legend:
-        draw.rectangle([4, y, 4 + 7 * len(text) + 6, y + 13], fill=(0, 0, 0))
-        draw.text((7, y + 1), text, fill=color)
-        y += 16
+    taken = _Legend(draw, [(t, (255, 255, 255)) for t in lines] + legend)
+    corners = PlaceLabels([t[0] for t in tags], [TextBox(t[1]) for t in tags], (h, w),
+                          taken + drawn)
+    for (anchor, text, color), (u, v) in zip(tags, corners):
+        bw, bh = TextBox(text)
+        draw.line([(u + bw / 2, v + bh / 2), anchor], fill=color, width=1)
+        draw.rectangle([u, v, u + bw, v + bh], fill=(0, 0, 0), outline=color)
+        draw.text((u + 3, v + 1), text, fill=color)
     return np.asarray(img)
 
 
@@ -276,7 +354,8 @@ def PlantFigureLabels(targets: list[dict], same_fruit_m: float = 0.03,
     placed: list[np.ndarray] = []
     for k, f in enumerate(fruits):
         f["text"] = f"fruit {k}: " + "; then ".join(
-            f"leaf {targets[i].get('leaf_id')}: {targets[i]['what']}" for i in f["targets"])
+            (f"leaf {targets[i].get('leaf_id')}: " if targets[i].get("leaf_id") is not None
+             else "no leaf: ") + targets[i]["what"] for i in f["targets"])
         a = f["center_W"] + [0.0, 0.0, 0.05]
         for _ in range(50):
             clash = [p for p in placed if np.linalg.norm((p - a)[:2]) < 0.10
@@ -295,14 +374,23 @@ def SavePlantFigure(result, out: Path) -> list[str]:
     each handled fruit's first estimate (orange) and its last re-estimate
     (blue), the fruits not planned for as first estimated (light blue), and
     one label per handled fruit naming each leaf moved and the action
-    (``PlantFigureLabels``)."""
+    (``PlantFigureLabels``).
+
+    Readable on dense plants: the leaves are faint except each target's
+    chosen leaf (dark orange); in the plot each handled fruit carries only
+    a short tag (``F0``, ``F1``, ...), its full text is listed under the
+    plot; a legend names the colours."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
     st = result.status
     model = getattr(result.world, "model", None)
-    fig = plt.figure(figsize=(8, 7))
-    ax = fig.add_subplot(1, 1, 1, projection="3d")
+    n_fruits = len({tuple(np.round((t.get("target") or {}).get("center_W") or [0, 0, 0], 2))
+                    for t in st.targets})
+    bottom = min(0.35, 0.05 + 0.025 * n_fruits)      # the list of fruits under the plot
+    fig = plt.figure(figsize=(8, 7 / (1.0 - bottom)))
+    ax = fig.add_axes([0.0, bottom, 1.0, 0.95 - bottom], projection="3d")
     first = st.targets[0]["initial_estimate"] if st.targets else st.initial_estimate
     if first is not None:
         sem = first.semantic
@@ -310,7 +398,7 @@ def SavePlantFigure(result, out: Path) -> list[str]:
         ax.scatter(*np.vstack([np.asarray(sem.leaf_points_W).reshape(-1, 3),
                                np.asarray(getattr(first, "other_leaves_W",
                                                   np.zeros((0, 3)))).reshape(-1, 3)]).T,
-                   s=1, c="green", alpha=0.3)
+                   s=1, c="yellowgreen", alpha=0.25)
     for f in getattr(model, "fruits", []):
         ax.plot_trisurf(*np.asarray(f.mesh_W.vertices).T, triangles=np.asarray(f.mesh_W.faces),
                         color="gray", alpha=0.2)
@@ -325,25 +413,40 @@ def SavePlantFigure(result, out: Path) -> list[str]:
         rows.append({"center_W": tg["center_W"], "leaf_id": tg.get("leaf_id"), "what": what})
         first_of.append(t.get("initial_estimate"))
         last_of.append(t.get("final_estimate") or t.get("initial_estimate"))
+        est = t.get("initial_estimate")
+        if est is not None and tg.get("leaf_id") is not None:
+            chosen = np.asarray(est.semantic.leaf_points_W).reshape(-1, 3)
+            ax.scatter(*chosen[::2].T, s=1.5, c="darkorange", alpha=0.6)
     from lmap_drake.systems.planning import SAME_FRUIT_DISTANCE
     labels = PlantFigureLabels(rows, SAME_FRUIT_DISTANCE)
-    for lab in labels:
+    for k, lab in enumerate(labels):
         idx = lab["targets"]
         for e, color in ((first_of[idx[0]], "orange"), (last_of[idx[-1]], "blue")):
             if e is not None and e.fruit is not None:
                 ax.scatter(*e.fruit.vertices_W[::4].T, s=1, c=color)
         ax.plot(*np.c_[lab["center_W"], lab["anchor_W"]], c="black", lw=0.5)
-        ax.text(*lab["anchor_W"], lab["text"], fontsize=7)
+        ax.text(*lab["anchor_W"], f"F{k}", fontsize=8, fontweight="bold",
+                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="black", lw=0.5))
     for e in getattr(first, "other_fruits", []) if first is not None else []:
         c = getattr(e, "center_W", None)
         if c is None or any(np.linalg.norm(np.asarray(c) - lab["center_W"]) < SAME_FRUIT_DISTANCE
                             for lab in labels):
             continue
         ax.scatter(*e.vertices_W[::4].T, s=1, c="lightskyblue")
-    ax.set_title("plant: ground truth (grey), estimates first (orange) / last (blue),\n"
-                 "fruits not planned for (light blue)", fontsize=10)
+    ax.set_title("plant: fruits, estimates and the leaves chosen", fontsize=10)
+    handles = [Line2D([], [], ls="", marker=m, color=c, label=n, markersize=7)
+               for m, c, n in (("o", "gray", "fruit, ground truth"),
+                               ("o", "orange", "first estimate"),
+                               ("o", "blue", "last estimate"),
+                               ("o", "lightskyblue", "fruit not planned for"),
+                               (".", "darkorange", "leaf chosen for a target"),
+                               (".", "yellowgreen", "other leaves (observed)"),
+                               (".", "saddlebrown", "branches"))]
+    ax.legend(handles=handles, loc="upper left", fontsize=7, framealpha=0.8)
     _EqualAxes(ax)
-    fig.tight_layout()
+    text = "\n".join(f"F{k}: {lab['text'].split(': ', 1)[1]}" for k, lab in enumerate(labels))
+    fig.text(0.03, bottom - 0.005, text or "no fruit handled", fontsize=8, va="top", family="monospace",
+             wrap=True)
     fig.savefig(out / "plant_estimates.png", dpi=110,
                 pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)

@@ -134,7 +134,8 @@ def SavePlanFigures(scenario: Scenario, view, plan, estimate, out: Path) -> list
     segmenter = MakeSegmenter(scenario.perception, K)
     seg = segmenter.Segment(view.rgb, view.depth[..., None], None if view.label is None
                             else view.label[..., None])
-    SavePng(Overlay(view.rgb, seg.class_map, title=f"segmenter: {segmenter.name} (before)"),
+    SavePng(Overlay(view.rgb, seg.class_map, title=f"segmenter: {segmenter.name} (before)",
+                    instance_map=seg.instance_map),
             out / "rgb_before_segmented.png")
     SavePng(PlanOnImage(view.rgb, plan, estimate, K,
                         cam.X_PB.GetDeterministicValue().GetAsMatrix4()),

@@ -273,7 +273,13 @@ class GreenhouseConfig:
     ``static_leaf_collision``; off: a welded leaf would stop the arm like a
     wall), each leaf green varied by ``leaf_color_variation`` (0-1), with a
     paler lower side. ``dressing``: strings, heating pipes, rails,
-    slab; ``neighbour_row``: a static row of plants behind."""
+    slab; ``neighbour_row``: a static row of plants behind. ``textures``:
+    every leaf (FEM and static) rendered with its own procedural texture
+    (``lmap_drake/plants/leaf_texture.py``: base-to-tip colour gradient,
+    lighter midrib and lateral veins, mottling, a greyer, darker lower side,
+    a painted gloss band), deterministic in ``seed`` and the leaf's index,
+    and every fruit with streaks, darker shoulders and a gloss band; false:
+    flat colours (upper and lower side). Labels are the same either way."""
     seed: int = 0
     num_stems: int = 2
     stem_length: float = 0.75
@@ -294,6 +300,7 @@ class GreenhouseConfig:
     leaf_color_variation: float = 0.2
     dressing: bool = True
     neighbour_row: bool = True
+    textures: bool = True
 
 
 @dc.dataclass

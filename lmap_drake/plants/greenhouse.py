@@ -83,7 +83,7 @@ def GenerateGreenhousePlant(cfg, p_WC) -> GreenhousePlantModel:
         lf = leaves[j]
         static.append(StaticLeaf(surface_W=surfs[j], attach_W=lf.attach_W, shoot=lf.shoot,
                                  normal_W=lf.normal_W, color=colors[j][0],
-                                 color_below=colors[j][1]))
+                                 color_below=colors[j][1], uv=lf.uv))
     strings = [np.array([p[0] + [0, 0, -0.02], p[-1], p[-1] + [0, 0, STRING_HEIGHT]])
                for p in stems]
     return GreenhousePlantModel(

@@ -32,14 +32,17 @@ class GreenhouseConfigError(MultiConfigError):
 @dc.dataclass
 class StaticLeaf:
     """A rigid leaf welded to the world: its closed surface (W, m), the
-    node it grows from, its stem, the normal of its upper side and its
-    colours (upper, lower side; RGBA 0-1)."""
+    node it grows from, its stem, the normal of its upper side, its
+    colours (upper, lower side; RGBA 0-1) and the leaf coordinates (u along
+    the midrib, v across, m) of the surface's vertices (None: unknown, no
+    texture)."""
     surface_W: trimesh.Trimesh
     attach_W: np.ndarray
     shoot: int
     normal_W: np.ndarray
     color: tuple
     color_below: tuple
+    uv: np.ndarray | None = None
 
 
 @dc.dataclass
@@ -126,6 +129,7 @@ def ValidateGreenhouseConfig(ps) -> None:
          "fem_target_tets", f"must be 100 to 5000, got {g.fem_target_tets}")
     need(num(g.leaf_color_variation) and 0 <= g.leaf_color_variation <= 1,
          "leaf_color_variation", f"must be in [0, 1], got {g.leaf_color_variation}")
+    need(isinstance(g.textures, bool), "textures", f"must be true or false, got {g.textures!r}")
     need(isinstance(g.num_random_fruits, int) and g.num_random_fruits >= 0, "num_random_fruits",
          f"must be an integer >= 0, got {g.num_random_fruits}")
     n = len(g.fruits) + g.num_random_fruits

@@ -1,7 +1,9 @@
 """Adds a greenhouse plant (``plant_scene.kind: greenhouse``) and its
 greenhouse dressing to the station's MultibodyPlant: stems, shoots and
 fruits as the multi-fruit plant (``scene.AddMultiPlant``), the FEM leaves
-(own colours), the static leaves (welded, two-tone: upper and lower side),
+(own colours), the static leaves (welded, two-tone: upper and lower side;
+with ``greenhouse.textures`` every leaf and fruit textured instead, see
+``leaf_texture``),
 the strings, and static dressing (heating pipes, rails, a slab, a bright
 glass wall, optionally a neighbouring row). Dressing is visual only and
 labelled background (render label 0)."""
@@ -18,10 +20,12 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 
 from lmap_drake.labels import BRANCH, LEAF, EncodeLabel
+from lmap_drake.plants.leaf_texture import FruitTextureFiles, InsideTets, LeafTextureFiles
 from lmap_drake.plants.multi_geometry import BranchTube
 from lmap_drake.plants.config import PlantSceneConfig
 from lmap_drake.plants.scene import (AddFemLeaf, AddMultiPlant, LeafBodyName,
-                                     RegisterLabeledGeometry, _CylinderBetween, _ObjMesh)
+                                     RegisterLabeledGeometry, RegisterTexturedVisual,
+                                     _CylinderBetween, _ObjMesh)
 
 STRING_RADIUS = 0.0012
 STRING_COLOR = Rgba(0.92, 0.9, 0.82, 1.0)
@@ -45,6 +49,25 @@ def _Visual(plant, name: str, X: RigidTransform, shape, rgba: Rgba) -> None:
     plant.RegisterVisualGeometry(plant.world_body(), gi)
 
 
+def LeafTexturePaths(g, index: int, color, surface: trimesh.Trimesh, uv, normal_W):
+    """(OBJ path, PNG path) of leaf ``index``'s textured surface, or None
+    (``g.textures`` off, or no leaf coordinates)."""
+    if not g.textures or uv is None:
+        return None
+    return LeafTextureFiles(g.seed, index, color, surface.vertices, surface.faces, uv, normal_W)
+
+
+def _EmbeddedSurface(leaf) -> trimesh.Trimesh:
+    """A FEM leaf's surface as its embedded render mesh: its vertices a
+    hair inside the tetrahedra (``InsideTets``)."""
+    surface = leaf.Surface()
+    return trimesh.Trimesh(InsideTets(leaf.rest_W, leaf.tets), surface.faces, process=False)
+
+
+def _RgbTuple(c) -> tuple:
+    return (c.r(), c.g(), c.b()) if isinstance(c, Rgba) else tuple(c)[:3]
+
+
 def _Rgba(c) -> Rgba:
     return Rgba(*c) if not isinstance(c, Rgba) else c
 
@@ -63,8 +86,13 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     not with the stems, shoots or static leaves (their petioles sit inside
     the stems; static leaves would pin them). Static leaf ``s`` is labelled
     ``EncodeLabel(LEAF, len(model.leaves) + s)``."""
-    handles = AddMultiPlant(plant, scene_graph, model, cfg, with_leaves=False)
     g = cfg.greenhouse
+    fruit_texture = None
+    if g.textures:
+        def fruit_texture(i, f, mesh):
+            return FruitTextureFiles(g.seed, i, _RgbTuple(f.color), mesh, f.X_WO)
+    handles = AddMultiPlant(plant, scene_graph, model, cfg, with_leaves=False,
+                            fruit_texture=fruit_texture)
     world = plant.world_body()
     for s, pts in enumerate(model.strings_W):
         for k in range(len(pts) - 1):
@@ -81,7 +109,12 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     K = len(model.leaves)
     static_gids = []
     for s, lf in enumerate(model.static_leaves):
-        upper, lower = UpperLowerSides(lf.surface_W, lf.normal_W)
+        tex = LeafTexturePaths(g, K + s, lf.color, lf.surface_W, lf.uv, lf.normal_W)
+        if tex is not None:
+            RegisterTexturedVisual(plant, world, f"static_leaf_{s}", *tex, _Rgba(lf.color),
+                                   EncodeLabel(LEAF, K + s))
+        upper, lower = UpperLowerSides(lf.surface_W, lf.normal_W) if tex is None else (None,
+                                                                                        None)
         for part, color, tag in ((upper, lf.color, "upper"), (lower, lf.color_below, "lower")):
             if part is not None:
                 RegisterLabeledGeometry(plant, world, RigidTransform(),
@@ -97,7 +130,9 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     for j, leaf in enumerate(model.leaves):
         color = model.leaf_colors[j][0] if model.leaf_colors else cfg.leaf.color
         bid, gid = AddFemLeaf(plant, LeafBodyName(True, j), leaf.rest_W, leaf.tets, leaf.fixed,
-                              dc.replace(cfg.leaf, color=_Rgba(color)), EncodeLabel(LEAF, j))
+                              dc.replace(cfg.leaf, color=_Rgba(color)), EncodeLabel(LEAF, j),
+                              texture=LeafTexturePaths(g, j, color, _EmbeddedSurface(leaf),
+                                                       leaf.uv, leaf.normal_W))
         handles["leaf_body_ids"].append(bid)
         handles["leaf_geometry_ids"].append(gid)
         if plant_rigid:

@@ -3,7 +3,8 @@ scenes of ``diagrams/greenhouse_suite.yaml`` and seeded random greenhouse
 plants (``scripts/make_suite.py --greenhouse [--random N --seed S]``), with
 a greenhouse light preset per scene (``GreenhouseLights``: a warm key light
 from above, a fill light at the camera and a back light through the glass,
-their direction, colour and intensity varied per scene)."""
+their direction, colour and intensity varied per scene) and the camera's
+exposure and white balance drawn per scene (``GreenhouseCameraNoise``)."""
 from __future__ import annotations
 
 import copy
@@ -163,13 +164,25 @@ def GreenhouseSceneYaml(cfg: PlantSceneConfig) -> str:
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=96)
 
 
+def GreenhouseCameraNoise(rng: np.random.Generator) -> dict:
+    """The scene's ``camera_noise`` keys: the L515 model of
+    ``station.config.CameraNoiseConfig`` (on by default) with its own
+    ``seed_offset``, so that every scene draws its own exposure gain,
+    white balance and brightness gradient (with one seed for all, every
+    scene of a suite would get the same)."""
+    return {"seed_offset": int(rng.integers(1, 1_000_000))}
+
+
 def GreenhouseSuiteYaml(suite: dict[str, PlantSceneConfig], header: str, seed: int = 0) -> str:
-    """A scenario file: per scene its plant, ``GREENHOUSE_SCENE_EXTRA`` and
-    its lights (``GreenhouseLights``, drawn from ``seed`` and the scene's
-    position in the suite)."""
+    """A scenario file: per scene its plant, ``GREENHOUSE_SCENE_EXTRA``, its
+    lights (``GreenhouseLights``, drawn from ``seed`` and the scene's
+    position in the suite) and its camera exposure and white balance
+    (``GreenhouseCameraNoise``, likewise)."""
     lines = [header]
     for k, (name, cfg) in enumerate(suite.items()):
-        lights = yaml.safe_dump({"lights": GreenhouseLights(np.random.default_rng([seed, k]))},
+        lights = yaml.safe_dump({"lights": GreenhouseLights(np.random.default_rng([seed, k])),
+                                 "camera_noise": GreenhouseCameraNoise(
+                                     np.random.default_rng([seed, k, 1]))},
                                 sort_keys=False, default_flow_style=None, width=96)
         body = "".join(f"    {line}\n" for line in GreenhouseSceneYaml(cfg).splitlines())
         more = "".join(f"  {line}\n" for line in (GREENHOUSE_SCENE_EXTRA + lights).splitlines())

@@ -37,6 +37,24 @@ def RegisterLabeledGeometry(plant: MultibodyPlant, body: RigidBody, X_BG: RigidT
     return None
 
 
+def RegisterTexturedVisual(plant: MultibodyPlant, body: RigidBody, name: str, obj: str,
+                           png: str, rgba: Rgba, label: int) -> None:
+    """Visual geometry of ``body`` from the OBJ file ``obj`` (body frame,
+    with texture coordinates) textured with the PNG ``png`` for the cameras
+    (the white diffuse colour leaves the texture as it is: RenderEngineVtk
+    multiplies them), ``rgba`` for illustration, labelled ``label``."""
+    gi = GeometryInstance(RigidTransform(), Mesh(obj), name)
+    ill = IllustrationProperties()
+    ill.AddProperty("phong", "diffuse", rgba)
+    per = PerceptionProperties()
+    per.AddProperty("phong", "diffuse", Rgba(1.0, 1.0, 1.0, 1.0))
+    per.AddProperty("phong", "diffuse_map", png)
+    per.AddProperty("label", "id", RenderLabel(label))
+    gi.set_illustration_properties(ill)
+    gi.set_perception_properties(per)
+    plant.RegisterVisualGeometry(body, gi)
+
+
 def AddPlaceholderPlant(plant: MultibodyPlant, cfg: PlantSceneConfig) -> dict:
     """Rigid stand-ins welded to the world: a branch cylinder, a leaf plate and
     a lobed pepper mesh. Returns ground truth (world frame, metres)."""
@@ -149,10 +167,13 @@ def LeafBodyName(multi: bool, j: int) -> str:
     return f"leaf_{j}" if multi else "leaf"
 
 
-def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
+def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int,
+               texture: tuple[str, str] | None = None):
     """Registers one FEM leaf (rest mesh ``rest_W`` (N, 3) world, m) fixed to
     the world at its ``fixed`` vertices (none: a free leaf); returns (body
-    id, geometry id)."""
+    id, geometry id). ``texture`` (OBJ path, PNG path): the camera renders
+    the OBJ (the leaf's surface with texture coordinates, embedded in and
+    driven by the tetrahedra) with the PNG as its texture."""
     from pydrake.geometry import AddContactMaterial, Sphere
     from pydrake.multibody.fem import DeformableBodyConfig
 
@@ -167,7 +188,10 @@ def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
     ill.AddProperty("phong", "diffuse", leaf_cfg.color)
     gi.set_illustration_properties(ill)
     per = PerceptionProperties()
-    per.AddProperty("phong", "diffuse", leaf_cfg.color)
+    per.AddProperty("phong", "diffuse", leaf_cfg.color if texture is None else Rgba(1, 1, 1, 1))
+    if texture is not None:
+        per.AddProperty("deformable", "embedded_mesh", texture[0])
+        per.AddProperty("phong", "diffuse_map", texture[1])
     per.AddProperty("label", "id", RenderLabel(label))
     gi.set_perception_properties(per)
     body_cfg = DeformableBodyConfig()
@@ -188,7 +212,7 @@ def AddFemLeaf(plant, name: str, rest_W, tets, fixed, leaf_cfg, label: int):
 
 
 def AddMultiPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConfig,
-                  with_leaves: bool = True) -> dict:
+                  with_leaves: bool = True, fruit_texture=None) -> dict:
     """Adds a ``MultiPlantModel`` to ``plant``: every stem/shoot as rigid
     cylinders welded to the world (label ``EncodeLabel(BRANCH, b)``, b the
     branch index: 0 the stem, i + 1 fruit i's shoot; a fruit's stalk carries
@@ -198,6 +222,10 @@ def AddMultiPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConf
     petiole base. Leaves collide with the gripper, fruits, branches (not with
     the shoot their petiole sits on) and, unless
     ``cfg.multi.leaf_leaf_contact`` is false, with each other.
+
+    ``fruit_texture(i, fruit, body_mesh)``, if given, returns (OBJ path, PNG
+    path) for fruit ``i``'s body (its faces without the stripes) or None
+    (flat colour).
 
     Returns handles: ``branch_geometry_ids`` (per branch), ``leaf_body_ids``,
     ``leaf_geometry_ids``, ``fruit_geometry_ids`` (per fruit)."""
@@ -239,6 +267,11 @@ def AddMultiPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConf
             parts.append((f.mesh_W.submesh([stripes], append=True), f.stripe_color,
                           f"fruit_{i}_stripes"))
         for mesh, color, name in parts:
+            tex = (fruit_texture(i, f, mesh) if fruit_texture is not None and name == f"fruit_{i}"
+                   else None)
+            if tex is not None:
+                RegisterTexturedVisual(plant, world, name, *tex, color, EncodeLabel(FRUIT, i))
+                continue
             RegisterLabeledGeometry(plant, world, RigidTransform(), _ObjMesh(mesh, name), name,
                                     color, EncodeLabel(FRUIT, i), collision=False)
         fruit_ids.append(plant.RegisterCollisionGeometry(

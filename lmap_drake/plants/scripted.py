@@ -42,6 +42,12 @@ def TipGraspPose(world: PlantWorldSim, from_tip: float, v: float,
     _, p_a = LeafPoint(world, u - 0.02, v, leaf)
     _, p_b = LeafPoint(world, u - 0.01, v + 0.01, leaf)
     n = np.cross(p_a - p, p_b - p)
+    if np.linalg.norm(n) < 1e-12:    # a coarse leaf: two of the points are one vertex
+        uv = world.leaf_refs[leaf].uv
+        k = len(uv) // 3
+        mid = world.LeafVertices(leaf)[k:2 * k]
+        near = mid[np.argsort(np.linalg.norm(mid - p, axis=1))[:12]]
+        n = np.linalg.svd(near - near.mean(axis=0))[2][2]   # the local plane's normal
     n /= np.linalg.norm(n)
     if n @ _LeafNormal(world, leaf) < 0:
         n = -n

@@ -186,11 +186,13 @@ def NoisyColor(rgb: np.ndarray, cfg, seed: int, frame: int) -> np.ndarray:
 
 def CameraProfile(cfg) -> str:
     """Short name of a ``CameraNoiseConfig`` for reports: ``ideal`` when off,
-    ``l515`` with the default parameters, ``custom`` otherwise."""
+    ``l515`` with the default parameters (any ``seed_offset``: a seed, not
+    a parameter of the model), ``custom`` otherwise."""
     if not cfg.enabled:
         return "ideal"
     default = CameraNoiseConfig()
-    same = all(getattr(cfg, f.name) == getattr(default, f.name) for f in dc.fields(cfg))
+    same = all(getattr(cfg, f.name) == getattr(default, f.name) for f in dc.fields(cfg)
+               if f.name != "seed_offset")
     return "l515" if same else "custom"
 
 

@@ -171,6 +171,24 @@ def test_every_suite_scene_loads_and_builds():
     assert kinds == {True, False}     # some targets under two FEM leaves, some under one
 
 
+def test_suite_scenes_draw_their_own_exposure_and_white_balance():
+    """The committed suite's scenes keep the default L515 camera model but
+    each its own noise seed, so the per-scene colour change (exposure gain,
+    white balance) differs between scenes."""
+    from lmap_drake.station.camera_noise import CameraProfile, NoisyColor
+    text = (DIAGRAMS_DIR / "greenhouse_suite.yaml").read_text()
+    gains = set()
+    for name in re.findall(r"^(\w+):$", text, re.M):
+        s = LoadScenario(filename=DIAGRAMS_DIR / "greenhouse_suite.yaml", scenario_name=name)
+        cam = s.camera_noise
+        assert cam.enabled and CameraProfile(cam) == "l515" and cam.exposure_variation > 0
+        grey = np.full((4, 4, 3), 128, np.uint8)
+        quiet = dc.replace(cam, read_noise=0.0, shot_noise=0.0, illumination_gradient=0.0)
+        seed = s.random_seed + cam.seed_offset + 7919 * 0        # as the station seeds camera0
+        gains.add(tuple(NoisyColor(grey, quiet, seed, 0)[0, 0]))
+    assert len(gains) == len(re.findall(r"^(\w+):$", text, re.M))
+
+
 def test_random_suite_is_deterministic():
     a = RandomGreenhouseSuite(1, 3)
     b = RandomGreenhouseSuite(1, 3)

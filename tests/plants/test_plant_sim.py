@@ -199,3 +199,30 @@ def test_release_goes_back_to_the_kept_station_as_a_new_one_would():
     rebuilt.Hold(0.3)
     assert np.linalg.norm(world.LeafVertices() - V, axis=1).max() > 1e-4   # released, it moves
     assert np.array_equal(world.LeafVertices(), rebuilt.LeafVertices())
+
+
+def test_tip_grasp_pose_on_a_coarse_leaf_uses_the_local_plane():
+    """A coarse greenhouse leaf (3 cm mesh): the grasp's three nearby mid-surface
+    points fall on two vertices; the pose still has the blade's normal as its
+    y axis (it was NaN). A fake world (tests only): just the leaf and a mount."""
+    from types import SimpleNamespace
+
+    from pydrake.math import RigidTransform
+
+    from lmap_drake.plants.scripted import TipGraspPose
+    u, v = np.meshgrid(np.arange(-0.02, 0.131, 0.03), np.arange(-0.03, 0.031, 0.03))
+    mid = np.c_[u.ravel(), v.ravel()]
+    uv = np.vstack([mid, mid, mid])
+    tilt = np.array([0.0, 0.3, 1.0]) / np.linalg.norm([0.0, 0.3, 1.0])   # blade normal
+    e_u, e_v = np.array([1.0, 0.0, 0.0]), np.cross(tilt, [1.0, 0.0, 0.0])
+    X = 0.6 * np.array([1.0, 0.0, 0.0]) + uv[:, :1] * e_u + uv[:, 1:] * e_v + [0, 0, 0.4]
+    leaf = SimpleNamespace(uv=uv, normal_W=tilt)
+    world = SimpleNamespace(
+        scenario=SimpleNamespace(plant_scene=SimpleNamespace(kind="greenhouse",
+                                                             leaf=SimpleNamespace(length=0.1))),
+        leaf_refs=[leaf], LeafVertices=lambda j: X, multi=True,
+        model=SimpleNamespace(leaves=[leaf]), X_WB=RigidTransform())
+    X_WT = TipGraspPose(world, 0.015, 0.0, 0)
+    y = X_WT.rotation().matrix()[:, 1]
+    assert np.all(np.isfinite(X_WT.GetAsMatrix4()))
+    np.testing.assert_allclose(y, tilt, atol=1e-9)
