@@ -23,7 +23,10 @@ def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0,
                  scenario_text: str = "{}") -> dict:
     """``realtime_factor``: wall seconds per simulated second of a
     ``duration`` s pull (monitors sampled every ``outcome.sample_period``);
-    ``realtime_factor_simulation_only``: the same with the monitors off.
+    ``realtime_factor_simulation_only``: the same with the monitors off;
+    ``cpu_seconds_per_simulated_second`` (and ``_simulation_only``): the
+    process's CPU time instead of wall time (load-independent, on one
+    thread; FEM threads add theirs).
     ``leaf``: the FEM leaf grasped (``kind: multi`` / ``greenhouse``; on a
     greenhouse plant leaf 0 is the first target's main occluder); -1: the
     first FEM leaf whose tip grasp the arm can reach (IK)."""
@@ -43,17 +46,22 @@ def BenchStation(scenario_name: str = "Defaults", duration: float = 2.0,
             print(f"[bench] leaf {j}: {err}; trying leaf {tried[k + 1]}", flush=True)
     pull = scenario.plant_scene.pull
     fork = world.Fork()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     Pull(world, pull.direction_W, pull.distance, duration)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     fork.Sample = lambda: None  # monitors off
     fork.samples = []
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     d = np.asarray(pull.direction_W, float)
     Pull(fork, d, pull.distance, duration)
-    wall_sim = time.perf_counter() - t1
+    wall_sim, cpu_sim = time.perf_counter() - t1, time.process_time() - c1
     return {"realtime_factor": wall / duration,
             "realtime_factor_simulation_only": wall_sim / duration,
+            # CPU seconds of this process per simulated second: what the
+            # realtime factor would be on an otherwise idle core (the wall
+            # figures above grow with the machine's load)
+            "cpu_seconds_per_simulated_second": cpu / duration,
+            "cpu_seconds_per_simulated_second_simulation_only": cpu_sim / duration,
             "simulated_seconds": duration,
             "time_step": scenario.plant_config.time_step,
             "leaf_tets": int(sum(len(r.tets) for r in world.leaf_refs)),
