@@ -193,12 +193,13 @@ def RunEpisodeOnce(out: Path, rate: float = 1.0, twin_code: str = "",
     the twin's ``pace``, ``max_lag_s``, ``timing``, the episode's status
     and the load."""
     host = _FreeHost()
-    env = dict(os.environ)
-    if twin_code:
-        env["PYTHONPATH"] = str(Path(twin_code).resolve())
+    env, cwd = dict(os.environ), None
+    if twin_code:      # (python -m puts the working folder first on the path)
+        cwd = str(Path(twin_code).resolve())
+        env["PYTHONPATH"] = cwd
     proc = subprocess.Popen([sys.executable, "-m", "lmap_drake.cli", "twin", "--host", host,
-                             "--rate", str(rate), "--output", str(out / "twin"),
-                             "--duration", "900"], env=env, stdin=subprocess.PIPE,
+                             "--rate", str(rate), "--output", str(out.resolve() / "twin"),
+                             "--duration", "900"], env=env, cwd=cwd, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     load0 = _Loads()
     try:
@@ -223,7 +224,7 @@ def RunEpisodeOnce(out: Path, rate: float = 1.0, twin_code: str = "",
         timing[p].get(k, 0.0) for k in ("advance", "render", "other", "idle")))
         for p in timing}
     return {"status": status, "pace": log["pace"], "pace_by_phase": pace,
-            "max_lag_s": log["max_lag_s"], "timing": timing,
+            "max_lag_s": log["max_lag_s"], "timing": timing, "twin_code": twin_code or ".",
             "events": [e["event"] for e in log["events"]],
             "load_before": load0, "load_after": _Loads()}
 
