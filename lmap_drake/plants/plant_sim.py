@@ -415,9 +415,11 @@ class PlantWorldSim:
 
     # --- acting -----------------------------------------------------------
     def AdvanceTo(self, t: float, q_traj: PiecewisePolynomial | None = None,
-                  step: float = 0.01) -> None:
+                  step: float = 0.01, sample: bool = True) -> None:
         """Simulates to time ``t``, streaming ``q_traj`` (if given) as the joint
-        command every ``step`` s and sampling the monitors."""
+        command every ``step`` s and sampling the monitors (from the first
+        step on, every ``outcome.sample_period``; ``sample=False``: none, the
+        caller samples)."""
         period = self.scenario.plant_scene.outcome.sample_period
         next_sample = self.time
         while self.time < t - 1e-9:
@@ -429,7 +431,7 @@ class PlantWorldSim:
                 self.station.GetInputPort("ur5.position").FixValue(self.context, self.q_cmd)
             self.simulator.AdvanceTo(t_next)
             self._UpdateSleep()
-            if self.time >= next_sample - 1e-9:
+            if sample and self.time >= next_sample - 1e-9:
                 self.samples.append(self.Sample())
                 next_sample = self.time + period
 

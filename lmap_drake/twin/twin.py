@@ -25,11 +25,15 @@ The plant world advances at ``rate`` simulated seconds per wall second
 (default 0.5; it cannot run in real time on 2 cores while it holds the
 leaf); the camera tells the episode runner that pace so both share one
 clock. A frame is rendered again only when the arm, the fingers or the leaf
-moved; while the leaf is held the plant steps ``held_time_step``.
-Ground-truth samples are taken as in simulation; ``Finish`` writes
+moved, at most every ``frame_period`` simulated s, and every
+``moving_frame_period`` while the arm or the fingers move (the episode
+captures its views at rest); while the leaf is held the plant steps
+``held_time_step``. Ground-truth samples are taken every
+``outcome.sample_period`` as in simulation; ``Finish`` writes
 ``outcome.json`` (up to the release, and ``release_outcome`` after it) and
 ``twin_log.json`` (events, pacing: ``pace``, ``max_lag_s`` and ``timing``,
-wall s by phase and kind of work; the emulator's loop statistics).
+wall s by phase and kind of work and the process's CPU s; the emulator's
+loop statistics).
 """
 from __future__ import annotations
 
@@ -58,6 +62,8 @@ from lmap_drake.twin.ur_emulator import EmulatorProcess
 
 
 STILL = 1e-4     # m or rad: a scene that moved less is rendered again only as a copy
+MOVING_RAD_S = 0.01     # an arm joint faster than this (rad/s) moves
+MOVING_M_S = 0.001      # fingers faster than this (m/s) move
 
 
 @dc.dataclass
@@ -70,10 +76,17 @@ class TwinOptions:
     # re-render at most every this many simulated s (the run command's camera fps 5:
     # a twin behind its clock got requests faster and rendered more, falling further behind)
     frame_period: float = 0.2
+    # ... every this many while the arm or the fingers move (the episode captures its
+    # views at rest; a frame costs 0.2-0.35 s CPU, most of it the camera model's noise)
+    moving_frame_period: float = 1.0
+    sample_period: float = 0.0    # ground-truth samples (0: outcome.sample_period)
     # The plant's time step (s) while the pads hold the leaf (the station with the
     # grasp constraint; 0: the scenario's plant_config.time_step): the FEM leaf's
     # step is most of the twin's work then. The free station keeps the scenario's.
     held_time_step: float = 0.02
+    # FEM threads (0: plant_scene.fem_threads): the twin shares its cores with the runner;
+    # 2 threads on a loaded 2-core machine doubled the CPU per simulated s (same results)
+    fem_threads: int = 1
     fault: str = "protective_stop"       # protective_stop | emergency_stop | drop
     fault_after_grasp_move: float = 0.0  # > 0: inject ``fault`` once the held leaf moved (m)
     # The plant settles to this time (when a simulated episode captures its
@@ -227,7 +240,11 @@ class Twin:
 
     def __init__(self, scenario: Scenario, options: TwinOptions | None = None,
                  progress: Callable[[str], None] | None = None):
-        self.scenario, self.options = scenario, options or TwinOptions()
+        self.options = options or TwinOptions()
+        if self.options.fem_threads > 0:
+            scenario = copy.deepcopy(scenario)
+            scenario.plant_scene.fem_threads = int(self.options.fem_threads)
+        self.scenario = scenario
         self.progress = progress or (lambda m: None)
         self.world = PlantWorldSim(scenario, None, self.progress,
                                    make_diagram=self._StationMaker())
@@ -244,8 +261,9 @@ class Twin:
         self.lag_max = 0.0
         self.paced = {"simulated_s": 0.0, "wall_s": 0.0}   # from the first motion on
         # wall s by phase (leaf held or not) and kind of work, from the first motion on
-        self.timing = {p: dict.fromkeys(("simulated_s", "advance", "render", "other", "idle"),
-                                        0.0) for p in ("free", "held")}
+        # (and ``cpu_s``: the process's CPU seconds, every thread)
+        self.timing = {p: dict.fromkeys(("simulated_s", "advance", "render", "other", "idle",
+                                         "cpu_s"), 0.0) for p in ("free", "held")}
         self.vis_initial = None
         self.release_sample = None
         self.vis_at_release = None
@@ -257,8 +275,9 @@ class Twin:
         self._grasp_tried_at = None
         self._grasp_opening = None      # where the pads met the leaf
         self.stopped_by_twin = False
-        self._timing_on, self._booked = False, 0.0
+        self._timing_on, self._booked, self._cpu_last = False, 0.0, 0.0
         self._frame_pose = None        # arm, fingers, leaf of the last rendered frame
+        self._moving = False           # the arm or the fingers moved in the last step
         self.emulator = self.camera = self.gripper_server = None
 
     def _StationMaker(self):
@@ -297,11 +316,13 @@ class Twin:
         self.vis_initial = self.world.Visibility()
         return self
 
-    def _Measure(self) -> None:
-        """The simulated arm's joints to the emulator (its ``getActualQ``)."""
+    def _Measure(self) -> np.ndarray:
+        """The simulated arm's joints to the emulator (its ``getActualQ``);
+        returns its joint speeds (rad/s)."""
         state = self.world.station.GetOutputPort("ur5.state_estimated").Eval(
             self.world.station_context)
         self.emulator.Exchange(state[:6], state[6:])
+        return state[6:]
 
     def _FrameRequest(self):
         """Called by the camera server's threads: the main loop renders."""
@@ -321,9 +342,11 @@ class Twin:
             except queue.Empty:
                 return
             try:
-                t = self.world.time
-                if self._frame is None or (t - self._frame[0] >= self.options.frame_period
-                                           - 1e-9 and not self._Still()):
+                t, o = self.world.time, self.options
+                period = max(o.frame_period, o.moving_frame_period) if self._moving \
+                    else o.frame_period
+                if self._frame is None or (t - self._frame[0] >= period - 1e-9
+                                           and not self._Still()):
                     t_render = time.perf_counter()
                     self._frame_pose = self._Pose()
                     images = self.world.Images()
@@ -357,9 +380,9 @@ class Twin:
 
     # --- the loop -----------------------------------------------------------
     def Run(self, stop: threading.Event, step: float = 0.02) -> None:
-        """Advances the plant world at ``rate`` until ``stop`` is set."""
-        w, o = self.world, self.options
-        last_width = w.GripperWidth()
+        """Waits for the arm's first motion (serving frames), then advances
+        the plant world at ``rate`` until ``stop`` is set."""
+        w = self.world
         self.emulator.Exchange()
         q0 = self.emulator.q_servo
         while not stop.is_set():       # the clock starts with the first motion
@@ -370,10 +393,20 @@ class Twin:
                 self.events.append({"t": w.time, "event": "first_motion"})
                 break
             time.sleep(0.02)
+        self.RunPaced(stop, step)
+
+    def RunPaced(self, stop: threading.Event, step: float = 0.02) -> None:
+        """Advances the plant world at ``rate`` from now until ``stop`` is
+        set (the pace and timing count from here)."""
+        w, o = self.world, self.options
+        last_width = w.GripperWidth()
         t0, wall0 = w.time, time.monotonic()
-        self._timing_on = True
+        sample_period = o.sample_period or self.scenario.plant_scene.outcome.sample_period
+        next_sample = w.time
+        self._timing_on, self._cpu_last = True, time.process_time()
         while not stop.is_set():
             self.paced = {"simulated_s": w.time - t0, "wall_s": time.monotonic() - wall0}
+            self._SpentCpu()
             self._ServeFrames()
             ahead = t0 + (time.monotonic() - wall0) * o.rate - w.time
             if ahead < step:
@@ -390,12 +423,16 @@ class Twin:
                 w.width_cmd = float(opening)
             w.ApplyCommands()
             t_advance = time.perf_counter()
-            w.AdvanceTo(w.time + step)
+            w.AdvanceTo(w.time + step, sample=False)
+            if w.time >= next_sample - 1e-9:
+                w.samples.append(w.Sample())
+                next_sample += sample_period      # the mean period, on the step grid
             self._Spent("advance", time.perf_counter() - t_advance)
             self.timing["held" if w.grasp_state is not None else "free"]["simulated_s"] += step
-            self._Measure()
+            v = self._Measure()
             width = w.GripperWidth()
             rate = (width - last_width) / step
+            self._moving = bool(np.abs(v).max() > MOVING_RAD_S or abs(rate) > MOVING_M_S)
             self.gripper.SetMeasured(width, rate, w.time)
             last_width = width
             if not self.trace or w.time - self.trace[-1]["t"] >= 0.1 - 1e-9:
@@ -406,6 +443,14 @@ class Twin:
             self._GraspAndRelease(width, rate)
             self._WatchFaults()
             self._Spent("other", time.perf_counter() - t_step)
+
+    def _SpentCpu(self) -> None:
+        """Books this process's CPU seconds (every thread: the loop, the
+        FEM's threads, the servers) since the last call to the phase now."""
+        cpu = time.process_time()
+        phase = self.timing["held" if self.world.grasp_state is not None else "free"]
+        phase["cpu_s"] += cpu - self._cpu_last
+        self._cpu_last = cpu
 
     def _Spent(self, kind: str, seconds: float) -> None:
         """Books wall seconds (``other``: a whole step, less what was booked

@@ -20,6 +20,8 @@ SHELLS = {
     "bench_planner": ["--out", "--scenario_name", "--suite", "--shapes"],
     "bench_station": ["--out", "--scenario_name", "--duration", "--scenario_file", "--leaf",
                       "--scenario_text"],
+    "bench_twin": ["--out", "--repeats", "--duration", "--variants", "--episodes",
+                   "--compare_code"],
     "calibrate_energy_cap": ["records", "--out"],
     "eval_deformation_vs_fem": ["--out", "--scenarios", "--corr_scenarios", "--corr_directions",
                                 "--corr_distances", "--grasp_fallbacks",

@@ -242,3 +242,44 @@ def test_a_blocked_simulated_arm_shows_in_getactualq():
     assert np.abs(q_sim - twin.blocked_q).max() < 0.01
     assert np.abs(np.subtract(got["after"], q_sim)).max() < 0.005
     assert np.abs(np.subtract(got["after"], goal)).max() > 0.09
+    # the loop's ground-truth samples: every outcome.sample_period on average
+    # (as a simulated episode's), not every 0.02 s step
+    t = np.array([s.t for s in twin.world.samples if s.t > twin.options.start_time + 1e-6])
+    period = scenario.plant_scene.outcome.sample_period
+    assert len(t) > 10 and np.diff(t).max() <= period + 0.02 + 1e-6
+    assert np.diff(t).mean() == pytest.approx(period, abs=0.005)
+
+
+def _Request(twin) -> float:
+    """One camera request served by the twin's loop; the frame's time."""
+    done, box = threading.Event(), {}
+    twin._requests.put((done, box))
+    twin._ServeFrames()
+    assert done.is_set() and "error" not in box, box
+    return box["frame"][0]
+
+
+def test_the_twin_renders_seldom_while_the_arm_moves_and_at_once_at_rest():
+    """A camera request while the arm or the fingers move gets the last
+    frame until ``moving_frame_period`` passed (rendering with the camera
+    model is most of the held phase's cost); once they stand still, a scene
+    that moved since is rendered at the next request (the episode captures
+    its views at rest)."""
+    scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    twin = Twin(scenario, TwinOptions(frame_period=0.2, moving_frame_period=1.0))
+    w = twin.world
+    w.AdvanceTo(0.1)
+    assert _Request(twin) == pytest.approx(0.1)
+    w.AdvanceTo(0.5)
+    twin._frame_pose = twin._frame_pose + 1.0       # the scene moved since that frame
+    twin._moving = True
+    assert _Request(twin) == pytest.approx(0.1)     # 0.4 s < 1 s: the last frame
+    twin._moving = False
+    assert _Request(twin) == pytest.approx(0.5)     # at rest: rendered now
+    w.AdvanceTo(0.6)
+    assert _Request(twin) == pytest.approx(0.5)     # 0.1 s < frame_period
+    twin._frame_pose = twin._frame_pose + 1.0
+    twin._moving = True
+    w.AdvanceTo(1.6)
+    assert _Request(twin) == pytest.approx(1.6)     # moving, but 1.1 s > 1 s
+    assert [f["t"] for f in twin.frames] == pytest.approx([0.1, 0.5, 1.6])
