@@ -17,6 +17,7 @@ from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
 from lmap_drake.shape.branch import CompleteBranches
 from lmap_drake.shape.config import METHODS, BranchCompletionConfig, SscConfig
 from lmap_drake.shape.free_space import FreeSpacePoints
+from lmap_drake.shape.hypotheses import FitHypotheses
 from lmap_drake.shape.ssc import OptimizeShape
 from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
@@ -125,6 +126,10 @@ def _CompleteFruit(semantic: SemanticScene, fruit: np.ndarray, other_fruits: np.
             samples = branch.samples_W
             negatives.append((samples, P.w_neg_completed_branch))
         est = OptimizeShape(decoder, mean_latent, fruit, cam, negatives, samples, P)
+        if P.num_hypotheses > 0:
+            t1 = time.time()
+            est.hypotheses = FitHypotheses(decoder, mean_latent, fruit, cam, negatives, P, est)
+            timings["hypotheses_s"] = timings.get("hypotheses_s", 0.0) + time.time() - t1
     timings["fruit_s"] = timings.get("fruit_s", 0.0) + time.time() - t0
     return est
 
