@@ -71,9 +71,9 @@ class ShapeHypotheses:
     """The fruit shapes a view leaves plausible (``shape.hypotheses``): the
     kept hypotheses' meshes (W, m), Sim(3) ``X_WO`` (K,4,4), latents (K,C),
     volumes (cm^3), volume centroids (W, m), axes (W, unit), RMS surface
-    residuals (m) and the fraction of negative points deeper than 2 mm in
-    each; ``num_fitted`` hypotheses were fitted. Intervals over the kept
-    ones: ``volume_interval_cm3`` (lo, hi; the 90 % interval),
+    residuals (m), the fraction of the fruit points near each surface and
+    the fraction of negative points deeper than 2 mm in each;
+    ``num_fitted`` hypotheses were fitted. Intervals over the kept ones: ``volume_interval_cm3`` (lo, hi; the 90 % interval),
     ``center_interval_W`` (2,3: lowest and highest per world axis, m),
     ``axis_spread_deg`` (largest angle to the estimate's axis)."""
     vertices_W: list
@@ -84,6 +84,7 @@ class ShapeHypotheses:
     center_W: np.ndarray
     axis_W: np.ndarray
     residual_m: np.ndarray
+    inlier_fraction: np.ndarray
     inside_fraction: np.ndarray
     num_fitted: int
     volume_interval_cm3: np.ndarray
@@ -94,7 +95,8 @@ class ShapeHypotheses:
     def Record(self) -> dict:
         """A compact JSON form (no meshes: each hypothesis is its latent
         and X_WO, from which ``shape.ssc.MakeFruitEstimate`` rebuilds it)."""
-        r = lambda a, n=5: np.round(np.asarray(a, float), n).tolist()  # noqa: E731
+        def r(a, n=5):
+            return np.round(np.asarray(a, float), n).tolist()
         return {"num_fitted": self.num_fitted, "num_kept": len(self.volume_cm3),
                 "volume_interval_cm3": r(self.volume_interval_cm3, 2),
                 "center_interval_W": r(self.center_interval_W),

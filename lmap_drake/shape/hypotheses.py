@@ -8,13 +8,15 @@ leading batch dimension (one decoder call per step over the K x M rows),
 and keeps those that explain the observations about as well as the best
 and respect the free space:
 
-* starts: the first estimate's own fit (``start``, kept as hypothesis 0),
-  then K-1 starts around the first estimate's start pose: scales
-  ``hypothesis_scale_range`` (log-spaced factors on the start scale, the
-  centre pushed back from the camera in proportion so that a larger fruit
-  still has the visible patch on its front), axes tilted by
-  ``hypothesis_tilt_deg`` about alternating horizontal directions, latents
-  the mean latent moved along the fit's latent by +-50 %;
+* starts: the first estimate's own fit (``start``; hypothesis 0, always
+  kept, reported as the estimate itself),
+  then K-1 starts around it: scales ``hypothesis_scale_range``
+  (log-spaced factors on its scale, the centre pushed back from the camera
+  in proportion so that a larger fruit still has the visible patch on its
+  front), its axis tilted by ``hypothesis_tilt_deg`` about alternating
+  directions across the view ray, its latent, or that latent moved +-50 %
+  of its offset from the mean latent (without an estimate: the same around
+  the fit's start, ``InitialPose``);
 * losses: the fit's surface, negative (leaf, branch, free space, other
   fruits, completed branch) and latent terms with its weights; no peduncle
   term (the stalk says where the axis passes, the set is about what the
@@ -22,9 +24,13 @@ and respect the free space:
   ``hypothesis_negative_points`` active negatives per hypothesis from
   ``hypothesis_negative_candidates`` shared candidates, re-selected every
   ``refresh_every`` steps, ``hypothesis_iterations`` Adam steps;
-* kept: the RMS surface residual within ``hypothesis_margin`` (m) of the
-  best hypothesis's, and at most ``hypothesis_max_inside`` of the negative
-  candidates deeper than 2 mm inside.
+* kept: at least ``hypothesis_min_inliers`` of the fruit points within
+  ``hypothesis_inlier_distance`` (m) of its surface, or the RMS surface
+  residual within ``hypothesis_margin`` (m) of the best hypothesis's (a
+  100-step fit from a displaced start may not have settled: a residual
+  threshold alone rejected the right size of a half-seen fruit), and at
+  most ``hypothesis_max_inside`` of the negative candidates deeper than 2
+  mm inside.
 
 Intervals over the kept set (``ShapeHypotheses``): the volume (the lowest
 and highest kept volume, named the 90 % interval: with K <= 10 hypotheses
@@ -81,18 +87,20 @@ def Starts(decoder, mean_latent, fruit, cam, P: SscConfig, start: FruitEstimate 
     tilts = [np.eye(3), _Tilt(horiz, P.hypothesis_tilt_deg), _Tilt(away, P.hypothesis_tilt_deg),
              _Tilt(horiz, -P.hypothesis_tilt_deg), _Tilt(away, -P.hypothesis_tilt_deg)]
     z_fit = z0 if start is None else np.asarray(start.latent, np.float32)
+    R_fit = np.eye(3)
     zs, ss, Rs, ts = [], [], [], []
-    if start is not None:
-        sc = float(np.cbrt(abs(np.linalg.det(start.X_WO[:3, :3]))))
+    if start is not None:       # around the estimate: only what the points leave open moves
+        s0 = float(np.cbrt(abs(np.linalg.det(start.X_WO[:3, :3]))))
+        R_fit, t0 = start.X_WO[:3, :3] / s0, np.asarray(start.X_WO[:3, 3], float)
         zs.append(z_fit)
-        ss.append(sc)
-        Rs.append(start.X_WO[:3, :3] / sc)
-        ts.append(start.X_WO[:3, 3])
+        ss.append(s0)
+        Rs.append(R_fit)
+        ts.append(t0)
     for i, f in enumerate(factors):
         lat = (0.0, 0.5, -0.5)[i % 3]
-        zs.append(z0 + lat * (z_fit - z0))
+        zs.append(z_fit + lat * (z_fit - z0))
         ss.append(s0 * f)
-        Rs.append(tilts[i % len(tilts)])
+        Rs.append(tilts[i % len(tilts)] @ R_fit)
         ts.append(t0 + 0.8 * r0 * s0 * (f - 1.0) * away)
     return (np.asarray(zs, np.float32), np.asarray(ss, float), np.asarray(Rs, float),
             np.asarray(ts, float))
@@ -175,17 +183,20 @@ def FitHypotheses(decoder, mean_latent, fruit_points_W, camera_W,
         opt.step()
     with torch.no_grad():
         s, R, tt = pose()
-        rms = (sdf(sur[None].expand(K, -1, 3), s, R, z) ** 2).mean(1).sqrt().numpy()
+        d_sur = sdf(sur[None].expand(K, -1, 3), s, R, z)
+        rms = (d_sur ** 2).mean(1).sqrt().numpy()
+        inliers = (d_sur.abs() < P.hypothesis_inlier_distance).float().mean(1).numpy()
         strong = cand_w >= 0.5
         inside = np.zeros(K)
         if strong.any():
             dn = sdf(cand_x[strong][None].expand(K, -1, 3), s, R, z).numpy()
             inside = (dn < -0.002).mean(1)
-    keep = (rms <= rms.min() + P.hypothesis_margin) & (inside <= P.hypothesis_max_inside)
-    if start is not None and not keep.any():
+    keep = ((inliers >= P.hypothesis_min_inliers) | (rms <= rms.min() + P.hypothesis_margin)) \
+        & (inside <= P.hypothesis_max_inside)
+    if start is not None:      # the estimate itself is always one of the set
         keep[0] = True
-    return _Pack(decoder, z.detach(), s.numpy(), R.numpy().astype(float), tt.numpy(), rms,
-                 inside, keep, start, P, time.time() - t_start)
+    return _Pack(decoder, z.detach(), s.numpy(), R.numpy().astype(float), tt.detach().numpy(),
+                 rms, inliers, inside, keep, start, P, time.time() - t_start)
 
 
 def _HypothesisMesh(decoder, z: torch.Tensor, s: float, R: np.ndarray, t: np.ndarray,
@@ -212,10 +223,21 @@ def _HypothesisMesh(decoder, z: torch.Tensor, s: float, R: np.ndarray, t: np.nda
     return s * vO @ R.T + t, faces
 
 
-def _Pack(decoder, z, s, R, t, rms, inside, keep, start, P: SscConfig,
+def _Pack(decoder, z, s, R, t, rms, inliers, inside, keep, start, P: SscConfig,
           seconds: float) -> ShapeHypotheses:
     meshes, vols, cents, axes = [], [], [], []
+    X = np.zeros((len(s), 4, 4))
+    X[:, :3, :3] = s[:, None, None] * R
+    X[:, :3, 3], X[:, 3, 3] = t, 1.0
+    z = z.clone()
     for k in np.flatnonzero(keep):
+        if k == 0 and start is not None:    # the estimate as fitted, its own mesh
+            meshes.append((start.vertices_W, start.faces))
+            vols.append(abs(MeshVolume(start.vertices_W, start.faces)) * 1e6)
+            cents.append(np.asarray(start.center_W, float))
+            axes.append(np.asarray(start.peduncle_axis_W, float))
+            X[0], z[0] = start.X_WO, torch.as_tensor(start.latent)
+            continue
         U, _, Vt = np.linalg.svd(R[k])
         Rk = U @ Vt
         v, f = _HypothesisMesh(decoder, z[k], float(s[k]), Rk, t[k].astype(float),
@@ -227,13 +249,11 @@ def _Pack(decoder, z, s, R, t, rms, inside, keep, start, P: SscConfig,
     vols, cents, axes = np.asarray(vols), np.asarray(cents), np.asarray(axes)
     ref = np.asarray(start.peduncle_axis_W, float) if start is not None else axes[0]
     ang = np.degrees(np.arccos(np.clip(axes @ ref / np.linalg.norm(ref), -1, 1)))
-    X = np.zeros((len(s), 4, 4))
-    X[:, :3, :3] = s[:, None, None] * R
-    X[:, :3, 3], X[:, 3, 3] = t, 1.0
     return ShapeHypotheses(
         vertices_W=[m[0] for m in meshes], faces=[m[1] for m in meshes],
         X_WO=X[keep], latents=z.numpy()[keep].copy(), volume_cm3=vols, center_W=cents,
-        axis_W=axes, residual_m=rms[keep], inside_fraction=inside[keep],
+        axis_W=axes, residual_m=rms[keep], inlier_fraction=inliers[keep],
+        inside_fraction=inside[keep],
         num_fitted=int(len(s)),
         volume_interval_cm3=np.array([vols.min(), vols.max()]),
         center_interval_W=np.stack([cents.min(0), cents.max(0)]),
