@@ -67,6 +67,47 @@ class BranchEstimate:
 
 
 @dc.dataclass
+class ShapeHypotheses:
+    """The fruit shapes a view leaves plausible (``shape.hypotheses``): the
+    kept hypotheses' meshes (W, m), Sim(3) ``X_WO`` (K,4,4), latents (K,C),
+    volumes (cm^3), volume centroids (W, m), axes (W, unit), RMS surface
+    residuals (m), the fraction of the fruit points near each surface and
+    the fraction of negative points deeper than 2 mm in each;
+    ``num_fitted`` hypotheses were fitted. Intervals over the kept ones: ``volume_interval_cm3`` (lo, hi; the 90 % interval),
+    ``center_interval_W`` (2,3: lowest and highest per world axis, m),
+    ``axis_spread_deg`` (largest angle to the estimate's axis)."""
+    vertices_W: list
+    faces: list
+    X_WO: np.ndarray
+    latents: np.ndarray
+    volume_cm3: np.ndarray
+    center_W: np.ndarray
+    axis_W: np.ndarray
+    residual_m: np.ndarray
+    inlier_fraction: np.ndarray
+    inside_fraction: np.ndarray
+    num_fitted: int
+    volume_interval_cm3: np.ndarray
+    center_interval_W: np.ndarray
+    axis_spread_deg: float
+    seconds: float = 0.0
+
+    def Record(self) -> dict:
+        """A compact JSON form (no meshes: each hypothesis is its latent
+        and X_WO, from which ``shape.ssc.MakeFruitEstimate`` rebuilds it)."""
+        def r(a, n=5):
+            return np.round(np.asarray(a, float), n).tolist()
+        return {"num_fitted": self.num_fitted, "num_kept": len(self.volume_cm3),
+                "volume_interval_cm3": r(self.volume_interval_cm3, 2),
+                "center_interval_W": r(self.center_interval_W),
+                "axis_spread_deg": round(float(self.axis_spread_deg), 2),
+                "volume_cm3": r(self.volume_cm3, 2), "center_W": r(self.center_W),
+                "axis_W": r(self.axis_W, 4), "residual_m": r(self.residual_m, 6),
+                "X_WO": r(self.X_WO, 6), "latents": r(self.latents, 5),
+                "seconds": round(float(self.seconds), 3)}
+
+
+@dc.dataclass
 class FruitEstimate:
     """Completed fruit. ``X_WO`` is the Sim(3) object-to-world map as a 4x4
     (scale folded into the rotation block); ``sdf_W`` maps (N,3) world
@@ -79,6 +120,8 @@ class FruitEstimate:
     peduncle_axis_W: np.ndarray
     sdf_W: Callable[[np.ndarray], np.ndarray] | None = None
     loss_trace: list[dict] = dc.field(default_factory=list)
+    # the plausible shapes besides this one (None: not fitted)
+    hypotheses: ShapeHypotheses | None = None
 
 
 @dc.dataclass

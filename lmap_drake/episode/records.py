@@ -51,11 +51,29 @@ def DescribePlan(plan) -> str:
             + (f"{e:.2e} m^2" if e is not None else "n/a"))
 
 
-def PlanRecord(plan, stage_seconds: dict | None = None) -> dict:
+def HypothesesRecord(estimate) -> dict | None:
+    """The fruit's shape hypotheses of a ``SceneEstimate`` (or a
+    ``PlantEstimate``: its fruits' in a list) in JSON form
+    (``ShapeHypotheses.Record``); None without any."""
+    if estimate is None:
+        return None
+    fruits = getattr(estimate, "fruits", None)
+    if fruits is not None:
+        recs = [f.hypotheses.Record() if getattr(f, "hypotheses", None) is not None else None
+                for f in fruits]
+        return {"fruits": recs} if any(r is not None for r in recs) else None
+    f = getattr(estimate, "fruit", None)
+    h = getattr(f, "hypotheses", None)
+    return h.Record() if h is not None else None
+
+
+def PlanRecord(plan, stage_seconds: dict | None = None, estimate=None) -> dict:
     """``plan.json``: the planner's answer (status, chosen action, predicted
-    visibility, stage timings), the same for a run and its replay."""
+    visibility, stage timings), the same for a run and its replay; with the
+    ``estimate`` planned on, its fruit's shape hypotheses
+    (``shape_hypotheses``, ``HypothesesRecord``)."""
     if plan is None:
-        return {"status": None}
+        return {"status": None, "shape_hypotheses": HypothesesRecord(estimate)}
     out = {"status": plan.status, "method": plan.method, "message": plan.message,
            "chosen_action": plan.chosen.Row() if plan.chosen is not None else None,
            "action": plan.chosen.action.Describe() if plan.chosen is not None else None,
@@ -73,6 +91,7 @@ def PlanRecord(plan, stage_seconds: dict | None = None) -> dict:
         out["target"] = plan.target        # which fruit, its occluders, why
     if stage_seconds is not None:
         out["stage_seconds"] = stage_seconds
+    out["shape_hypotheses"] = HypothesesRecord(estimate)
     return out
 
 
@@ -99,8 +118,9 @@ def SaveEpisode(result: EpisodeResult, out: Path, clients=None) -> list[str]:
     (out / "episode.json").write_text(json.dumps(result.record, indent=2, default=float))
     files = ["episode.json"]
     plan = result.status.plan
-    (out / "plan.json").write_text(json.dumps(PlanRecord(plan, result.status.stage_seconds),
-                                              indent=1, default=float))
+    (out / "plan.json").write_text(json.dumps(PlanRecord(
+        plan, result.status.stage_seconds, getattr(result.status, "initial_estimate", None)),
+        indent=1, default=float))
     files.append("plan.json")
     if plan is not None:
         plan.SaveJson(out / "candidates.json")

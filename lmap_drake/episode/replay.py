@@ -94,7 +94,7 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
     stage_seconds = {"segmentation_s": seg_s, "shape_completion_s": ssc_s,
                      "planning_s": plan_s, **plan.timings}
     files = ["scenario.yaml", "plan.json", "replay.json"]
-    (out / "plan.json").write_text(json.dumps(PlanRecord(plan, stage_seconds), indent=1,
+    (out / "plan.json").write_text(json.dumps(PlanRecord(plan, stage_seconds, estimate), indent=1,
                                               default=float))
     plan.SaveJson(out / "candidates.json")
     files.append("candidates.json")

@@ -21,8 +21,8 @@ from pydrake.geometry import Meshcat
 
 from lmap_drake.diagram import EpisodeResources, WriteDiagramSvg
 from lmap_drake.episode.hardware_world import HardwareWorld
-from lmap_drake.episode.records import (DescribePlan, EpisodeResult, OutcomeLine,
-                                        SaveEpisode)
+from lmap_drake.episode.records import (DescribePlan, EpisodeResult, HypothesesRecord,
+                                        OutcomeLine, SaveEpisode)
 from lmap_drake.episode.sim_world import FrameMeshcat, SimWorld
 from lmap_drake.plants.generator import SaveGroundTruth
 from lmap_drake.plants.multi import MULTI_KINDS, NumPlantFruits, SaveMultiGroundTruth
@@ -150,6 +150,11 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
         "outcome": None,
         "shape_initial": None,
         "shape_final": None,
+        # the fruit's plausible shapes before and after the action (intervals
+        # of volume, centre and axis; shape.ssc.num_hypotheses)
+        "shape_hypotheses": {
+            "initial": HypothesesRecord(getattr(st, "initial_estimate", None)),
+            "final": HypothesesRecord(getattr(st, "final_estimate", None))},
         "stage_seconds": st.stage_seconds,
         "simulated_seconds": world.time,
         "simulation_wall_seconds": step_wall,

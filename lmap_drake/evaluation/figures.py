@@ -41,7 +41,8 @@ def ShapeCaseFigure(semantic, gt_vertices_W: np.ndarray, gt_center_W: np.ndarray
     """One shape-completion case as a PNG: the camera's view and a side view
     (cm about the true centre; the side view has the camera on the left),
     with the observed leaf, branch and fruit points, the true fruit (grey)
-    and each method's estimate outlined (``estimates``: method ->
+    and each method's estimate outlined, its shape hypotheses dotted
+    (``estimates``: method ->
     FruitEstimate; ``metrics``: method -> ShapeMetrics dict for the legend)."""
     import matplotlib
     matplotlib.use("Agg")
@@ -73,6 +74,13 @@ def ShapeCaseFigure(semantic, gt_vertices_W: np.ndarray, gt_center_W: np.ndarray
                 f"{r['center_err_cm']:.2f} cm / {r['angle_err_deg']:.1f}°" if r else "")
             _Outline(ax, xy(est.vertices_W), color=METHOD_COLORS.get(m, "k"), lw=1.8,
                      label=label, zorder=5)
+            hyp = getattr(est, "hypotheses", None)
+            for k, v in enumerate(hyp.vertices_W if hyp is not None else []):
+                lo, hi = hyp.volume_interval_cm3
+                _Outline(ax, xy(v), color=METHOD_COLORS.get(m, "k"), lw=0.6, ls=":",
+                         zorder=3, label=(f"{NAME_OF_METHOD.get(m, m)} hypotheses "
+                                          f"({len(hyp.vertices_W)} kept, {lo:.0f}-{hi:.0f} "
+                                          f"cm³)") if k == 0 else None)
         ax.plot(0, 0, "k+", ms=10, zorder=6)
         lim = max(6.0, float(np.abs(gt).max()) * 1.6)
         ax.set_xlim(-lim, lim)

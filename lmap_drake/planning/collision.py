@@ -51,6 +51,45 @@ class UnionSdf:
         return out
 
 
+class MeshSdf:
+    """Signed distance (m, negative inside) to a closed triangle mesh (W),
+    batched with Open3D's RaycastingScene (inside by ray parity)."""
+
+    def __init__(self, vertices_W: np.ndarray, faces: np.ndarray):
+        import open3d as o3d
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(o3d.core.Tensor(np.asarray(vertices_W, np.float32)),
+                                  o3d.core.Tensor(np.asarray(faces, np.uint32)))
+
+    def __call__(self, points_W: np.ndarray) -> np.ndarray:
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if len(p) == 0:
+            return np.zeros(0)
+        return self._scene.compute_signed_distance(o3d.core.Tensor(p)).numpy().astype(float)
+
+
+def FruitSetSdf(fruit, pad: float = 0.05):
+    """(sdf, (lo, hi)): the signed distance (m) to the union of a
+    ``FruitEstimate`` and its kept shape hypotheses (``fruit.hypotheses``;
+    the estimate's own SDF, each other hypothesis's mesh through
+    ``MeshSdf``) and the box of them all: clearance checked against it holds
+    for every shape the view leaves plausible. Without hypotheses, the
+    estimate's SDF and box."""
+    box = (fruit.vertices_W.min(0), fruit.vertices_W.max(0))
+    hyp = getattr(fruit, "hypotheses", None)
+    if hyp is None or len(hyp.vertices_W) <= 1:
+        return fruit.sdf_W, box
+    sdfs, boxes = [fruit.sdf_W], [box]
+    for v, f in zip(hyp.vertices_W[1:], hyp.faces[1:]):     # 0 is the estimate
+        if len(f):
+            sdfs.append(MeshSdf(v, f))
+            boxes.append((v.min(0), v.max(0)))
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
+    return UnionSdf(sdfs, boxes, pad), (lo, hi)
+
+
 def NearBox(points_W, lo: np.ndarray, hi: np.ndarray, geometries=None) -> np.ndarray:
     """Points inside the axis-aligned box [lo, hi] (a cheap pre-filter).
     ``points_W``: an (N, 3) array, or the robot's samples per geometry

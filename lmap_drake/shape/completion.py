@@ -13,10 +13,11 @@ import numpy as np
 
 from lmap_drake.parallel import ParallelMap
 from lmap_drake.perception.points import SplitOversizedLeaves, SplitTouchingLeaves
-from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
+from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid, HomaParams
 from lmap_drake.shape.branch import CompleteBranches
 from lmap_drake.shape.config import METHODS, BranchCompletionConfig, SscConfig
 from lmap_drake.shape.free_space import FreeSpacePoints
+from lmap_drake.shape.hypotheses import FitHypotheses
 from lmap_drake.shape.ssc import OptimizeShape
 from lmap_drake.types import PlantEstimate, SceneEstimate, SemanticScene
 
@@ -110,6 +111,11 @@ def _CompleteFruit(semantic: SemanticScene, fruit: np.ndarray, other_fruits: np.
         est = FitSuperellipsoid(fruit, cam, seed=P.seed)
     elif method == "homa":
         est = FitHoma(decoder, mean_latent, fruit, cam, P)
+        if P.num_hypotheses > 0:       # the same set from the points alone
+            t1 = time.time()
+            est.hypotheses = FitHypotheses(decoder, mean_latent, fruit, cam, (),
+                                           HomaParams(P), est)
+            timings["hypotheses_s"] = timings.get("hypotheses_s", 0.0) + time.time() - t1
     else:
         observed = [p for p in (semantic.fruit_points_W, semantic.leaf_points_W,
                                 semantic.branch_points_W, semantic.background_points_W)
@@ -125,6 +131,10 @@ def _CompleteFruit(semantic: SemanticScene, fruit: np.ndarray, other_fruits: np.
             samples = branch.samples_W
             negatives.append((samples, P.w_neg_completed_branch))
         est = OptimizeShape(decoder, mean_latent, fruit, cam, negatives, samples, P)
+        if P.num_hypotheses > 0:
+            t1 = time.time()
+            est.hypotheses = FitHypotheses(decoder, mean_latent, fruit, cam, negatives, P, est)
+            timings["hypotheses_s"] = timings.get("hypotheses_s", 0.0) + time.time() - t1
     timings["fruit_s"] = timings.get("fruit_s", 0.0) + time.time() - t0
     return est
 

@@ -24,7 +24,12 @@ class SscConfig:
     points. ``rotation_lr_scale``: the rotation's share of the Adam step;
     ``rotation_hold_steps``: the first estimate keeps the rotation still for
     this many Adam steps, 0 = off; ``w_rot``: the pull toward upright, 0 =
-    off. ``reestimate_*``: the same weights for the re-estimate after the
+    off. ``surface_sampling``: spread (farthest-point) or random choice of
+    the ``max_surface_points``; ``stop_tolerance`` / ``min_iterations``:
+    the fit stops early when the loss flattens (0 = never).
+    ``num_hypotheses`` and ``hypothesis_*``: the set of plausible shapes
+    fitted besides the estimate (``lmap_drake/shape/hypotheses.py``; 0 =
+    none). ``reestimate_*``: the same weights for the re-estimate after the
     action (``ReestimateConfig``). ``fruit_volume_cm3``: the typical volume
     of the variety (cm^3; 0 = the template's own mean shape, about 170
     cm^3): every SSC and HoMa-style fit starts at the template scaled to it
@@ -45,8 +50,8 @@ class SscConfig:
     # m: the fit starts at the fruit points' centroid moved this far away from the
     # camera (unless ``init_from_observation``)
     push_from_camera: float = 0.01
-    max_surface_points: int = 300  # fruit points used by the surface loss (random subset)
-    max_negative_points: int = 300  # cap on the active negative points per refresh
+    max_surface_points: int = 100  # fruit points used by the surface loss (``surface_sampling``)
+    max_negative_points: int = 200  # cap on the active negative points per refresh
     # m: negatives inside or within this of the current surface are active
     negative_margin: float = 0.005
     # negatives examined per refresh (random subset of those near the start centre)
@@ -73,6 +78,25 @@ class SscConfig:
     reestimate_rotation_lr_scale: float = 1.0
     reestimate_w_rot: float = 0.0
     reestimate_rotation_hold_steps: int = 50
+    surface_sampling: str = "random"  # random | spread (farthest-point) choice of them
+    # stop when the loss falls by less than this fraction per refresh window; 0 = off
+    stop_tolerance: float = 0.0
+    min_iterations: int = 100  # Adam steps before ``stop_tolerance`` may stop the fit
+    # shape hypotheses fitted per fruit (the estimate among them); 0 = none
+    num_hypotheses: int = 6
+    hypothesis_iterations: int = 100  # Adam steps of the batched hypothesis fit
+    hypothesis_surface_points: int = 48  # fruit points (spread) per hypothesis
+    hypothesis_negative_points: int = 48  # cap on the active negatives per hypothesis
+    hypothesis_negative_candidates: int = 1500  # negatives examined per refresh (shared)
+    # factors on the estimate's scale of the hypotheses' starts (log-spaced)
+    hypothesis_scale_range: list[float] = dc.field(default_factory=lambda: [0.7, 1.4])
+    hypothesis_tilt_deg: float = 15.0  # deg: the starts' axes tilted this far from the estimate's
+    # m: kept if its RMS surface residual is within this of the best one's
+    hypothesis_margin: float = 0.0005
+    hypothesis_inlier_distance: float = 0.002  # m: a fruit point this near the surface is explained
+    hypothesis_min_inliers: float = 0.9  # kept if this fraction of the fruit points is explained
+    hypothesis_max_inside: float = 0.02  # dropped if more of the negatives are 2 mm inside it
+    hypothesis_mesh_spacing: float = 0.005  # m: grid spacing of each hypothesis's mesh
     seed: int = 0
 
 
@@ -175,6 +199,20 @@ _RULES = {
     "ssc.init_scale_bounds": "2x>0",
     "ssc.refresh_every": ">=1",
     "ssc.mesh_spacing": ">0",
+    "ssc.stop_tolerance": ">=0",
+    "ssc.num_hypotheses": ">=0",
+    "ssc.hypothesis_iterations": ">=1",
+    "ssc.hypothesis_surface_points": ">=1",
+    "ssc.hypothesis_negative_points": ">=1",
+    "ssc.hypothesis_negative_candidates": ">=1",
+    "ssc.hypothesis_scale_range": "2x>0",
+    "ssc.hypothesis_tilt_deg": "[0,90]",
+    "ssc.hypothesis_margin": ">=0",
+    "ssc.hypothesis_inlier_distance": ">0",
+    "ssc.hypothesis_min_inliers": "[0,1]",
+    "ssc.hypothesis_max_inside": "[0,1]",
+    "ssc.hypothesis_mesh_spacing": ">0",
+    "ssc.min_iterations": ">=0",
     "branch.slab": ">0",
     "branch.radius_factor": ">0",
     "branch.mesh_res": ">0",
@@ -184,7 +222,7 @@ _RULES = {
     "branch.relative_tolerance": ">0",
     "branch.sample_spacing": ">0",
 }
-_ENUMS = {"method": METHODS}
+_ENUMS = {"method": METHODS, "ssc.surface_sampling": ("random", "spread")}
 
 
 def ValidateShapeConfig(cfg: ShapeConfig, path: str = "shape") -> None:

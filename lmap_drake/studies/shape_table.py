@@ -12,8 +12,15 @@ peppers of the project's family beside a branch, a leaf-like plate hiding
 Writes FILE.json ({"source", "ssc": {"initial_occlusion": {"chamfer_cm",
 "volume_err_cm3", "center_err_cm", "angle_err_deg", "seconds"},
 "without_occlusion": {...}}, ..., "rows": [...]}) and FILE.md (table).
-``seconds`` is the fruit-completion time per fruit (free space + fit;
-branch completion reported separately as ``branch_seconds``).
+``seconds`` is the fruit-completion time per fruit (free space + fit +
+hypothesis set; branch completion reported separately as
+``branch_seconds``). With hypothesis sets (``shape.ssc.num_hypotheses`` >
+0; SSC and HoMa-style) every method and condition also has
+``volume_interval_coverage`` (the fraction of cases whose true volume lies
+in the set's 90 % volume interval), ``volume_interval_width`` (the mean
+interval width over the true volume) and ``hypotheses_seconds``; rows
+hold ``volume_interval_cm3``, ``volume_in_interval``,
+``volume_interval_rel_width`` and ``num_hypotheses`` (kept).
 
 ``--seeds 0,1,2,3`` repeats every fit with those optimiser seeds (surface /
 negative subsampling): the tables are then means over cases and seeds, and
@@ -149,6 +156,14 @@ def Means(rows, methods) -> dict:
             out[m][cond] = {k: float(np.mean([r[k] for r in sel])) if sel else float("nan")
                             for k in METRICS}
             out[m][cond]["num_cases"] = len({r["case"] for r in sel})
+            iv = [r for r in sel if "volume_in_interval" in r]
+            if iv:     # the hypothesis sets' volume intervals (shape.ssc.num_hypotheses)
+                out[m][cond]["volume_interval_coverage"] = float(
+                    np.mean([r["volume_in_interval"] for r in iv]))
+                out[m][cond]["volume_interval_width"] = float(
+                    np.mean([r["volume_interval_rel_width"] for r in iv]))
+                out[m][cond]["hypotheses_seconds"] = float(
+                    np.mean([r["hypotheses_seconds"] for r in iv]))
             for k in ("center_depth_cm", "center_up_cm", "center_side_cm"):
                 vals = [r[k] for r in sel if k in r]
                 out[m][cond][k.replace("_cm", "_rms_cm")] = (
@@ -181,6 +196,14 @@ def Markdown(res: dict, methods) -> str:
             lines.append(f"| {cond.replace('_', ' ')} | {NAMES[m]} | {r['chamfer_cm']:.2f} | "
                          f"{r['volume_err_cm3']:.1f} | {r['center_err_cm']:.2f} | "
                          f"{r['angle_err_deg']:.1f} | {r['seconds']:.2f} |")
+    ivs = [(cond, m) for cond in conds for m in methods
+           if "volume_interval_coverage" in res[m][cond]]
+    if ivs:
+        lines += ["", "Volume intervals of the hypothesis sets (coverage of the true volume / "
+                  "mean width over the true volume):", ""]
+        lines += [f"- {cond.replace('_', ' ')}, {NAMES[m]}: "
+                  f"{res[m][cond]['volume_interval_coverage']:.2f} / "
+                  f"{res[m][cond]['volume_interval_width']:.2f}" for cond, m in ivs]
     if "seed_std" in res:
         lines += ["", "Standard deviation over seeds of the mean (Chamfer / volume / centre / "
                   "angle):", ""]
@@ -334,6 +357,14 @@ def _Evaluate(todo, conditions, seeds, methods, P, cfg, dec, mean, n_figures, fi
                                                           case.gt_faces)) * 1e6,
                              scale=float(np.cbrt(abs(np.linalg.det(f.X_WO[:3, :3])))),
                              **CentreOffsetCm(f, case, sem))
+                    if f.hypotheses is not None:
+                        lo, hi = (float(x) for x in f.hypotheses.volume_interval_cm3)
+                        gv = r["gt_volume_cm3"]
+                        r.update(volume_interval_cm3=[lo, hi],
+                                 volume_in_interval=bool(lo <= gv <= hi),
+                                 volume_interval_rel_width=(hi - lo) / gv,
+                                 num_hypotheses=len(f.hypotheses.volume_cm3),
+                                 hypotheses_seconds=tm.get("hypotheses_s", 0.0))
                     if m != "supeps":
                         if negatives is None:
                             negatives = SceneNegatives(sem, cfg.free_space_voxel)

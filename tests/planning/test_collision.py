@@ -83,3 +83,38 @@ def test_the_robot_body_keeps_the_larger_margin_from_a_fruit_the_fingers_the_sma
     assert RobotCollisionReason(samples, sdf, None, 0.005, box, None, 0.015) == ""
     assert RobotCollisionReason(samples, sdf, None, 0.012, box, None, 0.015).startswith(
         "robot-fruit")
+
+
+def test_fruit_set_sdf_keeps_clear_of_every_kept_hypothesis():
+    """A point outside the estimate but inside a larger hypothesis (the
+    unseen part of the fruit may be there) is inside the set's SDF; without
+    hypotheses the set is the estimate."""
+    import trimesh
+    from lmap_drake.planning.collision import FruitSetSdf, MeshSdf
+    from lmap_drake.types import FruitEstimate, ShapeHypotheses
+    c = np.array([0.5, 0.0, 0.3])
+    small = trimesh.creation.icosphere(3, radius=0.03)
+    small.apply_translation(c)
+    big = trimesh.creation.icosphere(3, radius=0.045)
+    big.apply_translation(c + [0.01, 0, 0])
+    est = FruitEstimate(np.asarray(small.vertices), np.asarray(small.faces), np.eye(4),
+                        np.zeros(2), c, np.array([0, 0, 1.0]), sdf_W=_Sphere(c, 0.03))
+    p = np.array([c + [0.05, 0, 0], c + [0.0, 0, 0.1]])
+    sdf, box = FruitSetSdf(est)
+    assert sdf is est.sdf_W and np.allclose(box[0], small.vertices.min(0))
+    n = 2
+    est.hypotheses = ShapeHypotheses(
+        vertices_W=[est.vertices_W, np.asarray(big.vertices)], faces=[est.faces, big.faces],
+        X_WO=np.tile(np.eye(4), (n, 1, 1)), latents=np.zeros((n, 2)),
+        volume_cm3=np.array([113.0, 382.0]), center_W=np.array([c, c]),
+        axis_W=np.array([[0, 0, 1.0]] * n), residual_m=np.zeros(n),
+        inlier_fraction=np.ones(n), inside_fraction=np.zeros(n), num_fitted=3,
+        volume_interval_cm3=np.array([113.0, 382.0]), center_interval_W=np.array([c, c]),
+        axis_spread_deg=0.0)
+    sdf, (lo, hi) = FruitSetSdf(est)
+    d = sdf(p)
+    assert est.sdf_W(p[:1])[0] > 0.015 and d[0] < -0.004     # inside the big one only
+    assert abs(d[1] - (np.linalg.norm([0.01, 0, 0.1]) - 0.045)) < 0.002
+    assert np.allclose(hi, np.asarray(big.vertices).max(0))
+    m = MeshSdf(big.vertices, big.faces)(np.array([c + [0.01, 0, 0]]))
+    assert abs(m[0] + 0.045) < 0.001

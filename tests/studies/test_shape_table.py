@@ -32,6 +32,15 @@ def test_eval_shape_on_a_folder_of_meshes(tmp_path):
                       "seconds"):
                 assert np.isfinite(res[m][cond][k])
                 assert res["per_fruit"]["tiny"][m][cond][k] == res[m][cond][k]
+    for m in ("homa", "ssc"):     # the hypothesis sets' volume intervals
+        for cond in ("initial_occlusion", "without_occlusion"):
+            assert 0.0 <= res[m][cond]["volume_interval_coverage"] <= 1.0
+            assert res[m][cond]["volume_interval_width"] >= 0.0
+    assert "volume_interval_coverage" not in res["supeps"]["initial_occlusion"]
+    for r in res["rows"]:
+        if r["method"] != "supeps":
+            lo, hi = r["volume_interval_cm3"]
+            assert lo <= hi and r["volume_in_interval"] == (lo <= r["gt_volume_cm3"] <= hi)
     assert {r["fruit"] for r in res["rows"]} == {"tiny"}
     for r in res["rows"]:   # the centre error split along the view ray, up and sideways
         split = np.linalg.norm([r["center_depth_cm"], r["center_up_cm"], r["center_side_cm"]])
