@@ -33,6 +33,8 @@ SHELLS = {
     "eval_held_leaf": ["--runs", "--weights", "--out"],
     "eval_segmentation": ["--out", "--recordings", "--scenario_file", "--backends", "--scenarios",
                           "--seed", "--settle"],
+    "export_plant": ["--out", "--scenario_file", "--scenario_name", "--scenario_text", "--seed",
+                     "--cards", "--overwrite"],
     "eval_shape": ["--out", "--md", "--methods", "--fruit_mesh_dir", "--conditions",
                    "--figures"],
     "make_robot_models": [],
