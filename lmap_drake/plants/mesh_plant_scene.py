@@ -19,13 +19,13 @@ from pydrake.geometry import (CollisionFilterDeclaration, Cylinder, GeometryInst
                               PerceptionProperties, RenderLabel, Rgba)
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
-from pydrake.multibody.tree import SpatialInertia
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, EncodeLabel
 from lmap_drake.plants.config import PlantSceneConfig
 from lmap_drake.plants.greenhouse_scene import AddGreenhouseDressing
 from lmap_drake.plants.mesh_plant import PartVisual
-from lmap_drake.plants.scene import (AddFemLeaf, LeafBodyName, RegisterLabeledGeometry,
+from lmap_drake.plants.scene import (AddFemLeaf, AddPlantBody, LeafBodyName,
+                                     RegisterLabeledGeometry,
                                      _CylinderBetween, _ObjMesh)
 
 
@@ -69,11 +69,7 @@ def AddMeshPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConfi
     collide with the fruits and the robot, not with the stems or static
     leaves (their petioles touch the stems) nor with each other unless
     ``multi.leaf_leaf_contact``."""
-    world = plant.world_body()
-    instance = plant.AddModelInstance("plant_world")
-    body = plant.AddRigidBody("branch", instance, SpatialInertia.SolidCylinderWithMass(
-        0.05, cfg.branch.radius, cfg.branch.length, [0, 0, 1]))
-    plant.WeldFrames(plant.world_frame(), body.body_frame(), RigidTransform())
+    world, instance, body = AddPlantBody(plant, cfg)
     branch_gids = []
     for b, (br, vis) in enumerate(zip(model.branches, model.stem_visuals)):
         _AddVisual(plant, body, vis, f"stem_{b}", EncodeLabel(BRANCH, b))

@@ -520,8 +520,12 @@ class PlantWorldSim:
                 best = (inside, j, V)
         inside, leaf, V = best
         if len(inside) < 3:
+            static = self._StaticLeafBetweenPads(X_WG, X_GT, pad)
+            why = "" if static is None else (
+                f"; the pads hold leaf {static}, which this simulated plant models as static "
+                f"(welded, not FEM: plant_scene.greenhouse.max_fem_leaves)")
             raise RuntimeError(f"grasp failed: {len(inside)} leaf vertices between the pads "
-                               f"(opening {width * 1000:.1f} mm)")
+                               f"(opening {width * 1000:.1f} mm){why}")
         T = _Kabsch(self.leaf_refs[leaf].rest_W[inside], V[inside])
         grasp = LeafGrasp(X_GA=X_WG.inverse() @ T, p_GR=X_GT.translation(), size=pad,
                           leaf=leaf)
@@ -531,6 +535,18 @@ class PlantWorldSim:
         self.grasp_state = GraspState(grasp, inside)
         self.progress(f"grasped {len(inside)} leaf vertices" + (f" (leaf {leaf})" if self.multi else ""))
         return self.grasp_state
+
+    def _StaticLeafBetweenPads(self, X_WG, X_GT, pad) -> int | None:
+        """The index (FEM leaves first) of a static leaf of a greenhouse or
+        mesh plant with surface vertices between the pads, or None."""
+        statics = getattr(self.model, "static_leaves", None) or []
+        X_GW = X_WG.inverse().GetAsMatrix4()
+        for s, leaf in enumerate(statics):
+            V = np.asarray(leaf.surface_W.vertices, float)
+            p_G = (X_GW @ np.c_[V, np.ones(len(V))].T).T[:, :3]
+            if np.any(np.all(np.abs(p_G - X_GT.translation()) <= pad / 2, axis=1)):
+                return len(self.leaf_refs) + s
+        return None
 
     def Fork(self) -> "PlantWorldSim":
         """An independent copy that continues from the current state (same

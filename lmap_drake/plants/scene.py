@@ -95,6 +95,18 @@ def _ObjMesh(mesh, name: str) -> Mesh:
     return Mesh(data)
 
 
+def AddPlantBody(plant: MultibodyPlant, cfg: PlantSceneConfig):
+    """The plant's model instance ``plant_world`` and its rigid ``branch``
+    body welded to the world (the stems', shoots' and fruits' geometry
+    hangs from it). Returns (world body, instance, branch body)."""
+    from pydrake.multibody.tree import SpatialInertia
+    instance = plant.AddModelInstance("plant_world")
+    body = plant.AddRigidBody("branch", instance, SpatialInertia.SolidCylinderWithMass(
+        0.05, cfg.branch.radius, cfg.branch.length, [0, 0, 1]))
+    plant.WeldFrames(plant.world_frame(), body.body_frame(), RigidTransform())
+    return plant.world_body(), instance, body
+
+
 def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConfig,
                        with_leaf: bool = True) -> dict:
     """Adds ``model`` (a ``PlantModel``) to ``plant``: the branch as a rigid
@@ -105,13 +117,8 @@ def AddProceduralPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     Returns handles: ``branch_body``, ``leaf_body_id``, ``leaf_geometry_id``,
     ``fruit_geometry_ids``."""
     from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
-    from pydrake.multibody.tree import SpatialInertia
 
-    world = plant.world_body()
-    instance = plant.AddModelInstance("plant_world")
-    branch_body = plant.AddRigidBody("branch", instance, SpatialInertia.SolidCylinderWithMass(
-        0.05, cfg.branch.radius, cfg.branch.length, [0, 0, 1]))
-    plant.WeldFrames(plant.world_frame(), branch_body.body_frame(), RigidTransform())
+    world, instance, branch_body = AddPlantBody(plant, cfg)
     pts = model.branch_points_W
     for i in range(len(pts) - 1):
         X, length = _CylinderBetween(pts[i], pts[i + 1])
@@ -230,13 +237,8 @@ def AddMultiPlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantSceneConf
     Returns handles: ``branch_geometry_ids`` (per branch), ``leaf_body_ids``,
     ``leaf_geometry_ids``, ``fruit_geometry_ids`` (per fruit)."""
     from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
-    from pydrake.multibody.tree import SpatialInertia
 
-    world = plant.world_body()
-    instance = plant.AddModelInstance("plant_world")
-    body = plant.AddRigidBody("branch", instance, SpatialInertia.SolidCylinderWithMass(
-        0.05, cfg.branch.radius, cfg.branch.length, [0, 0, 1]))
-    plant.WeldFrames(plant.world_frame(), body.body_frame(), RigidTransform())
+    world, instance, body = AddPlantBody(plant, cfg)
     branch_gids = []
     for b, br in enumerate(model.branches):
         gids = []
