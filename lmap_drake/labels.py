@@ -3,7 +3,11 @@ perception and evaluation.
 
 A render label is ``class_id * 100 + instance`` (instance 0..99); anything
 outside [100, 500) is background (Drake's reserved empty/don't-care labels
-included).
+included). A neighbouring plant (the greenhouse's next row, not the plant
+being worked on) is ``NEIGHBOUR + class_id`` (``EncodeNeighbourLabel``):
+background to ``DecodeLabels`` (the label oracle, scoring, occluders), its
+branch / leaf class to ``NeighbourClassMap`` (segmenter training, and the
+pixels evaluation leaves out).
 """
 from __future__ import annotations
 
@@ -17,6 +21,7 @@ ROBOT = 4
 CLASS_NAMES = {BACKGROUND: "background", BRANCH: "branch", LEAF: "leaf",
                FRUIT: "fruit", ROBOT: "robot"}
 _STRIDE = 100
+NEIGHBOUR = 900
 
 
 def EncodeLabel(class_id: int, instance: int = 0) -> int:
@@ -40,3 +45,21 @@ def DecodeLabels(label_image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     cls = np.where(valid, lab // _STRIDE, BACKGROUND)
     inst = np.where(valid, lab % _STRIDE, -1)
     return cls, inst
+
+
+def EncodeNeighbourLabel(class_id: int) -> int:
+    """Render-label value of a neighbouring plant's branch or leaf."""
+    if class_id not in (BRANCH, LEAF):
+        raise ValueError(f"a neighbouring plant's class_id must be {BRANCH} or {LEAF}, "
+                         f"got {class_id}")
+    return NEIGHBOUR + class_id
+
+
+def NeighbourClassMap(label_image: np.ndarray) -> np.ndarray:
+    """Per-pixel class id (branch / leaf) of the neighbouring plants' pixels
+    of a label image; 0 elsewhere."""
+    lab = np.asarray(label_image).astype(np.int64)
+    if lab.ndim == 3:
+        lab = lab[..., 0]
+    return np.where((lab == NEIGHBOUR + BRANCH) | (lab == NEIGHBOUR + LEAF), lab - NEIGHBOUR,
+                    BACKGROUND)

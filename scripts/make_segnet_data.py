@@ -3,7 +3,8 @@
 (``lmap_drake/perception/segnet.py``): domain randomisation of the plant,
 of every colour, of the lights, of the camera pose and model and of the arm
 pose; with ``--held_leaf F`` a fraction F of the scenes shows a leaf held
-and turned by the gripper as the planner's actions leave it.
+and turned by the gripper as the planner's actions leave it; with
+``--greenhouse F`` a fraction F is a random greenhouse scene.
 
     python scripts/make_segnet_data.py --out out/segnet_data --count 400 --seed 10000
 
@@ -34,6 +35,10 @@ def main(argv=None) -> int:
     ap.add_argument("--held_leaf", type=float, default=0.0,
                     help="fraction of scenes with a leaf held by the gripper, turned about its "
                          "attachment as the planner's twists, arcs and pulls leave it")
+    ap.add_argument("--greenhouse", type=float, default=0.0,
+                    help="fraction of scenes from the greenhouse world (random textured "
+                         "plants of 1-2 stems and 15-45 leaves, dressing, neighbouring row, "
+                         "greenhouse or random lights, exposure and white balance)")
     args = ap.parse_args(argv)
     try:
         MakeSegNetData(**vars(args))

@@ -16,3 +16,15 @@ def test_encode_rejects_bad_values():
         EncodeLabel(FRUIT, 100)
     with pytest.raises(ValueError):
         EncodeLabel(BACKGROUND)
+
+
+def test_neighbour_labels_are_background_to_decode_and_classes_to_neighbour_map():
+    from lmap_drake.labels import BRANCH, EncodeNeighbourLabel, NeighbourClassMap
+    img = np.array([[EncodeNeighbourLabel(LEAF), EncodeNeighbourLabel(BRANCH),
+                     EncodeLabel(LEAF, 99), 0]], np.int16)
+    cls, inst = DecodeLabels(img)
+    assert cls.tolist() == [[BACKGROUND, BACKGROUND, LEAF, BACKGROUND]]
+    assert inst[0, :2].tolist() == [-1, -1]
+    assert NeighbourClassMap(img).tolist() == [[LEAF, BRANCH, BACKGROUND, BACKGROUND]]
+    with pytest.raises(ValueError):
+        EncodeNeighbourLabel(FRUIT)

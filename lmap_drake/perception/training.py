@@ -6,7 +6,8 @@ on the randomised renders of ``scripts/make_segnet_data.py``.
 
 Random 128 x 128 crops (centred on fruit pixels 45 % of the time, on other
 plant pixels 25 %, on the robot and other non-plant returns 30 %), horizontal flips and
-colour gain jitter; cross-entropy with the fruit and branch classes weighted
+colour jitter (``ColorJitter``: gain, per-channel white balance, hue shifts,
+blur, pixel noise); cross-entropy with the fruit and branch classes weighted
 2x; Adam with a cosine learning-rate decay. A tenth of the samples (every
 10th seed) is held out and reported as per-class IoU (green and other fruit
 separately) in the weights file's ``meta`` and in ``OUT.json``. About 15 min
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy import ndimage
 from tqdm import tqdm
 
 from lmap_drake.errors import InputError
@@ -52,7 +54,8 @@ def LoadSamples(folder: Path) -> list[dict]:
         out.append({"seed": int(f.stem), "x": d["inputs"], "y": d["truth"].astype(np.int64),
                     "kind": str(d["fruit_kind"]),
                     "multi": bool(d["multi"]) if "multi" in d.files else False,
-                    "held": bool(d["held"]) if "held" in d.files else False})
+                    "held": bool(d["held"]) if "held" in d.files else False,
+                    "greenhouse": bool(d["greenhouse"]) if "greenhouse" in d.files else False})
     return out
 
 
@@ -78,9 +81,32 @@ def RandomCrop(sample: dict, rng: np.random.Generator, size: int = CROP):
         xc = xc[:, :, ::-1].copy()
         yc = yc[:, ::-1].copy()
         xc[5] *= -1.0
-    gain = rng.uniform(0.8, 1.2)
-    xc[:3] = (xc[:3] + 0.5) * gain * rng.uniform(0.95, 1.05, (3, 1, 1)) - 0.5
+    xc[:3] = ColorJitter(xc[:3] + 0.5, rng) - 0.5
     return xc, yc
+
+
+def HueRotation(deg: float) -> np.ndarray:
+    """3x3 RGB matrix turning colours by ``deg`` about the grey axis (a hue
+    shift that keeps grey grey)."""
+    a = np.radians(deg)
+    k = np.ones(3) / np.sqrt(3.0)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+
+
+def ColorJitter(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A (3, H, W) RGB crop in [0, 1] with a random gain (0.75-1.25), white
+    balance (per channel 0.9-1.1), and with probability 0.5 a hue shift of
+    up to 10 deg, 0.25 a Gaussian blur (0.5-1.2 px), 0.5 pixel noise
+    (sigma 0.005-0.03); clipped to [0, 1]."""
+    x = rgb * rng.uniform(0.75, 1.25) * rng.uniform(0.9, 1.1, (3, 1, 1))
+    if rng.random() < 0.5:
+        x = np.einsum("ij,jhw->ihw", HueRotation(rng.uniform(-10, 10)), x)
+    if rng.random() < 0.25:
+        x = ndimage.gaussian_filter(x, (0, *[rng.uniform(0.5, 1.2)] * 2))
+    if rng.random() < 0.5:
+        x = x + rng.normal(0, rng.uniform(0.005, 0.03), x.shape)
+    return np.clip(x, 0.0, 1.0).astype(np.float32)
 
 
 def Iou(pred: np.ndarray, truth: np.ndarray, c: int) -> float:
@@ -95,6 +121,7 @@ def Validate(net, samples: list[dict]) -> dict:
     for s in samples:
         pred = PredictLogits(net, s["x"].astype(np.float32)).argmax(0)
         rows.append({"kind": s["kind"], "multi": s["multi"], "held": s["held"],
+                     "greenhouse": s.get("greenhouse", False),
                      **{k: Iou(pred, s["y"], c)
                                          for k, c in (("branch", 1), ("leaf", 2), ("fruit", 3))}})
     net.train()
@@ -114,6 +141,10 @@ def Validate(net, samples: list[dict]) -> dict:
     if held:        # a leaf held by the gripper, turned (make_segnet_data.py --held_leaf)
         out.update(n_held=len(held), leaf_iou_held=mean(held, "leaf"),
                    fruit_iou_held=mean(held, "fruit"))
+    gh = [r for r in rows if r["greenhouse"]]
+    if gh:          # greenhouse scenes (make_segnet_data.py --greenhouse)
+        out.update(n_greenhouse=len(gh), **{f"{k}_iou_greenhouse": mean(gh, k)
+                                            for k in ("fruit", "leaf", "branch")})
     return out
 
 
@@ -153,7 +184,8 @@ def TrainSegNet(args: SegNetTrainingOptions) -> dict:
     meta = {"init": args.init, "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
             "batch": args.batch, "lr": args.lr, "crop": CROP,
             "multi_samples": sum(s["multi"] for s in samples),
-            "held_samples": sum(s["held"] for s in samples), "seconds": round(time.time() - t0, 1),
+            "held_samples": sum(s["held"] for s in samples),
+            "greenhouse_samples": sum(s["greenhouse"] for s in samples), "seconds": round(time.time() - t0, 1),
             "data": str(args.data), "seed_range": [min(s["seed"] for s in samples),
                                                    max(s["seed"] for s in samples)],
             "validation": metrics}

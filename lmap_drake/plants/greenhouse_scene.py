@@ -6,7 +6,9 @@ with ``greenhouse.textures`` every leaf and fruit textured instead, see
 ``leaf_texture``),
 the strings, and static dressing (heating pipes, rails, a slab, a bright
 glass wall, optionally a neighbouring row). Dressing is visual only and
-labelled background (render label 0)."""
+labelled background (render label 0); the neighbouring row's leaves and
+stems carry the neighbour labels (``labels.EncodeNeighbourLabel``:
+background to the label oracle and scoring, leaf / branch to training)."""
 from __future__ import annotations
 
 import dataclasses as dc
@@ -19,7 +21,7 @@ from pydrake.geometry import (Box, CollisionFilterDeclaration, Cylinder, Geometr
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 
-from lmap_drake.labels import BRANCH, LEAF, EncodeLabel
+from lmap_drake.labels import BRANCH, LEAF, EncodeLabel, EncodeNeighbourLabel
 from lmap_drake.plants.leaf_texture import FruitTextureFiles, InsideTets, LeafTextureFiles
 from lmap_drake.plants.multi_geometry import BranchTube
 from lmap_drake.plants.config import PlantSceneConfig
@@ -36,14 +38,14 @@ GLASS_COLOR = Rgba(0.82, 0.9, 0.97, 1.0)
 ROW_COLOR = Rgba(0.2, 0.42, 0.16, 1.0)
 
 
-def _Visual(plant, name: str, X: RigidTransform, shape, rgba: Rgba) -> None:
-    """Visual-only world geometry, labelled background."""
+def _Visual(plant, name: str, X: RigidTransform, shape, rgba: Rgba, label: int = 0) -> None:
+    """Visual-only world geometry, render label ``label`` (background)."""
     gi = GeometryInstance(X, shape, name)
     ill = IllustrationProperties()
     ill.AddProperty("phong", "diffuse", rgba)
     per = PerceptionProperties()
     per.AddProperty("phong", "diffuse", rgba)
-    per.AddProperty("label", "id", RenderLabel(0))
+    per.AddProperty("label", "id", RenderLabel(label))
     gi.set_illustration_properties(ill)
     gi.set_perception_properties(per)
     plant.RegisterVisualGeometry(plant.world_body(), gi)
@@ -144,20 +146,22 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     return handles
 
 
-def _CanopyMesh(model) -> trimesh.Trimesh:
-    """The plant's leaves and stems as one mesh (W): the neighbouring row's plants."""
-    parts = [s.surface_W for s in model.static_leaves] + [lf.Surface() for lf in model.leaves]
-    parts += [BranchTube(b, sections=6) for b in model.branches]
-    return trimesh.util.concatenate(parts)
+def _CanopyMesh(model) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
+    """The plant's leaves and its stems, one mesh each (W): the neighbouring
+    row's plants."""
+    leaves = [s.surface_W for s in model.static_leaves] + [lf.Surface() for lf in model.leaves]
+    return (trimesh.util.concatenate(leaves),
+            trimesh.util.concatenate([BranchTube(b, sections=6) for b in model.branches]))
 
 
 def AddGreenhouseDressing(plant, base: np.ndarray, p_WC: np.ndarray,
-                          canopy: trimesh.Trimesh | None) -> None:
+                          canopy: tuple[trimesh.Trimesh, trimesh.Trimesh] | None) -> None:
     """Static greenhouse dressing around a plant at ``base`` seen from
     ``p_WC`` (W, m): a stone-wool slab on a hanging gutter under the row, two
     heating pipes (the pipe-rail) along the row, a wire above, a glass wall
-    behind and, with ``canopy`` (a plant's mesh, W), a neighbouring row of
-    shifted, turned copies of it further back (background, not labelled)."""
+    behind and, with ``canopy`` (a plant's leaf and stem meshes, W), a
+    neighbouring row of shifted, turned copies of it beside and further back
+    (neighbour labels: ``EncodeNeighbourLabel``)."""
     to_cam = p_WC - base
     d = np.array([to_cam[0], to_cam[1], 0.0])
     d /= max(np.linalg.norm(d), 1e-9)
@@ -192,4 +196,6 @@ def AddGreenhouseDressing(plant, base: np.ndarray, p_WC: np.ndarray,
             # turned about the plant base, then moved along / behind the row
             X = RigidTransform(at(along, back, 0.0)) @ RigidTransform(turn) @ \
                 RigidTransform(-base)
-            _Visual(plant, f"gh_row_{k}", X, _ObjMesh(canopy, f"gh_row_{k}"), Rgba(*c, 1.0))
+            for part, cls, tag in ((canopy[0], LEAF, "leaves"), (canopy[1], BRANCH, "stems")):
+                _Visual(plant, f"gh_row_{k}_{tag}", X, _ObjMesh(part, f"gh_row_{k}_{tag}"),
+                        Rgba(*c, 1.0), EncodeNeighbourLabel(cls))

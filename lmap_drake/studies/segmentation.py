@@ -16,7 +16,8 @@ otherwise Defaults and OneOfEverything from diagrams/default.yaml.
 Writes JSON: ``{backend: {"mean": {"fruit_iou", "leaf_iou", "branch_iou"},
 "mean_non_green": {...}, "mean_green": {...}, "phantom_fruits_per_view",
 "per_fruit_color": {colour: {"fruit_iou", "views"}}, "scenarios": {name: {...}}}}``.
-IoU is over pixels; the robot counts as background. A class absent from both
+IoU is over pixels; the robot counts as background, a neighbouring plant's
+pixels (the greenhouse's next row) are left out. A class absent from both
 the truth and the prediction has IoU null and is left out of the means.
 ``fruit_color`` (red / orange / yellow / green, from the rendered truth
 pixels' hue) lets green peppers be reported separately. Per scenario,
@@ -57,7 +58,7 @@ import numpy as np
 from tqdm import tqdm
 
 from lmap_drake.errors import InputError
-from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels
+from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels, NeighbourClassMap
 from lmap_drake.paths import REPO_ROOT as REPO
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording
@@ -116,10 +117,16 @@ def _mean(rows: list[dict]) -> dict:
 def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     """One view's figures for one backend's ``seg``: IoU per class, fruit
     instances with the truth of their pixels, phantoms (mostly not fruit;
-    and with no fruit pixel at all), fruit IoU per true fruit colour."""
+    and with no fruit pixel at all), fruit IoU per true fruit colour. The
+    pixels of a neighbouring plant (``labels.NeighbourClassMap``: the
+    greenhouse's next row) are left out of the class IoUs (neither right
+    nor wrong); a fruit instance on them still counts as a phantom (they
+    bear no fruit)."""
     row = {}
+    keep = NeighbourClassMap(label) == 0
+    row["neighbour_pixels"] = int((~keep).sum())
     for key, c in CLASSES:
-        v = ClassIou(seg.class_map, truth, c)
+        v = ClassIou(seg.class_map[keep], truth[keep], c)
         row[key] = None if math.isnan(v) else round(v, 4)
     row["flags"] = seg.flags
     row["fruit_instances"] = FruitInstanceTruth(seg, truth)

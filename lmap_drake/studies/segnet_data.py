@@ -12,7 +12,10 @@ by a twist (20-70 deg about the attachment-grasp line), an arc (10-50 deg
 about an axis across it) or both, and pulled up to 4 cm, the arm at the
 turned grasp (``plants.leaf.TurnHeldLeaf``: the blade turns as one piece
 beyond the petiole). Without such views the network took most of a held,
-turned leaf for background.
+turned leaf for background. With ``--greenhouse F``, a fraction F of the
+scenes is a random greenhouse plant instead (``segnet_greenhouse``:
+textures, dressing, neighbouring row, greenhouse lights, exposure and
+white balance), its neighbouring row truth leaf / branch.
 
     python scripts/make_segnet_data.py --out out/segnet_data --count 400 --seed 10000
 
@@ -21,7 +24,7 @@ cropped to the plant and robot returns plus a margin) and the truth class
 map (uint8, background / branch / leaf / fruit; the robot is background),
 with ``fruit_kind`` (red / orange / yellow / green; ``mixed`` for a
 multi-fruit plant not all green) and ``multi`` (a multi-fruit plant,
-``--multi``). Sample ``i`` depends only
+``--multi``), ``greenhouse`` (a greenhouse scene). Sample ``i`` depends only
 on ``seed + i``, so a run can be extended or resumed (existing files are
 kept). Seeds used here must stay apart from the evaluation suites'
 (``RandomSuite(N, S)`` draws plants from its own seed ``S`` and never uses
@@ -42,6 +45,7 @@ from tqdm import tqdm
 
 from lmap_drake.errors import InputError
 from lmap_drake.perception.points import Intrinsics
+from lmap_drake.labels import NeighbourClassMap
 from lmap_drake.perception.segmentation import TruthClassMap
 from lmap_drake.perception.segnet import CropBox, SegNetInputs
 from lmap_drake.planning.candidates import GraspCandidates
@@ -51,6 +55,7 @@ from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.plants.suite import RandomMultiSuite, RandomSuite
 from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
 from lmap_drake.scenario import Scenario
+from lmap_drake.studies.segnet_greenhouse import RandomGreenhouseRenderScenario
 
 FRUIT_KINDS = ("red", "orange", "yellow", "green")
 FRUIT_HUES = {"red": (-8.0, 8.0), "orange": (18.0, 32.0), "yellow": (40.0, 55.0),
@@ -217,28 +222,37 @@ def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0
 
 
 def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
-                 multi: float = 0.0, held_leaf: float = 0.0) -> dict:
-    """Renders sample ``seed``; returns the arrays stored in its ``.npz``."""
-    s, kind, held = RandomRenderScenario(seed, arm_near_leaf, multi, held_leaf)
+                 multi: float = 0.0, held_leaf: float = 0.0, greenhouse: float = 0.0) -> dict:
+    """Renders sample ``seed``; returns the arrays stored in its ``.npz``.
+    With probability ``greenhouse`` (its own coin) a random greenhouse
+    scene (``segnet_greenhouse``) instead; a neighbouring plant's pixels
+    are truth leaf / branch."""
+    if np.random.default_rng([seed, 4]).random() < greenhouse:
+        s, kind, held = RandomGreenhouseRenderScenario(seed)
+    else:
+        s, kind, held = RandomRenderScenario(seed, arm_near_leaf, multi, held_leaf)
     rgb, depth, label = RenderStill(s, leaf_positions=held)
-    truth = TruthClassMap(label).astype(np.uint8)
+    truth = TruthClassMap(label)
+    nb = NeighbourClassMap(label)
+    truth = np.where(nb > 0, nb, truth).astype(np.uint8)
     K = Intrinsics.FromCameraConfig(s.cameras["camera0"])
     x = SegNetInputs(rgb, depth, K, s.perception.depth_cut)
     box = CropBox((x[3] > 0) | (truth > 0), margin)
     if box is None or not (truth == 3).any():
         raise ValueError("no fruit in view")
     return {"inputs": x[:, box[0], box[1]].astype(np.float16), "truth": truth[box],
-            "fruit_kind": kind, "multi": s.plant_scene.kind in MULTI_KINDS, "held": bool(held)}
+            "fruit_kind": kind, "multi": s.plant_scene.kind in MULTI_KINDS, "held": bool(held),
+            "greenhouse": s.plant_scene.kind == "greenhouse"}
 
 
 def _work(args) -> str:
-    seed, out, arm_near_leaf, multi, held_leaf = args
+    seed, out, arm_near_leaf, multi, held_leaf, greenhouse = args
     path = Path(out) / f"{seed:06d}.npz"
     if path.exists():
         return "kept"
     try:
         sample = RenderSample(seed, arm_near_leaf=arm_near_leaf, multi=multi,
-                              held_leaf=held_leaf)
+                              held_leaf=held_leaf, greenhouse=greenhouse)
     except Exception as err:  # a generator refusal or an empty view: skip the seed
         return f"skipped {seed}: {type(err).__name__}: {err}"
     tmp = path.with_suffix(".tmp.npz")
@@ -249,18 +263,19 @@ def _work(args) -> str:
 
 def MakeSegNetData(out, count: int = 400, seed: int = 10000, workers: int = 2,
                    arm_near_leaf: float = 0.5, multi: float = 0.0,
-                   held_leaf: float = 0.0) -> dict:
+                   held_leaf: float = 0.0, greenhouse: float = 0.0) -> dict:
     """Renders samples ``seed`` .. ``seed + count - 1`` into the folder
     ``out`` (existing ones are kept) with ``workers`` processes; returns the
     counts made / kept / skipped. Raises InputError for a fraction outside
     [0, 1] or a count or worker number below 1."""
-    if not all(0.0 <= v <= 1.0 for v in (multi, arm_near_leaf, held_leaf)):
-        raise InputError("--multi, --arm_near_leaf and --held_leaf must lie in [0, 1]")
+    if not all(0.0 <= v <= 1.0 for v in (multi, arm_near_leaf, held_leaf, greenhouse)):
+        raise InputError("--multi, --arm_near_leaf, --held_leaf and --greenhouse must lie in "
+                         "[0, 1]")
     if count < 1 or workers < 1:
         raise InputError("--count and --workers must be >= 1")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [(seed + i, str(out), arm_near_leaf, multi, held_leaf)
+    jobs = [(seed + i, str(out), arm_near_leaf, multi, held_leaf, greenhouse)
             for i in range(count)]
     t0 = time.time()
     counts: dict[str, int] = {}

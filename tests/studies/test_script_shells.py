@@ -39,7 +39,7 @@ SHELLS = {
                    "--figures"],
     "make_robot_models": [],
     "make_segnet_data": ["--out", "--count", "--seed", "--workers", "--arm_near_leaf",
-                         "--multi", "--held_leaf"],
+                         "--multi", "--held_leaf", "--greenhouse"],
     "make_suite": ["--random", "--seed", "--out", "--multi", "--fruit_mesh_dir", "--greenhouse"],
     "make_test_peppers": ["--out", "--count", "--seed", "--kinds", "--no_peduncle"],
     "plan_plant": ["--scenario_file", "--scenario_name", "--scenario_text", "--out"],
