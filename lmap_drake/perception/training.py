@@ -148,6 +148,28 @@ def Validate(net, samples: list[dict]) -> dict:
     return out
 
 
+def TrainSteps(net, draw, steps: int, batch: int, lr: float, desc: str) -> None:
+    """``steps`` Adam steps (cosine learning-rate decay from ``lr``) of the
+    class-weighted cross-entropy (leaf and fruit weighted 2) on batches of
+    ``batch`` crops, each ``draw()``: (input, target) as ``RandomCrop``
+    gives; a progress bar named ``desc`` shows the loss."""
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    weight = torch.tensor([1.0, 2.0, 1.0, 2.0])
+    bar = tqdm(range(steps), desc=desc, unit="step")
+    for step in bar:
+        crops = [draw() for _ in range(batch)]
+        x = torch.from_numpy(np.stack([b[0] for b in crops]))
+        y = torch.from_numpy(np.stack([b[1] for b in crops]))
+        loss = torch.nn.functional.cross_entropy(net(x), y, weight=weight)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        if step % 20 == 0:
+            bar.set_postfix(loss=f"{loss.item():.3f}")
+
+
 def TrainSegNet(args: SegNetTrainingOptions) -> dict:
     """Trains the network (see the module docstring), writes ``args.out``
     and its ``.json``, prints and returns the meta. Raises InputError when
@@ -164,22 +186,9 @@ def TrainSegNet(args: SegNetTrainingOptions) -> dict:
     net = SegNet()
     if args.init:
         net = LoadSegNet(args.init).train()
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, args.steps)
-    weight = torch.tensor([1.0, 2.0, 1.0, 2.0])
     t0 = time.time()
-    bar = tqdm(range(args.steps), desc="training", unit="step")
-    for step in bar:
-        batch = [RandomCrop(train[rng.integers(len(train))], rng) for _ in range(args.batch)]
-        x = torch.from_numpy(np.stack([b[0] for b in batch]))
-        y = torch.from_numpy(np.stack([b[1] for b in batch]))
-        loss = torch.nn.functional.cross_entropy(net(x), y, weight=weight)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        if step % 20 == 0:
-            bar.set_postfix(loss=f"{loss.item():.3f}")
+    TrainSteps(net, lambda: RandomCrop(train[rng.integers(len(train))], rng), args.steps,
+               args.batch, args.lr, "training")
     metrics = Validate(net, val)
     meta = {"init": args.init, "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
             "batch": args.batch, "lr": args.lr, "crop": CROP,

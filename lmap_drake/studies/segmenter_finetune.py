@@ -22,7 +22,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from lmap_drake.errors import InputError
 from lmap_drake.paths import REPO_ROOT
@@ -31,7 +30,7 @@ from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording
 from lmap_drake.perception.segnet import (CropBox, LoadSegNet, PredictLogits, SaveSegNet,
                                           SegNetInputs)
-from lmap_drake.perception.training import Iou, LoadSamples, RandomCrop
+from lmap_drake.perception.training import Iou, LoadSamples, RandomCrop, TrainSteps
 from lmap_drake.scenario import LoadScenario
 
 HOLDOUT_EVERY = 5
@@ -140,21 +139,11 @@ def FineTuneSegmenter(args) -> dict:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     net.train()
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, args.steps)
-    weight = torch.tensor([1.0, 2.0, 1.0, 2.0])
     t0 = time.time()
-    for _ in tqdm(range(args.steps), desc="train-segmenter", unit="step"):
-        batch = [RandomCrop(sim[rng.integers(len(sim))] if sim and rng.random() < args.sim_fraction
-                            else train[rng.integers(len(train))], rng)
-                 for _ in range(args.batch)]
-        x = torch.from_numpy(np.stack([b[0] for b in batch]))
-        y = torch.from_numpy(np.stack([b[1] for b in batch]))
-        loss = torch.nn.functional.cross_entropy(net(x), y, weight=weight)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
+    TrainSteps(net, lambda: RandomCrop(
+        sim[rng.integers(len(sim))] if sim and rng.random() < args.sim_fraction
+        else train[rng.integers(len(train))], rng), args.steps, args.batch, args.lr,
+        "train-segmenter")
     after = HeldOutIou(net, held)
     meta = {"init": str(init), "recordings": str(args.recordings),
             "annotations": str(args.annotations) if args.annotations else "labelme",

@@ -55,7 +55,7 @@ from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.plants.suite import RandomMultiSuite, RandomSuite
 from lmap_drake.plants.plant_station import GetPlantModel, RenderStill
 from lmap_drake.scenario import Scenario
-from lmap_drake.studies.segnet_greenhouse import RandomGreenhouseRenderScenario
+from lmap_drake.studies.segnet_greenhouse import RandomDepthNoise, RandomGreenhouseRenderScenario
 
 FRUIT_KINDS = ("red", "orange", "yellow", "green")
 FRUIT_HUES = {"red": (-8.0, 8.0), "orange": (18.0, 32.0), "yellow": (40.0, 55.0),
@@ -210,14 +210,7 @@ def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0
     if np.random.default_rng([seed, 2]).random() < held_leaf:
         held = HeldLeaf(s, np.random.default_rng([seed, 3]))
 
-    n = s.camera_noise
-    scale = rng.uniform(0.5, 2.0)
-    n.depth_sigma_0 *= scale
-    n.depth_sigma_z2 *= scale
-    n.mixed_pixel_fraction = float(rng.uniform(0.1, 0.5))
-    n.thin_dropout = float(rng.uniform(0.2, 0.8))
-    n.grazing_start_deg = float(rng.uniform(65, 78))
-    n.speckle_dropout = float(rng.uniform(0.0, 0.01))
+    RandomDepthNoise(s.camera_noise, rng)
     return s, kind, held
 
 

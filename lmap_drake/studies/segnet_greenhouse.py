@@ -30,6 +30,20 @@ TRAIN_MAX_STEMS = 2
 TRAIN_MAX_LEAVES = 45
 
 
+def RandomDepthNoise(n, rng) -> None:
+    """Draws the depth noise of a training scene (default-world and
+    greenhouse scenes alike) into the camera-noise config ``n`` (in place):
+    noise scaled 0.5-2x, mixed pixels, thin-structure and speckle dropout,
+    the grazing-angle fade."""
+    scale = rng.uniform(0.5, 2.0)
+    n.depth_sigma_0 *= scale
+    n.depth_sigma_z2 *= scale
+    n.mixed_pixel_fraction = float(rng.uniform(0.1, 0.5))
+    n.thin_dropout = float(rng.uniform(0.2, 0.8))
+    n.grazing_start_deg = float(rng.uniform(65, 78))
+    n.speckle_dropout = float(rng.uniform(0.0, 0.01))
+
+
 def _RandomLights(rng: np.random.Generator) -> list[dict]:
     out = []
     for _ in range(int(rng.integers(1, 4))):
@@ -87,13 +101,7 @@ def RandomGreenhouseRenderScenario(seed: int):
     s.robot.initial_q = [float(x) for x in q]
     n = s.camera_noise
     n.seed_offset = int(rng.integers(1, 1_000_000))
-    scale = rng.uniform(0.5, 2.0)
-    n.depth_sigma_0 *= scale
-    n.depth_sigma_z2 *= scale
-    n.mixed_pixel_fraction = float(rng.uniform(0.1, 0.5))
-    n.thin_dropout = float(rng.uniform(0.2, 0.8))
-    n.grazing_start_deg = float(rng.uniform(65, 78))
-    n.speckle_dropout = float(rng.uniform(0.0, 0.01))
+    RandomDepthNoise(n, rng)
     n.exposure_variation = float(rng.uniform(0.1, 0.35))
     n.white_balance_variation = float(rng.uniform(0.03, 0.12))
     n.illumination_gradient = float(rng.uniform(0.05, 0.2))
