@@ -15,9 +15,7 @@ import dataclasses as dc
 
 import numpy as np
 import trimesh
-from pydrake.geometry import (Box, CollisionFilterDeclaration, Cylinder, GeometryInstance,
-                              GeometrySet, IllustrationProperties, PerceptionProperties,
-                              RenderLabel, Rgba)
+from pydrake.geometry import Box, CollisionFilterDeclaration, Cylinder, GeometrySet, Rgba
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 
@@ -40,15 +38,8 @@ ROW_COLOR = Rgba(0.2, 0.42, 0.16, 1.0)
 
 def _Visual(plant, name: str, X: RigidTransform, shape, rgba: Rgba, label: int = 0) -> None:
     """Visual-only world geometry, render label ``label`` (background)."""
-    gi = GeometryInstance(X, shape, name)
-    ill = IllustrationProperties()
-    ill.AddProperty("phong", "diffuse", rgba)
-    per = PerceptionProperties()
-    per.AddProperty("phong", "diffuse", rgba)
-    per.AddProperty("label", "id", RenderLabel(label))
-    gi.set_illustration_properties(ill)
-    gi.set_perception_properties(per)
-    plant.RegisterVisualGeometry(plant.world_body(), gi)
+    RegisterLabeledGeometry(plant, plant.world_body(), X, shape, name, rgba, label,
+                            collision=False)
 
 
 def LeafTexturePaths(g, index: int, color, surface: trimesh.Trimesh, uv, normal_W):
