@@ -379,7 +379,8 @@ def SplitTouchingLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray, p_WC: np.
 
 def SplitOversizedLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray,
                          max_ratio: float = 1.5, min_instances: int = 3,
-                         min_points: int = 30, seed: int = 0) -> np.ndarray:
+                         min_points: int = 30, seed: int = 0,
+                         check_spread: bool = True) -> np.ndarray:
     """Leaf instance ids (N,) with instances too large to be one leaf split.
     Leaves of one plant are of a size, and the points are on a 3 mm voxel
     grid, so an instance's point count measures its visible area: one
@@ -388,7 +389,13 @@ def SplitOversizedLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray,
     ``SplitTouchingLeaves`` needs), and is split into round(ratio) parts by
     k-means on its points (the largest part keeps the id, new ids are
     appended). Needs ``min_instances`` instances of ``min_points`` to know
-    the size; noise (-1) stays noise. Why: the planner takes an instance for
+    the size; noise (-1) stays noise. With ``check_spread`` the premise is
+    checked first: when the middle half of the instances already spans
+    ``max_ratio`` or more (75th over 25th percentile of the point counts:
+    leaves seen whole and in part, near and far, young and old — a dense
+    canopy), size says nothing about how many blades an instance holds and
+    nothing is split (on greenhouse plants the k-means cut 10 single
+    leaves per view into wedges). Why: the planner takes an instance for
     one leaf with one petiole; two or three flush blades taken as one put the
     hinge on the wrong blade, and their lifts and arcs loaded the real
     petiole to 16.6 and 33.7 N in multi-fruit plants."""
@@ -400,7 +407,9 @@ def SplitOversizedLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray,
     u, n = u[keep], n[keep]
     if len(u) < min_instances:
         return ids
-    median = float(np.median(n))
+    q25, median, q75 = np.percentile(n, [25, 50, 75])
+    if check_spread and q75 >= max_ratio * q25:
+        return ids
     next_id = int(ids.max()) + 1
     for j, count in zip(u, n):
         k = int(round(count / median))

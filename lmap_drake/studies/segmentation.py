@@ -28,7 +28,12 @@ side shoot or stalk taken for a fruit: the planner would complete and
 reveal a fruit that is not there), summed in each backend's
 ``instances`` and averaged per view in ``phantom_fruits_per_view``
 (``phantom_fruits_per_view_no_overlap``: those with no true fruit pixel at
-all). ``fruit_colors`` gives per view the fruit IoU of each true fruit
+all). ``leaf_instances`` scores the backend's leaf instances against the true
+leaves (``perception.leaf_instances.LeafInstanceScores``: per view the
+best IoU of each true leaf of 200 pixels or more, matched at IoU 0.5,
+merges, splits; per backend ``matched_fraction``, ``mean_best_iou``,
+``merges_per_view``, ``splits_per_view``; docs/explanation/leaf-instances.md).
+``fruit_colors`` gives per view the fruit IoU of each true fruit
 colour (the fruit pixels of the other colours left out; phantom fruit
 counts against every colour) and its recall (the share of that colour's
 fruit pixels called fruit). Multi-fruit plants:
@@ -59,6 +64,7 @@ from tqdm import tqdm
 
 from lmap_drake.errors import InputError
 from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels, NeighbourClassMap
+from lmap_drake.perception.leaf_instances import LeafInstanceScores, SummariseLeafInstances
 from lmap_drake.paths import REPO_ROOT as REPO
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording
@@ -133,6 +139,9 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     row["phantoms"] = sum(r["fruit"] < 0.5 for r in row["fruit_instances"])
     row["phantoms_no_overlap"] = sum(r["fruit"] == 0.0 for r in row["fruit_instances"])
     cls, inst = DecodeLabels(label)
+    row["leaf_instances"] = LeafInstanceScores(
+        np.where(seg.class_map == LEAF, seg.instance_map, -1), np.where(cls == LEAF, inst, -1),
+        ignore=~keep)
     colors = {}
     for i in np.unique(inst[cls == FRUIT]):
         colors.setdefault(_fruit_color(rgb, np.where((cls == FRUIT) & (inst == i), 3, 0)),
@@ -166,6 +175,7 @@ def Summary(rows: list[dict]) -> dict:
             "phantom_fruits_per_view": round(sum(r["phantoms"] for r in rows) / n, 3),
             "phantom_fruits_per_view_no_overlap": round(
                 sum(r["phantoms_no_overlap"] for r in rows) / n, 3),
+            "leaf_instances": SummariseLeafInstances([r["leaf_instances"] for r in rows]),
             "instances": {"fruit_instances": sum(len(r["fruit_instances"]) for r in rows),
                           "phantoms": sum(r["phantoms"] for r in rows)},
             "views_evaluated": len(rows)}

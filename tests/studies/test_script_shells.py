@@ -31,6 +31,8 @@ SHELLS = {
     "eval_hazard_prediction": ["--out", "--families", "--pool", "--then_twist", "--then_arc",
                                "--then_turn_band", "--repredict", "--hinge_bending_weight"],
     "eval_held_leaf": ["--runs", "--weights", "--out"],
+    "eval_leaf_instances": ["--render", "--scenario_file", "--views", "--out", "--class_maps",
+                            "--min_pixels", "--baseline"],
     "eval_segmentation": ["--out", "--recordings", "--scenario_file", "--backends", "--scenarios",
                           "--seed", "--settle"],
     "export_plant": ["--out", "--scenario_file", "--scenario_name", "--scenario_text", "--seed",

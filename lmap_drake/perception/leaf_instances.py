@@ -1,0 +1,187 @@
+"""Leaf instances against the true leaves, and the planner's leaf instances
+painted back on the pixels they came from.
+
+``LeafInstanceScores`` compares an HxW instance map (-1 = none) with the
+render labels' true leaf ids; ``PointLeafInstances`` runs the point
+pipeline's leaf step (``points.ClassPoints``: outlier removal, DBSCAN,
+voxels; then ``SplitTouchingLeaves`` and ``SplitOversizedLeaves`` as
+``shape.completion.CompletePlant`` does) and gives each leaf pixel the
+instance of its voxel (-1: dropped as an outlier, flying pixel or DBSCAN
+noise).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from lmap_drake.labels import LEAF
+from lmap_drake.perception.points import (DbscanLabels, DeprojectPixels, FlyingPixelMask,
+                                          Intrinsics, SplitOversizedLeaves, SplitTouchingLeaves,
+                                          StatisticalOutlierMask, ValidDepthMask)
+
+MATCH_IOU = 0.5        # a true leaf is matched when an instance reaches this IoU with it
+MERGE_SHARE = 0.5      # an instance holding this share of two true leaves merges them
+SPLIT_SHARE = 0.2      # two instances each holding this share of a true leaf split it
+
+
+def LeafInstanceScores(pred: np.ndarray, truth: np.ndarray, min_pixels: int = 200,
+                       ignore: np.ndarray | None = None) -> dict:
+    """Scores of the leaf instance map ``pred`` (HxW int, -1 = not a leaf
+    instance) against the true leaf ids ``truth`` (HxW int, -1 = not a
+    leaf). Pixels where ``ignore`` is true (a neighbouring plant) are left
+    out. Only true leaves with at least ``min_pixels`` visible pixels count:
+
+    - ``best_iou``: per true leaf, the largest IoU of any instance with it;
+    - ``matched``: true leaves whose best IoU is at least ``MATCH_IOU``;
+    - ``merges``: instances holding ``MERGE_SHARE`` or more of the pixels of
+      each of two or more counted true leaves (one instance, several leaves);
+    - ``splits``: counted true leaves of which two or more instances each
+      hold ``SPLIT_SHARE`` or more (one leaf, several instances);
+    - ``instances``: instances of at least ``min_pixels`` pixels."""
+    pred = np.asarray(pred, np.int64)
+    truth = np.asarray(truth, np.int64)
+    if ignore is not None:
+        keep = ~np.asarray(ignore, bool)
+        pred = np.where(keep, pred, -1)
+        truth = np.where(keep, truth, -1)
+    t_ids, t_n = np.unique(truth[truth >= 0], return_counts=True)
+    p_ids, p_n = np.unique(pred[pred >= 0], return_counts=True)
+    leaves = t_ids[t_n >= min_pixels]
+    out = {"leaves": int(len(leaves)), "instances": int(np.sum(p_n >= min_pixels)),
+           "matched": 0, "merges": 0, "splits": 0, "best_iou": []}
+    if len(leaves) == 0:
+        return out
+    both = (truth >= 0) & (pred >= 0)
+    ti = np.searchsorted(t_ids, truth[both])
+    pi = np.searchsorted(p_ids, pred[both])
+    inter = np.zeros((len(t_ids), len(p_ids)), np.int64)
+    np.add.at(inter, (ti, pi), 1)
+    union = t_n[:, None] + p_n[None, :] - inter
+    iou = inter / np.maximum(union, 1)
+    share = inter / t_n[:, None]                       # of each true leaf, per instance
+    counted = np.isin(t_ids, leaves)
+    best = iou[counted].max(axis=1) if len(p_ids) else np.zeros(int(counted.sum()))
+    out["best_iou"] = [round(float(b), 3) for b in best]
+    out["matched"] = int(np.sum(best >= MATCH_IOU))
+    out["merges"] = int(np.sum((share[counted] >= MERGE_SHARE).sum(axis=0) >= 2))
+    out["splits"] = int(np.sum((share[counted] >= SPLIT_SHARE).sum(axis=1) >= 2))
+    return out
+
+
+def SummariseLeafInstances(rows: list[dict]) -> dict:
+    """Over the views' ``LeafInstanceScores``: ``matched_fraction`` (of all
+    counted true leaves), ``mean_best_iou``, ``merges_per_view``,
+    ``splits_per_view``, ``leaves``, ``views``."""
+    best = [b for r in rows for b in r["best_iou"]]
+    n = max(len(rows), 1)
+    leaves = sum(r["leaves"] for r in rows)
+    return {"matched_fraction": round(sum(r["matched"] for r in rows) / max(leaves, 1), 3),
+            "mean_best_iou": round(float(np.mean(best)), 3) if best else None,
+            "merges_per_view": round(sum(r["merges"] for r in rows) / n, 3),
+            "splits_per_view": round(sum(r["splits"] for r in rows) / n, 3),
+            "leaves": leaves, "views": len(rows)}
+
+
+def PointLeafInstances(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, params,
+                       split_angle_deg: float = 15.0, check_spread: bool = True) -> np.ndarray:
+    """HxW leaf instance ids (-1 = none) the planner would get from
+    ``class_map``'s leaf pixels: the leaf step of ``points.BuildSemanticScene``
+    (depth cut, flying pixels, outlier removal, DBSCAN, voxels of
+    ``params.voxel_size``; ``params`` a ``PerceptionConfig``) and the splits
+    of ``shape.completion.CompletePlant`` (``split_angle_deg``; 0 = none;
+    ``check_spread`` as ``SplitOversizedLeaves``), in the camera frame; each pixel takes its voxel's instance."""
+    d = np.asarray(depth, np.float64)
+    out = np.full(d.shape, -1, np.int64)
+    valid = ValidDepthMask(d, params.depth_cut) & ~FlyingPixelMask(d, params.flying_pixel_jump)
+    m = (np.asarray(class_map) == LEAF) & valid
+    pts = DeprojectPixels(d, m, K)
+    if len(pts) == 0:
+        return out
+    v, u = np.nonzero(m)                        # DeprojectPixels' order
+    keep = StatisticalOutlierMask(pts, params.outlier_neighbors, params.outlier_std_ratio)
+    pts, v, u = pts[keep], v[keep], u[keep]
+    inst = DbscanLabels(pts, params.dbscan_eps, params.dbscan_min_points)
+    if params.voxel_size > 0:                   # as points.VoxelDownsample
+        keys = np.concatenate([np.floor(pts / params.voxel_size).astype(np.int64),
+                               inst[:, None]], axis=1)
+        _, cell, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        cell = cell.ravel()
+        sums = np.zeros((len(counts), 3))
+        np.add.at(sums, cell, pts)
+        vox = sums / counts[:, None]
+        vox_inst = np.full(len(counts), -1, np.int64)
+        vox_inst[cell] = inst
+    else:
+        cell, vox, vox_inst = np.arange(len(pts)), pts, inst
+    if split_angle_deg > 0:
+        vox_inst = SplitTouchingLeaves(vox, vox_inst, np.zeros(3), split_angle_deg)
+        vox_inst = SplitOversizedLeaves(vox, vox_inst, check_spread=check_spread)
+    out[v, u] = vox_inst[cell]
+    return out
+
+
+def SplitAtNecks(mask: np.ndarray, neck_ratio: float = 0.5, min_radius: float = 3.0
+                 ) -> tuple[np.ndarray, int]:
+    """(HxW part ids, -1 outside ``mask``; number of parts) of one region
+    cut where its outline narrows to a neck: a leaf blade is convex in
+    outline, so the distance to the outline rises to one ridge; two blades
+    touching side by side or tip to edge at one depth join through a neck.
+    Every peak of that distance (a local maximum of at least ``min_radius``
+    pixels) whose pixels at or above ``neck_ratio`` times its height do not
+    reach a higher peak is a blade (the way to any higher peak passes a
+    neck narrower than ``neck_ratio`` of it); the blades' peaks seed a
+    watershed of the distance (``_GrowDownDistance``) that gives every
+    pixel of ``mask`` to one part. A region with one blade is one part
+    (ids 0). Scale-free: the same for a leaf near or far."""
+    from scipy import ndimage
+    mask = np.asarray(mask, bool)
+    out = np.full(mask.shape, -1, np.int64)
+    if not mask.any():
+        return out, 0
+    dist = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
+    out[mask] = 0
+    if dist.max() < 2 * min_radius:
+        return out, 1
+    peaks = mask & (dist >= min_radius) & (dist >= ndimage.maximum_filter(dist, size=5))
+    lab, n = ndimage.label(peaks, structure=np.ones((3, 3)))
+    if n <= 1:
+        return out, 1
+    height = np.asarray(ndimage.maximum(dist, lab, index=np.arange(1, n + 1)))
+    seeds = np.full(mask.shape, -1, np.int64)
+    kept = 0
+    for i in np.argsort(-height, kind="stable"):
+        level, _ = ndimage.label(dist >= neck_ratio * height[i], structure=np.ones((3, 3)))
+        mine = level[lab == i + 1][0]
+        if (dist[level == mine] > height[i]).any() or (seeds[level == mine] >= 0).any():
+            continue                   # reaches a higher (or an earlier) peak: no neck
+        seeds[lab == i + 1] = kept
+        kept += 1
+    if kept <= 1:
+        return out, 1
+    parts = _GrowDownDistance(seeds, dist, mask)
+    out[mask] = parts[mask]
+    return out, kept
+
+
+def _GrowDownDistance(seeds: np.ndarray, dist: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Watershed by flooding: ``seeds`` (HxW, -1 = none) grow, one pixel
+    step at a time, into the ``mask`` pixels at or above a level of
+    ``dist`` that falls by one pixel per round (the basins meet along the
+    necks); pixels still unreached take the nearest part."""
+    from scipy import ndimage
+    parts = np.where(mask, seeds, -1)
+    for level in np.arange(np.floor(dist.max()), -1.0, -1.0):
+        allowed = mask & (dist >= level)
+        for _ in range(4 * int(dist.max()) + 4):
+            todo = allowed & (parts < 0)
+            if not todo.any():
+                break
+            grown = ndimage.grey_dilation(parts, size=(3, 3))
+            take = todo & (grown >= 0)
+            if not take.any():
+                break
+            parts[take] = grown[take]
+    lost = mask & (parts < 0)
+    if lost.any() and (parts >= 0).any():
+        _, (iy, ix) = ndimage.distance_transform_edt(parts < 0, return_indices=True)
+        parts[lost] = parts[iy[lost], ix[lost]]
+    return parts
