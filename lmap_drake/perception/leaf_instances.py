@@ -12,6 +12,8 @@ noise).
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from lmap_drake.labels import LEAF
 from lmap_drake.perception.points import (DbscanLabels, DeprojectPixels, FlyingPixelMask,
@@ -36,6 +38,9 @@ def LeafInstanceScores(pred: np.ndarray, truth: np.ndarray, min_pixels: int = 20
       each of two or more counted true leaves (one instance, several leaves);
     - ``splits``: counted true leaves of which two or more instances each
       hold ``SPLIT_SHARE`` or more (one leaf, several instances);
+      ``splits_visible_apart`` of them are seen in two or more pieces of
+      that share (a stem or leaf in front cuts them: no grouping by
+      connectivity can join them);
     - ``instances``: instances of at least ``min_pixels`` pixels."""
     pred = np.asarray(pred, np.int64)
     truth = np.asarray(truth, np.int64)
@@ -47,7 +52,7 @@ def LeafInstanceScores(pred: np.ndarray, truth: np.ndarray, min_pixels: int = 20
     p_ids, p_n = np.unique(pred[pred >= 0], return_counts=True)
     leaves = t_ids[t_n >= min_pixels]
     out = {"leaves": int(len(leaves)), "instances": int(np.sum(p_n >= min_pixels)),
-           "matched": 0, "merges": 0, "splits": 0, "best_iou": []}
+           "matched": 0, "merges": 0, "splits": 0, "splits_visible_apart": 0, "best_iou": []}
     if len(leaves) == 0:
         return out
     both = (truth >= 0) & (pred >= 0)
@@ -63,14 +68,22 @@ def LeafInstanceScores(pred: np.ndarray, truth: np.ndarray, min_pixels: int = 20
     out["best_iou"] = [round(float(b), 3) for b in best]
     out["matched"] = int(np.sum(best >= MATCH_IOU))
     out["merges"] = int(np.sum((share[counted] >= MERGE_SHARE).sum(axis=0) >= 2))
-    out["splits"] = int(np.sum((share[counted] >= SPLIT_SHARE).sum(axis=1) >= 2))
+    split = np.flatnonzero(counted & ((share >= SPLIT_SHARE).sum(axis=1) >= 2))
+    out["splits"] = int(len(split))
+    apart = 0
+    for k in split:                    # the leaf's visible pixels in pieces: no grouping joins them
+        lab, n = ndimage.label(truth == t_ids[k], structure=np.ones((3, 3)))
+        if n > 1 and np.sum(np.bincount(lab.ravel())[1:] >= SPLIT_SHARE * t_n[k]) >= 2:
+            apart += 1
+    out["splits_visible_apart"] = apart
     return out
 
 
 def SummariseLeafInstances(rows: list[dict]) -> dict:
     """Over the views' ``LeafInstanceScores``: ``matched_fraction`` (of all
     counted true leaves), ``mean_best_iou``, ``merges_per_view``,
-    ``splits_per_view``, ``leaves``, ``views``."""
+    ``splits_per_view`` (``splits_visible_apart_per_view`` of them seen in
+    pieces), ``leaves``, ``views``."""
     best = [b for r in rows for b in r["best_iou"]]
     n = max(len(rows), 1)
     leaves = sum(r["leaves"] for r in rows)
@@ -78,17 +91,21 @@ def SummariseLeafInstances(rows: list[dict]) -> dict:
             "mean_best_iou": round(float(np.mean(best)), 3) if best else None,
             "merges_per_view": round(sum(r["merges"] for r in rows) / n, 3),
             "splits_per_view": round(sum(r["splits"] for r in rows) / n, 3),
+            "splits_visible_apart_per_view": round(
+                sum(r.get("splits_visible_apart", 0) for r in rows) / n, 3),
             "leaves": leaves, "views": len(rows)}
 
 
 def PointLeafInstances(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, params,
-                       split_angle_deg: float = 15.0, check_spread: bool = True) -> np.ndarray:
+                       split_angle_deg: float = 15.0, check_spread: bool = True,
+                       neck_ratio: float = 0.5) -> np.ndarray:
     """HxW leaf instance ids (-1 = none) the planner would get from
     ``class_map``'s leaf pixels: the leaf step of ``points.BuildSemanticScene``
     (depth cut, flying pixels, outlier removal, DBSCAN, voxels of
     ``params.voxel_size``; ``params`` a ``PerceptionConfig``) and the splits
     of ``shape.completion.CompletePlant`` (``split_angle_deg``; 0 = none;
-    ``check_spread`` as ``SplitOversizedLeaves``), in the camera frame; each pixel takes its voxel's instance."""
+    ``neck_ratio`` as ``SplitLeafNecks``, 0 = not; ``check_spread`` as
+    ``SplitOversizedLeaves``), in the camera frame; each pixel takes its voxel's instance."""
     d = np.asarray(depth, np.float64)
     out = np.full(d.shape, -1, np.int64)
     valid = ValidDepthMask(d, params.depth_cut) & ~FlyingPixelMask(d, params.flying_pixel_jump)
@@ -114,6 +131,8 @@ def PointLeafInstances(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
         cell, vox, vox_inst = np.arange(len(pts)), pts, inst
     if split_angle_deg > 0:
         vox_inst = SplitTouchingLeaves(vox, vox_inst, np.zeros(3), split_angle_deg)
+        if neck_ratio > 0:
+            vox_inst = SplitLeafNecks(vox, vox_inst, params.voxel_size, neck_ratio)
         vox_inst = SplitOversizedLeaves(vox, vox_inst, check_spread=check_spread)
     out[v, u] = vox_inst[cell]
     return out
@@ -132,7 +151,6 @@ def SplitAtNecks(mask: np.ndarray, neck_ratio: float = 0.5, min_radius: float = 
     watershed of the distance (``_GrowDownDistance``) that gives every
     pixel of ``mask`` to one part. A region with one blade is one part
     (ids 0). Scale-free: the same for a leaf near or far."""
-    from scipy import ndimage
     mask = np.asarray(mask, bool)
     out = np.full(mask.shape, -1, np.int64)
     if not mask.any():
@@ -167,7 +185,6 @@ def _GrowDownDistance(seeds: np.ndarray, dist: np.ndarray, mask: np.ndarray) -> 
     step at a time, into the ``mask`` pixels at or above a level of
     ``dist`` that falls by one pixel per round (the basins meet along the
     necks); pixels still unreached take the nearest part."""
-    from scipy import ndimage
     parts = np.where(mask, seeds, -1)
     for level in np.arange(np.floor(dist.max()), -1.0, -1.0):
         allowed = mask & (dist >= level)
@@ -185,3 +202,47 @@ def _GrowDownDistance(seeds: np.ndarray, dist: np.ndarray, mask: np.ndarray) -> 
         _, (iy, ix) = ndimage.distance_transform_edt(parts < 0, return_indices=True)
         parts[lost] = parts[iy[lost], ix[lost]]
     return parts
+
+
+def SplitLeafNecks(leaf_W: np.ndarray, leaf_instance: np.ndarray, voxel: float = 0.003,
+                   neck_ratio: float = 0.5, min_points: int = 30) -> np.ndarray:
+    """Leaf instance ids (N,) with blades that touch at one depth and one
+    angle told apart by their outline (``SplitAtNecks``): each instance's
+    points, laid in their best-fit plane (PCA) on a grid of ``voxel`` m
+    cells (closed by one cell: voxel centroids leave gaps), are cut where
+    the outline narrows to a neck. Parts of fewer than ``min_points`` go
+    back to the nearest part; the largest part keeps the id, new ids are
+    appended; noise (-1) stays noise."""
+    leaf_W = np.asarray(leaf_W, float).reshape(-1, 3)
+    ids = np.asarray(leaf_instance, np.int64).copy()
+    if voxel <= 0 or neck_ratio <= 0 or len(ids) == 0:
+        return ids
+    next_id = int(ids.max()) + 1
+    for j in np.unique(ids[ids >= 0]):
+        mine = np.flatnonzero(ids == j)
+        if len(mine) < 2 * min_points:
+            continue
+        p = leaf_W[mine] - leaf_W[mine].mean(axis=0)
+        _, _, vt = np.linalg.svd(p, full_matrices=False)
+        ab = p @ vt[:2].T
+        cell = np.floor((ab - ab.min(axis=0)) / voxel).astype(np.int64) + 2
+        grid = np.zeros(tuple(cell.max(axis=0) + 3), bool)
+        grid[cell[:, 0], cell[:, 1]] = True
+        grid = ndimage.binary_closing(grid, structure=np.ones((3, 3)))
+        parts, k = SplitAtNecks(grid, neck_ratio)
+        if k < 2:
+            continue
+        part = parts[cell[:, 0], cell[:, 1]]
+        sizes = np.bincount(part[part >= 0], minlength=k)
+        big = np.flatnonzero(sizes >= min_points)
+        if len(big) < 2:
+            continue
+        anchors = np.isin(part, big)
+        owner = part[anchors][cKDTree(ab[anchors]).query(ab)[1]]
+        order = big[np.argsort(-sizes[big], kind="stable")]
+        new_of = {int(order[0]): int(j)}
+        for b in order[1:]:
+            new_of[int(b)] = next_id
+            next_id += 1
+        ids[mine] = [new_of[int(o)] for o in owner]
+    return ids

@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from lmap_drake.parallel import ParallelMap
+from lmap_drake.perception.leaf_instances import SplitLeafNecks
 from lmap_drake.perception.points import SplitOversizedLeaves, SplitTouchingLeaves
 from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid, HomaParams
 from lmap_drake.shape.branch import CompleteBranches
@@ -236,7 +237,8 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     (instance -1, flag ``fruit_fragment_dropped``), as is one whose fit
     merely interpenetrates the other's (``OVERLAP_FRACTION``). Touching leaves are
     told apart (``SplitTouchingLeaves`` at ``leaf_split_angle_deg``; 0 =
-    not), and so are blades lying flush (``SplitOversizedLeaves``). ``focus_W`` (W, m): only the instances whose points' centroid lies
+    not), and so are blades joined by a neck in their outline
+    (``SplitLeafNecks``) and blades lying flush (``SplitOversizedLeaves``). ``focus_W`` (W, m): only the instances whose points' centroid lies
     within ``focus_radius`` of it are completed (the re-estimate of the fruit
     being revealed; every fruit's points still count as outside the others).
     The fruits are completed in ``workers`` threads (default: one per CPU;
@@ -253,6 +255,7 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     if leaf_split_angle_deg > 0 and len(semantic.leaf_points_W):
         ids = SplitTouchingLeaves(semantic.leaf_points_W, semantic.leaf_instance, cam,
                                   leaf_split_angle_deg)
+        ids = SplitLeafNecks(semantic.leaf_points_W, ids)
         ids = SplitOversizedLeaves(semantic.leaf_points_W, ids)
         semantic = out.semantic = dc.replace(semantic, leaf_instance=ids)
     if "no_fruit_in_view" in semantic.flags:

@@ -16,8 +16,12 @@ and two instance steps on each:
 - ``image``: the segmenter's pixel instances
   (``perception.segmentation.InstancesFromComponents``);
 - ``points``: the leaf instances the planner gets
-  (``perception.leaf_instances.PointLeafInstances``: DBSCAN, touching and
-  oversized leaves split), painted back on the pixels they came from.
+  (``perception.leaf_instances.PointLeafInstances``: DBSCAN, touching,
+  necked and oversized leaves split), painted back on the pixels they came
+  from; pixels the point pipeline drops (flying pixels, outliers, DBSCAN
+  noise: mostly leaves seen edge-on) count as missed;
+- ``points_kept``: the same with the dropped pixels left out (the grouping
+  alone).
 
 Scores (``perception.leaf_instances.LeafInstanceScores``): per true leaf
 with at least ``min_pixels`` visible, the best IoU of any instance;
@@ -45,7 +49,7 @@ from lmap_drake.perception.segmentation import (InstancesFromComponents, MakeSeg
 from lmap_drake.scenario import LoadScenario, RawYaml
 
 CLASS_MAPS = ("truth", "segnet")
-STEPS = ("image", "points")
+STEPS = ("image", "points", "points_kept")
 
 
 def _names(path: Path) -> list[str]:
@@ -97,7 +101,7 @@ def ViewLeafInstances(view: dict, class_map: np.ndarray, perception,
     image = np.where(leaf, InstancesFromComponents(class_map, view["depth"],
                                                    leaf_neck_ratio=0.0 if baseline else 0.5), -1)
     points = PointLeafInstances(class_map, view["depth"], view["K"], perception,
-                                check_spread=not baseline)
+                                check_spread=not baseline, neck_ratio=0.0 if baseline else 0.5)
     return {"image": image, "points": points}
 
 
@@ -127,14 +131,17 @@ def EvalLeafInstances(out, views: list, class_maps=CLASS_MAPS, min_pixels: int =
             t0 = time.time()
             maps = ViewLeafInstances(v, cmap, perception, baseline)
             row = {}
+            dropped = (cmap == LEAF) & (maps["points"] < 0)
             for s in STEPS:
-                row[s] = LeafInstanceScores(maps[s], truth_leaf, min_pixels, ignore)
+                m, ign = maps.get(s, maps["points"]), ignore | (dropped if s == "points_kept"
+                                                                else False)
+                row[s] = LeafInstanceScores(m, truth_leaf, min_pixels, ign)
                 rows[(c, s)].append(row[s])
             row["seconds"] = round(time.time() - t0, 2)
             res[c]["views"][path.stem] = row
             log(f"{path.stem:28s} {c:7s} " + "  ".join(
                 f"{s}: matched {row[s]['matched']}/{row[s]['leaves']} "
-                f"merges {row[s]['merges']} splits {row[s]['splits']}" for s in STEPS))
+                f"merges {row[s]['merges']} splits {row[s]['splits']}" for s in STEPS[:2]))
     for c in class_maps:
         for s in STEPS:
             res[c][s] = SummariseLeafInstances(rows[(c, s)])

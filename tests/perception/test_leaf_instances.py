@@ -106,6 +106,10 @@ def test_scores_count_matches_merges_and_splits():
     s = LeafInstanceScores(pred, truth, min_pixels=100)
     assert s["best_iou"] == [round(30 / 70, 3), round(40 / 70, 3), 0.6]
     assert (s["leaves"], s["matched"], s["merges"], s["splits"]) == (3, 2, 1, 1)
+    assert s["splits_visible_apart"] == 0                # leaf 9 is seen whole
+    seen_apart = truth.copy()
+    seen_apart[16:18, 70:] = -1                          # a stalk in front of leaf 9
+    assert LeafInstanceScores(pred, seen_apart, min_pixels=100)["splits_visible_apart"] == 1
     exact = LeafInstanceScores(truth, truth, min_pixels=100)
     assert (exact["matched"], exact["merges"], exact["splits"]) == (3, 0, 0)
     ignore = np.zeros(truth.shape, bool)
@@ -132,3 +136,35 @@ def test_sizes_too_spread_to_count_blades_split_nothing():
     inst = np.concatenate([np.full(len(_Patch(0, 0, *s)), k) for k, s in enumerate(sizes)])
     assert np.array_equal(SplitOversizedLeaves(pts, inst), inst)
     assert len(np.unique(SplitOversizedLeaves(pts, inst, check_spread=False))) > 5
+
+
+def _EllipsePoints(cx, cy, a, b, angle_deg, tilt_deg=0.0, spacing=0.003):
+    """Points (m) of an elliptic blade on a ``spacing`` grid, its long axis
+    at ``angle_deg`` in the x-y plane, tilted about that axis."""
+    u, v = np.meshgrid(np.arange(-a, a, spacing), np.arange(-b, b, spacing))
+    keep = (u / a) ** 2 + (v / b) ** 2 <= 1
+    u, v = u[keep], v[keep]
+    t, s = np.deg2rad(angle_deg), np.deg2rad(tilt_deg)
+    w = v * np.sin(s)
+    v = v * np.cos(s)
+    return np.c_[cx + u * np.cos(t) - v * np.sin(t), cy + u * np.sin(t) + v * np.cos(t), w]
+
+
+def test_point_blades_touching_in_one_plane_are_split_at_their_neck():
+    """Two blades (7 x 3 cm and 5 x 2.5 cm) touching tip to edge in one
+    plane, one DBSCAN cluster with no angle between them: cut at the neck,
+    each blade keeps 90 % of its points in one instance; noise stays noise.
+    One blade curled on a 6 cm radius stays one."""
+    from lmap_drake.perception.leaf_instances import SplitLeafNecks
+    a = _EllipsePoints(0.0, 0.0, 0.07, 0.03, 0)
+    b = _EllipsePoints(0.115, 0.01, 0.05, 0.025, 30)
+    b = b[((b[:, 0] / 0.07) ** 2 + (b[:, 1] / 0.03) ** 2) > 1]
+    pts = np.vstack([a, b, [[1.0, 1.0, 1.0]]])
+    ids = SplitLeafNecks(pts, np.r_[np.zeros(len(a) + len(b), int), -1])
+    ia, fa = _Majority(ids[:len(a)], np.ones(len(a), bool))
+    ib, fb = _Majority(ids[len(a):-1], np.ones(len(b), bool))
+    assert ia != ib and fa >= 0.9 and fb >= 0.9 and ids[-1] == -1
+    th, y = np.meshgrid(np.linspace(-0.6, 0.6, 40), np.arange(-0.02, 0.02, 0.003))
+    keep = (th / 0.6) ** 2 + (y / 0.02) ** 2 <= 1
+    curled = np.c_[0.06 * np.sin(th[keep]), y[keep], 0.06 * (1 - np.cos(th[keep]))]
+    assert set(SplitLeafNecks(curled, np.zeros(len(curled), int))) == {0}
