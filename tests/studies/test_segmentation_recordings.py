@@ -36,6 +36,10 @@ def test_recordings_give_means_per_backend_view_and_fruit_colour(runs, tmp_path)
             assert all(0 <= r["confidence"] <= 1 for r in row["instance_confidences"])
     assert d["label"]["mean"] == {"fruit_iou": 1.0, "leaf_iou": 1.0, "branch_iou": 1.0}
     assert d["label"]["phantom_fruits_per_view"] == 0.0
+    # the label backend's leaf instances are the true leaves (one leaf per view)
+    li = d["label"]["leaf_instances"]
+    assert (li["matched_fraction"], li["mean_best_iou"], li["leaves"]) == (1.0, 1.0, 2)
+    assert li["merges_per_view"] == li["splits_per_view"] == 0.0
     assert d["label"]["per_fruit_color"]["green"] == {"fruit_iou": 1.0, "fruit_recall": 1.0,
                                                       "views": 1}
     assert d["label"]["views"]["run_red/view0"]["fruit_colors"] == {
