@@ -328,6 +328,14 @@ class PlannerConfig:
     visibility_shapes: str = "expected"
 
 
+# m: with ``fruit_shapes: union`` each shape's SDF is evaluated only within
+# this of its box (``collision.UnionSdf``'s pad; farther, the box distance, a
+# lower bound, stands in): the distances are exact below it, so the checks'
+# margins must stay below it. Smaller than the estimates' 5 cm: on a plant
+# the boxes of several fruits' sets are large (``context.FruitObstacle``).
+FRUIT_SET_PAD = 0.03
+
+
 # A ``planner:`` value is wrong: ``key`` (the key path, e.g.
 # ``planner.num_grasps``) and ``detail`` (what is wrong with it).
 PlannerConfigError = ConfigError
@@ -416,3 +424,8 @@ def ValidatePlannerConfig(cfg: PlannerConfig, prefix: str = "planner") -> None:
          f"got {list(fa)}")
     need(not fa or cfg.method == "lmap", "force_action",
          f"picks an LMAP candidate: it needs {prefix}.method 'lmap'")
+    for key in ("collision_margin", "robot_fruit_margin"):
+        need(cfg.fruit_shapes != "union" or getattr(cfg, key) < FRUIT_SET_PAD - 0.001, key,
+             f"must be below {FRUIT_SET_PAD - 0.001:g} m with {prefix}.fruit_shapes 'union' "
+             f"(the fruit distances are exact up to {FRUIT_SET_PAD:g} m), "
+             f"got {getattr(cfg, key):g}")

@@ -10,6 +10,7 @@ import numpy as np
 import trimesh
 
 from lmap_drake.planning.collision import BranchDistance, FruitSetSdf, UnionSdf
+from lmap_drake.planning.config import FRUIT_SET_PAD
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.types import SceneEstimate
 
@@ -67,19 +68,21 @@ def FruitObstacle(fruits: list, shapes: str = "union") -> tuple:
     distance (m, W) to the nearest fruit and the box (lo, hi) of them all;
     with ``shapes`` 'union' each fruit is its estimate and its kept shape
     hypotheses (``collision.FruitSetSdf``), else its estimate alone. An SDF
-    is evaluated only near its own box (``UnionSdf``). (None, None)
-    without fruits."""
+    is evaluated only near its own box (``UnionSdf``; exact below
+    ``FRUIT_SET_PAD`` with 'union', 5 cm else). (None, None) without
+    fruits."""
     if not fruits:
         return None, None
+    pad = {"pad": FRUIT_SET_PAD} if shapes == "union" else {}
     if shapes == "union":
-        parts = [FruitSetSdf(f) for f in fruits]
+        parts = [FruitSetSdf(f, **pad) for f in fruits]
     else:
         parts = [(f.sdf_W, (f.vertices_W.min(0), f.vertices_W.max(0))) for f in fruits]
     if len(parts) == 1:
         return parts[0]
     lo = np.min([b[0] for _, b in parts], axis=0)
     hi = np.max([b[1] for _, b in parts], axis=0)
-    return UnionSdf([sdf for sdf, _ in parts], [b for _, b in parts]), (lo, hi)
+    return UnionSdf([sdf for sdf, _ in parts], [b for _, b in parts], **pad), (lo, hi)
 
 
 def NumShapes(fruit, shapes: str = "union") -> int:

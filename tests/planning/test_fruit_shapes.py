@@ -183,3 +183,13 @@ def test_mesh_set_sdf_is_the_union_outside_and_negative_inside():
     assert np.allclose(got[out], exact[out], atol=1e-6)
     assert np.all(got[~out] < 0) and np.all(got[~out] >= exact[~out] - 1e-6)
     assert len(union(np.zeros((0, 3)))) == 0
+
+
+def test_a_margin_beyond_the_exact_range_of_the_union_is_refused():
+    """Under ``union`` the fruit distances are exact up to 3 cm
+    (``FRUIT_SET_PAD``): a larger margin is refused naming its key; the
+    estimate alone keeps any margin."""
+    with pytest.raises(PlannerConfigError) as err:
+        ValidatePlannerConfig(PlannerConfig(robot_fruit_margin=0.04))
+    assert err.value.key == "planner.robot_fruit_margin" and "'union'" in err.value.detail
+    ValidatePlannerConfig(PlannerConfig(robot_fruit_margin=0.04, fruit_shapes="estimate"))
