@@ -73,16 +73,17 @@ def FruitObstacle(fruits: list, shapes: str = "union") -> tuple:
     fruits."""
     if not fruits:
         return None, None
-    pad = {"pad": FRUIT_SET_PAD} if shapes == "union" else {}
     if shapes == "union":
-        parts = [FruitSetSdf(f, **pad) for f in fruits]
+        pad = FRUIT_SET_PAD
+        parts = [FruitSetSdf(f, pad) for f in fruits]
     else:
+        pad = 0.05
         parts = [(f.sdf_W, (f.vertices_W.min(0), f.vertices_W.max(0))) for f in fruits]
     if len(parts) == 1:
         return parts[0]
     lo = np.min([b[0] for _, b in parts], axis=0)
     hi = np.max([b[1] for _, b in parts], axis=0)
-    return UnionSdf([sdf for sdf, _ in parts], [b for _, b in parts], **pad), (lo, hi)
+    return UnionSdf([sdf for sdf, _ in parts], [b for _, b in parts], pad), (lo, hi)
 
 
 def NumShapes(fruit, shapes: str = "union") -> int:
