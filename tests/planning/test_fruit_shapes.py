@@ -59,8 +59,8 @@ def _Plate(center, half=0.015, step=0.003):
     return np.c_[center[0] + u.ravel(), center[1] + v.ravel(), np.full(u.size, center[2])]
 
 
-# a leaf lying 5 cm above the fruit, predicted to come down to 8 mm above the
-# estimate's top: clear of the estimate, inside the larger hypothesis
+# a leaf lying 5 cm above the estimate's top, predicted to come down to 8 mm
+# above it: clear of the estimate, inside the larger hypothesis
 LEAF_REST = _Plate(C_BIG + [0, 0, 0.08])
 LEAF_MOVED = _Plate(C_BIG + [0, 0, R_SMALL + 0.008])
 
@@ -76,7 +76,8 @@ def _Context(fruit_shapes: str, fruit=None) -> PlanningContext:
 
 def _Plan(fruit_shapes: str, visibility_shapes: str = "expected"):
     """The planner's selection on one candidate whose predicted leaf ends
-    ``LEAF_MOVED`` (a prediction as ``PredictDeformations`` gives it)."""
+    ``LEAF_MOVED`` (the prediction: a stand-in with the fields the selection
+    reads from a ``PredictDeformations`` result)."""
     # (no petiole attachment here: the pull's lever cap is off)
     cfg = PlannerConfig(fruit_shapes=fruit_shapes, visibility_shapes=visibility_shapes,
                         max_pull_distance=0.0)
