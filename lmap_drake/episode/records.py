@@ -86,7 +86,11 @@ def PlanRecord(plan, stage_seconds: dict | None = None, estimate=None) -> dict:
            # gain, caps, the executed path): feasible and not chosen =
            # passed all, scored lower
            "num_feasible": sum(c.feasible for c in plan.candidates),
-           "rejected": RejectionCounts(plan.candidates)}
+           "rejected": RejectionCounts(plan.candidates),
+           # the fruit shapes the robot-fruit and leaf-fruit checks kept clear
+           # of and the visibility averaged over (planner.fruit_shapes,
+           # planner.visibility_shapes), with the hypotheses' volume interval
+           "fruit_shapes": getattr(plan, "fruit_shapes", None)}
     if getattr(plan, "target", None):
         out["target"] = plan.target        # which fruit, its occluders, why
     if stage_seconds is not None:

@@ -18,7 +18,7 @@ from lmap_drake.deformation.action import (Action, AxisAngleMatrix, HingeAxes, M
 from lmap_drake.planning.approach import IkAndRobotChecks
 from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge
 from lmap_drake.planning.config import PlannerConfig
-from lmap_drake.planning.context import FruitSurfaceSamples, PlanningContext
+from lmap_drake.planning.context import PlanningContext, VisibilitySurfaces
 from lmap_drake.planning.energy import MaxPullDistance
 from lmap_drake.planning.result import Candidate, CandidateSet
 from lmap_drake.planning.visibility import VisibilityModel
@@ -219,15 +219,15 @@ def _InitialVisibility(ctx: PlanningContext, cfg: PlannerConfig) -> CandidateSet
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
                             message="the fruit estimate is empty or not finite")
     t0 = time.perf_counter()
-    vis = VisibilityModel(ctx.X_WC, FruitSurfaceSamples(ctx.scene.fruit), cfg.visibility_voxel,
-                          ctx.image_tan)
+    vis = VisibilityModel(ctx.X_WC, VisibilitySurfaces(ctx.scene.fruit, cfg.visibility_shapes),
+                          cfg.visibility_voxel, ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W]))
     if ctx.seen_before_W is not None:
         seen_init = seen_init | vis.Observed(ctx.seen_before_W)
     timings["visibility_s"] += time.perf_counter() - t0
     out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
                        timings=timings)
-    n_init, n_max = int(seen_init.sum()), int(vis.max_seen.sum())
+    n_init, n_max = vis.Count(seen_init), vis.Count(vis.max_seen)
     if n_max == 0:
         out.status = "no_fruit"
         out.message = ("the fruit estimate is outside camera0's view: no part of it could "

@@ -69,22 +69,54 @@ class MeshSdf:
         return self._scene.compute_signed_distance(o3d.core.Tensor(p)).numpy().astype(float)
 
 
+class MeshSetSdf:
+    """Signed distance (m) to the union of several closed triangle meshes
+    (W), for the price of about one: the unsigned distance to the nearest
+    surface from one Open3D scene holding them all, the sign from each
+    mesh's occupancy (ray parity, cheap). Exact outside them all; inside
+    one, minus the distance to the nearest surface of any (never deeper
+    than the true value, always negative)."""
+
+    def __init__(self, meshes: list):
+        import open3d as o3d
+        meshes = [(np.asarray(v, np.float32), np.asarray(f, np.uint32)) for v, f in meshes
+                  if len(f)]
+        self._all = o3d.t.geometry.RaycastingScene()
+        self._each = []
+        for v, f in meshes:
+            self._all.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
+            one = o3d.t.geometry.RaycastingScene()
+            one.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
+            self._each.append(one)
+
+    def __call__(self, points_W: np.ndarray) -> np.ndarray:
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if len(p) == 0 or not self._each:
+            return np.full(len(p), np.inf)
+        q = o3d.core.Tensor(p)
+        d = self._all.compute_distance(q).numpy().astype(float)
+        inside = np.zeros(len(p), bool)
+        for one in self._each:
+            inside |= one.compute_occupancy(q).numpy() > 0.5
+        return np.where(inside, -d, d)
+
+
 def FruitSetSdf(fruit, pad: float = 0.05):
     """(sdf, (lo, hi)): the signed distance (m) to the union of a
     ``FruitEstimate`` and its kept shape hypotheses (``fruit.hypotheses``;
-    the estimate's own SDF, each other hypothesis's mesh through
-    ``MeshSdf``) and the box of them all: clearance checked against it holds
-    for every shape the view leaves plausible. Without hypotheses, the
-    estimate's SDF and box."""
+    the estimate's own SDF, the other hypotheses' meshes together through
+    ``MeshSetSdf``) and the box of them all: clearance checked against it
+    holds for every shape the view leaves plausible. Without hypotheses,
+    the estimate's SDF and box."""
     box = (fruit.vertices_W.min(0), fruit.vertices_W.max(0))
     hyp = getattr(fruit, "hypotheses", None)
-    if hyp is None or len(hyp.vertices_W) <= 1:
+    meshes = ([(v, f) for v, f in zip(hyp.vertices_W[1:], hyp.faces[1:]) if len(f)]
+              if hyp is not None else [])             # 0 is the estimate
+    if not meshes:
         return fruit.sdf_W, box
-    sdfs, boxes = [fruit.sdf_W], [box]
-    for v, f in zip(hyp.vertices_W[1:], hyp.faces[1:]):     # 0 is the estimate
-        if len(f):
-            sdfs.append(MeshSdf(v, f))
-            boxes.append((v.min(0), v.max(0)))
+    V = np.vstack([v for v, _ in meshes])
+    sdfs, boxes = [fruit.sdf_W, MeshSetSdf(meshes)], [box, (V.min(0), V.max(0))]
     lo = np.min([b[0] for b in boxes], axis=0)
     hi = np.max([b[1] for b in boxes], axis=0)
     return UnionSdf(sdfs, boxes, pad), (lo, hi)

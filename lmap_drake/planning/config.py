@@ -248,7 +248,19 @@ class PlannerConfig:
     points in the current view and in its re-estimates made while a leaf
     was held, ``systems.planning._ShownFruitPoints``); its actions then
     score by that surface (N_vis), and the reveal is made only if its
-    chosen action shows at least ``next_leaf_min_gain`` of it."""
+    chosen action shows at least ``next_leaf_min_gain`` of it.
+
+    ``fruit_shapes``: what the robot-fruit checks (approach, action poses,
+    executed path) and the leaf-fruit check (the predicted leaf) keep
+    clear of: ``union`` = every shape the view leaves plausible (each
+    fruit's estimate and its kept shape hypotheses,
+    ``shape.ssc.num_hypotheses``; ``planning.collision.FruitSetSdf``),
+    ``estimate`` = the estimates alone (the paper's check, and the only one
+    before the hypotheses). ``visibility_shapes``: ``expected`` scores an
+    action's visibility as the mean over the target's kept shapes of the
+    fraction seen (``planning.visibility``), ``estimate`` on the estimate
+    alone. Without hypotheses both are the estimate. See
+    docs/explanation/planner-parameters.md."""
     num_grasps: int = 15  # grasp points evenly spaced along the leaf's outline (convex hull)
     grasp_inset: float = 0.01  # m: grasp points lie this far inside the leaf's outline
     # the first this many of the paper's 14 pull directions (W: 6 axial, then 8 diagonal)
@@ -308,6 +320,20 @@ class PlannerConfig:
     max_reveals_per_fruit: int = 2
     next_leaf_min_gain: float = 0.05
     reveal_moved_leaf_again: bool = True
+    # union | estimate: the fruit shapes the robot-fruit and leaf-fruit checks keep
+    # clear of (union: each fruit's estimate and its kept shape hypotheses)
+    fruit_shapes: str = "union"
+    # expected | estimate: visibility scored as the mean over the target's kept
+    # shape hypotheses (expected) or on its estimate alone
+    visibility_shapes: str = "expected"
+
+
+# m: with ``fruit_shapes: union`` each shape's SDF is evaluated only within
+# this of its box (``collision.UnionSdf``'s pad; farther, the box distance, a
+# lower bound, stands in): the distances are exact below it, so the checks'
+# margins must stay below it. Smaller than the estimates' 5 cm: on a plant
+# the boxes of several fruits' sets are large (``context.FruitObstacle``).
+FRUIT_SET_PAD = 0.03
 
 
 # A ``planner:`` value is wrong: ``key`` (the key path, e.g.
@@ -361,6 +387,8 @@ _RULES = {
 _ENUMS = {
     "method": ("lmap", "random", "upward", "min_overlap"),
     "targets": ("largest", "all"),
+    "fruit_shapes": ("union", "estimate"),
+    "visibility_shapes": ("expected", "estimate"),
 }
 FAMILIES = ("pull", "arc", "twist")     # deformation.action.FAMILIES
 
@@ -396,3 +424,8 @@ def ValidatePlannerConfig(cfg: PlannerConfig, prefix: str = "planner") -> None:
          f"got {list(fa)}")
     need(not fa or cfg.method == "lmap", "force_action",
          f"picks an LMAP candidate: it needs {prefix}.method 'lmap'")
+    for key in ("collision_margin", "robot_fruit_margin"):
+        need(cfg.fruit_shapes != "union" or getattr(cfg, key) < FRUIT_SET_PAD - 0.001, key,
+             f"must be below {FRUIT_SET_PAD - 0.001:g} m with {prefix}.fruit_shapes 'union' "
+             f"(the fruit distances are exact up to {FRUIT_SET_PAD:g} m), "
+             f"got {getattr(cfg, key):g}")

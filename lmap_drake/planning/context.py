@@ -9,7 +9,8 @@ import dataclasses as dc
 import numpy as np
 import trimesh
 
-from lmap_drake.planning.collision import BranchDistance, UnionSdf
+from lmap_drake.planning.collision import BranchDistance, FruitSetSdf, UnionSdf
+from lmap_drake.planning.config import FRUIT_SET_PAD
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.types import SceneEstimate
 
@@ -29,6 +30,11 @@ class PlanningContext:
     # the same fruit): the surface they show counts as seen before any
     # action, so an action scores by what no view has shown (N_vis)
     seen_before_W: np.ndarray | None = None
+    # the fruit shapes the robot-fruit and leaf-fruit checks keep clear of
+    # (``planner.fruit_shapes``): 'union' = each fruit's estimate and its
+    # kept shape hypotheses (``collision.FruitSetSdf``), 'estimate' = the
+    # estimates alone
+    fruit_shapes: str = "union"
 
     def __post_init__(self):
         sem = self.scene.semantic
@@ -40,19 +46,12 @@ class PlanningContext:
         self.branch_distance = (BranchDistance(branch.vertices_W, branch.faces)
                                 if branch is not None and len(branch.faces) else None)
         fruit = self.scene.fruit
-        self.fruit_sdf = fruit.sdf_W if fruit is not None else None
-        self.fruit_box = ((fruit.vertices_W.min(0), fruit.vertices_W.max(0))
-                          if fruit is not None else None)
+        others = [f for f in getattr(self.scene, "other_fruits", []) if f is not None]
         # Several fruits: the robot and the moved leaf keep clear of every
         # one (the union's SDF is the minimum); only the target is revealed.
-        others = [f for f in getattr(self.scene, "other_fruits", []) if f is not None]
-        if fruit is not None and others:
-            fruits = [fruit] + others
-            self.fruit_sdf = UnionSdf([f.sdf_W for f in fruits],
-                                      [(f.vertices_W.min(0), f.vertices_W.max(0))
-                                       for f in fruits])
-            V = np.vstack([f.vertices_W for f in fruits])
-            self.fruit_box = (V.min(0), V.max(0))
+        # Each fruit's obstacle is built once here, for every check of the plan.
+        self.fruit_sdf, self.fruit_box = FruitObstacle(
+            ([fruit] if fruit is not None else []) + others, self.fruit_shapes)
         self.other_leaves_W = np.asarray(getattr(self.scene, "other_leaves_W", np.zeros((0, 3))),
                                          float).reshape(-1, 3)
         # What hides the target besides the leaf being moved (and the robot):
@@ -64,8 +63,82 @@ class PlanningContext:
         self.p_WC = np.asarray(self.X_WC, float)[:3, 3]
 
 
+def FruitObstacle(fruits: list, shapes: str = "union") -> tuple:
+    """(sdf, box) of the fruits the checks keep clear of: the signed
+    distance (m, W) to the nearest fruit and the box (lo, hi) of them all;
+    with ``shapes`` 'union' each fruit is its estimate and its kept shape
+    hypotheses (``collision.FruitSetSdf``), else its estimate alone. An SDF
+    is evaluated only near its own box (``UnionSdf``; exact below
+    ``FRUIT_SET_PAD`` with 'union', 5 cm else). (None, None) without
+    fruits."""
+    if not fruits:
+        return None, None
+    if shapes == "union":
+        pad = FRUIT_SET_PAD
+        parts = [FruitSetSdf(f, pad) for f in fruits]
+    else:
+        pad = 0.05
+        parts = [(f.sdf_W, (f.vertices_W.min(0), f.vertices_W.max(0))) for f in fruits]
+    if len(parts) == 1:
+        return parts[0]
+    lo = np.min([b[0] for _, b in parts], axis=0)
+    hi = np.max([b[1] for _, b in parts], axis=0)
+    return UnionSdf([sdf for sdf, _ in parts], [b for _, b in parts], pad), (lo, hi)
+
+
+def NumShapes(fruit, shapes: str = "union") -> int:
+    """How many shapes of ``fruit`` a check over ``shapes`` ('union' or
+    'expected': the estimate and its kept hypotheses with a mesh; else the
+    estimate) looks at."""
+    if fruit is None:
+        return 0
+    hyp = getattr(fruit, "hypotheses", None)
+    if shapes not in ("union", "expected") or hyp is None:
+        return 1
+    return 1 + sum(1 for f in hyp.faces[1:] if len(f))
+
+
+def FruitShapesRecord(scene: SceneEstimate, fruit_shapes: str, visibility_shapes: str,
+                      num_visibility_shapes: int | None) -> dict:
+    """What a plan on ``scene`` checked and scored (``plan.json``'s
+    ``fruit_shapes``): the two keys, the shapes the checks kept clear of
+    (the target's, the other fruits' in all), the shapes the visibility
+    averaged over, and the target's hypothesis intervals (volume cm^3, axis
+    spread deg; None without hypotheses)."""
+    fruit = scene.fruit
+    others = [f for f in getattr(scene, "other_fruits", []) if f is not None]
+    hyp = getattr(fruit, "hypotheses", None)
+    return {"checks": fruit_shapes, "visibility": visibility_shapes,
+            "num_checked_shapes": NumShapes(fruit, fruit_shapes),
+            "num_checked_shapes_other_fruits": sum(NumShapes(f, fruit_shapes) for f in others),
+            "num_visibility_shapes": num_visibility_shapes,
+            "num_hypotheses_kept": None if hyp is None else len(hyp.vertices_W),
+            "volume_interval_cm3": (None if hyp is None else
+                                    np.round(np.asarray(hyp.volume_interval_cm3, float),
+                                             2).tolist()),
+            "axis_spread_deg": None if hyp is None else round(float(hyp.axis_spread_deg), 2)}
+
+
+def MeshSurfaceSamples(vertices_W: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Even samples of a closed mesh's surface plus its vertices (W, m)."""
+    mesh = trimesh.Trimesh(vertices_W, faces, process=False)
+    pts, _ = trimesh.sample.sample_surface_even(mesh, 6000, seed=0)
+    return np.vstack([pts, vertices_W])
+
+
 def FruitSurfaceSamples(f) -> np.ndarray:
     """Even samples of a ``FruitEstimate``'s surface plus its vertices (W, m)."""
-    mesh = trimesh.Trimesh(f.vertices_W, f.faces, process=False)
-    pts, _ = trimesh.sample.sample_surface_even(mesh, 6000, seed=0)
-    return np.vstack([pts, f.vertices_W])
+    return MeshSurfaceSamples(f.vertices_W, f.faces)
+
+
+def VisibilitySurfaces(f, shapes: str = "expected"):
+    """What the visibility model scores (``planner.visibility_shapes``):
+    the estimate's surface samples, or with 'expected' and kept shape
+    hypotheses a list of them, the estimate first, then each other kept
+    hypothesis (``VisibilityModel`` then counts the mean over them)."""
+    own = FruitSurfaceSamples(f)
+    hyp = getattr(f, "hypotheses", None)
+    if shapes != "expected" or hyp is None or len(hyp.vertices_W) <= 1:
+        return own
+    return [own] + [MeshSurfaceSamples(v, fc) for v, fc in zip(hyp.vertices_W[1:], hyp.faces[1:])
+                    if len(fc)]

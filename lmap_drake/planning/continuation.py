@@ -14,7 +14,7 @@ from lmap_drake.deformation.action import (Action, HingeAxes, MakeArcActions,
 from lmap_drake.planning.attachment import AttachLeaf
 from lmap_drake.planning.candidates import DirectionsForGrasp
 from lmap_drake.planning.config import PlannerConfig
-from lmap_drake.planning.context import FruitSurfaceSamples, PlanningContext
+from lmap_drake.planning.context import PlanningContext, VisibilitySurfaces
 from lmap_drake.planning.energy import CompoundEnergyPerNode
 from lmap_drake.planning.lmap import PredictLive
 from lmap_drake.planning.result import Candidate, CandidateSet, DistanceId, PlanResult
@@ -77,14 +77,14 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
                             message="no fruit estimate: nothing to reveal")
     t0 = time.perf_counter()
-    vis = VisibilityModel(ctx.X_WC, FruitSurfaceSamples(ctx.scene.fruit), cfg.visibility_voxel,
-                          ctx.image_tan)
+    vis = VisibilityModel(ctx.X_WC, VisibilitySurfaces(ctx.scene.fruit, cfg.visibility_shapes),
+                          cfg.visibility_voxel, ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W,
                                     ctx.robot.SurfacePoints(ctx.q_current)]))
     timings["visibility_s"] += time.perf_counter() - t0
     out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
                        timings=timings, hinge_W=held.hinge_W)
-    n_init, n_max = int(seen_init.sum()), int(vis.max_seen.sum())
+    n_init, n_max = vis.Count(seen_init), vis.Count(vis.max_seen)
     if n_max == 0:
         out.status, out.message = "no_fruit", "the fruit estimate is outside camera0's view"
         return out

@@ -16,7 +16,7 @@ from lmap_drake.deformation.predict import UnmodelledGrasp
 from lmap_drake.planning.candidates import PlanningError
 from lmap_drake.planning.collision import LeafCollisionReason
 from lmap_drake.planning.config import PlannerConfig
-from lmap_drake.planning.context import PlanningContext
+from lmap_drake.planning.context import FruitShapesRecord, PlanningContext
 from lmap_drake.planning.energy import (ARC_REFERENCE_DEG, PULL_LEVER_REFERENCE,
                                         CompoundEnergyPerNode, EquivalentTurnDeg,
                                         HingeRotationDeg, MaxArcAngle, MaxPullDistance,
@@ -94,6 +94,10 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     # Work on copies: ``cset`` may be a cached Drake output (never mutate it).
     cands = [dc.replace(c) for c in cset.candidates]
     result = _UnselectedResult(cset, cands, method)
+    if cset.scene is not None and cset.scene.fruit is not None:
+        result.fruit_shapes = FruitShapesRecord(
+            cset.scene, getattr(ctx, "fruit_shapes", "estimate"), cfg.visibility_shapes,
+            None if cset.visibility is None else cset.visibility.num_shapes)
     if cset.status != "ok":
         return result
     live = [c for c in cands if c.feasible]
@@ -122,8 +126,8 @@ def _UnselectedResult(cset: CandidateSet, cands: list[Candidate], method: str) -
                         dropped_grasps=cset.dropped_grasps, timings=dict(cset.timings),
                         message=cset.message, hinge_W=cset.hinge_W)
     if cset.visibility is not None:
-        result.seen_init = int(cset.seen_init_mask.sum())
-        result.seen_max = int(cset.visibility.max_seen.sum())
+        result.seen_init = cset.visibility.Count(cset.seen_init_mask)
+        result.seen_max = cset.visibility.Count(cset.visibility.max_seen)
     return result
 
 
@@ -249,8 +253,8 @@ def _PredictVisibility(ctx: PlanningContext, cset: CandidateSet, cfg: PlannerCon
                 static_zbuf = vis.ZBuffer(ctx.occluders_W)
             seen = vis.Seen(np.vstack([c.deformed_leaf_W,
                                        ctx.robot.SurfacePoints(c.q_pulled)]), static_zbuf)
-            c.seen = int(seen.sum())
-            c.n_vis = CountNewlySeen(seen, seen_init)
+            c.seen = vis.Count(seen)
+            c.n_vis = CountNewlySeen(seen, seen_init, vis)
             if c.seen >= cfg.early_stop_fraction * n_max:
                 reached = True
 

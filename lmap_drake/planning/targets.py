@@ -228,7 +228,8 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
     for d in occ["leaves"][:max_leaves]:
         ctx = PlanningContext(TargetScene(plant, k, d["leaf_id"]), X_WC, robot,
                               np.asarray(q_current, float), image_tan,
-                              seen_before_W=occ.get("seen_before_W"))
+                              seen_before_W=occ.get("seen_before_W"),
+                              fruit_shapes=cfg.fruit_shapes)
         out.options.append((d["leaf_id"], PlanLmap(ctx, cfg, dcfg, progress)))
     out.leaf_id, out.plan, out.why = ChooseLeafPlan(out.options)
     return out

@@ -13,6 +13,14 @@ voxel is *seen* when it is the nearest surface at its pixel.
     H_k:    seen with the deformed leaf, the branch and the robot of action k
     H_max:  seen with the fruit alone
     N_vis(k) = |H_k \\ H_init|
+
+Over a set of shape hypotheses (``VisibilityModel`` given one surface per
+hypothesis, the estimate first; ``planner.visibility_shapes: expected``)
+every hypothesis's voxels share one grid: the occluders are splatted once
+and each voxel is compared with its own hypothesis's front at its pixel.
+Counts (``Count``) are then the mean over the hypotheses of the fraction
+seen, in units of the estimate's ``max_seen`` voxels: a fraction
+count / count(max_seen) is the expected visible fraction.
 World frame W, metres.
 """
 from __future__ import annotations
@@ -46,7 +54,10 @@ NEAR = 0.01   # m: voxels closer to the camera plane than this are not seen
 
 class VisibilityModel:
     """Holds the camera and the completed fruit's surface voxels; answers
-    which of them are seen given occluders.
+    which of them are seen given occluders. ``fruit_surface_W``: surface
+    points (W, m), or a list of them, one per shape hypothesis (the
+    estimate first): then the masks run over all their voxels (``group``
+    says whose) and ``Count`` weighs them (see the module docstring).
 
     The grid covers only the fruit voxels in front of the camera (depth >
     ``NEAR``) and, when ``image_tan`` = (x_min, x_max, y_min, y_max) (the
@@ -59,8 +70,13 @@ class VisibilityModel:
                  image_tan: tuple | None = None):
         self.voxel = voxel
         self.X_CW = np.linalg.inv(np.asarray(X_WC, float))
-        self.fruit_W = VoxelCenters(fruit_surface_W, voxel)
-        if len(self.fruit_W) == 0:
+        surfaces = (list(fruit_surface_W) if isinstance(fruit_surface_W, (list, tuple))
+                    else [fruit_surface_W])
+        voxels = [VoxelCenters(np.asarray(s, float).reshape(-1, 3), voxel) for s in surfaces]
+        self.fruit_W = np.vstack(voxels)
+        # the shape hypothesis each voxel belongs to (0: the estimate)
+        self.group = np.repeat(np.arange(len(voxels)), [len(v) for v in voxels])
+        if len(voxels[0]) == 0:
             raise ValueError("visibility needs a non-empty fruit surface")
         p_C = self._to_camera(self.fruit_W)
         z = p_C[:, 2]
@@ -90,11 +106,40 @@ class VisibilityModel:
         self._fruit_pix = np.where(visible, self._pixels(uv), -1)
         self._fruit_z = z
         self._z_far = float(z[visible].max()) + voxel if visible.any() else NEAR
-        # the fruit's own z-buffer (the nearest fruit voxel per pixel)
-        self._fruit_zbuf = np.full(int(np.prod(self.shape)), np.inf)
+        # each hypothesis's own z-buffer (the nearest of its voxels per
+        # pixel; ``_fruit_zbuf``: the estimate's) read at each of its voxels
         ok = self._fruit_pix >= 0
-        _MinInto(self._fruit_zbuf, self._fruit_pix[ok], self._fruit_z[ok])
+        self._front_z = np.full(len(self.fruit_W), np.inf)
+        for g in range(len(voxels)):
+            zbuf = np.full(int(np.prod(self.shape)), np.inf)
+            mine = ok & (self.group == g)
+            _MinInto(zbuf, self._fruit_pix[mine], self._fruit_z[mine])
+            self._front_z[mine] = zbuf[self._fruit_pix[mine]]
+            if g == 0:
+                self._fruit_zbuf = zbuf
         self.max_seen = self.Seen(np.zeros((0, 3)))
+        # per voxel: what it adds to ``Count`` (1 with one surface)
+        self.weight = np.ones(len(self.fruit_W))
+        if len(voxels) > 1:
+            n_g = np.bincount(self.group[self.max_seen], minlength=len(voxels)).astype(float)
+            ref = n_g[0] if n_g[0] > 0 else (n_g[n_g > 0].mean() if n_g.any() else 0.0)
+            per = np.where(n_g > 0, ref / np.maximum(n_g, 1) / max(1, np.count_nonzero(n_g)),
+                           0.0)
+            self.weight = per[self.group]
+
+    @property
+    def num_shapes(self) -> int:
+        """How many shapes the voxels come from (1: the estimate alone)."""
+        return int(self.group.max()) + 1 if len(self.group) else 0
+
+    def Count(self, mask: np.ndarray) -> int:
+        """The number of voxels of ``mask`` (over ``fruit_W``); over several
+        shapes the mean over them of the fraction of each one's ``max_seen``
+        in ``mask``, times the estimate's ``max_seen`` count (rounded)."""
+        mask = np.asarray(mask, bool)
+        if self.num_shapes <= 1:
+            return int(np.count_nonzero(mask))
+        return int(round(float(self.weight[mask].sum())))
 
     def Observed(self, points_W: np.ndarray) -> np.ndarray:
         """The fruit voxels a view has already shown: those the camera sees
@@ -194,13 +239,12 @@ class VisibilityModel:
         ``occluders_W`` (points, any density) in the scene, plus the
         occluders already in ``base_zbuf`` (from ``ZBuffer``)."""
         zbuf = self.ZBuffer(occluders_W, base_zbuf)
-        fz = self._fruit_zbuf
         ok = self._fruit_pix >= 0
         tol = 0.75 * self.voxel
         seen = np.zeros(len(self.fruit_W), bool)
         pix = self._fruit_pix[ok]
         z = self._fruit_z[ok]
-        seen[ok] = (z <= fz[pix] + tol) & (z < zbuf[pix] - tol)
+        seen[ok] = (z <= self._front_z[ok] + tol) & (z < zbuf[pix] - tol)
         return seen
 
 
@@ -212,6 +256,9 @@ def _MinInto(buf: np.ndarray, idx: np.ndarray, val: np.ndarray) -> None:
     np.minimum.at(buf, idx, val)
 
 
-def CountNewlySeen(seen_k: np.ndarray, seen_init: np.ndarray) -> int:
-    """N_vis = |H_k \\ H_init|."""
-    return int(np.count_nonzero(seen_k & ~seen_init))
+def CountNewlySeen(seen_k: np.ndarray, seen_init: np.ndarray,
+                   vis: VisibilityModel | None = None) -> int:
+    """N_vis = |H_k \\ H_init| (counted by ``vis.Count`` when given: over a
+    hypothesis set, its expectation)."""
+    new = seen_k & ~seen_init
+    return vis.Count(new) if vis is not None else int(np.count_nonzero(new))

@@ -334,7 +334,8 @@ def EvaluateMultiScenario(scenario, args: HazardStudyOptions, log) -> dict:
         p_WG, R_WG = X_WT.translation(), X_WT.rotation().matrix()
         attach = np.asarray(world.model.leaves[true_leaf].attach_W, float)
         # the planner's own inputs for this target and leaf
-        ctx = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan)
+        ctx = PlanningContext(TargetScene(plant, k, lid), X_WC, world.robot, world.q_cmd, tan,
+                              fruit_shapes=scenario.planner.fruit_shapes)
         # the planner's own generator (arcs and twists about its hinge
         # estimate), with the study's distances and angles
         study = dc.replace(scenario.planner, action_families=list(args.families),

@@ -47,7 +47,8 @@ def BenchScene(s, shapes: str, quiet: bool = False) -> dict:
     t_shape = time.perf_counter() - t0
     robot = RobotModel(s.robot.X_WB.GetDeterministicValue())
     ctx = PlanningContext(scene, s.cameras["camera0"].X_PB.GetDeterministicValue().GetAsMatrix4(),
-                          robot, np.asarray(s.robot.initial_q))
+                          robot, np.asarray(s.robot.initial_q),
+                          fruit_shapes=s.planner.fruit_shapes)
     say = (lambda m: None) if quiet else (lambda m: print(f"[bench] {m}", flush=True))
     r = PlanLmap(ctx, s.planner, s.deformation, say)
     out = {k: r.timings.get(k) for k in STAGES}

@@ -122,7 +122,8 @@ class ActionCandidates(LeafSystem):
 
     def Context(self, scene: SceneEstimate, q: np.ndarray) -> PlanningContext:
         return PlanningContext(scene, self._X_WC, self._robot, np.asarray(q, float),
-                               self._image_tan)
+                               self._image_tan,
+                               fruit_shapes=self._scenario.planner.fruit_shapes)
 
     def _calc_set(self, context, output) -> None:
         scene = self.get_input_port(0).Eval(context)
