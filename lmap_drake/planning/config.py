@@ -212,6 +212,20 @@ class PlannerConfig:
     estimate of a fully visible fruit and 5.1 mm inside the real one (237
     N on the fruit). Off (below ``collision_margin``) means the one margin.
 
+    ``max_brush_displacement`` (m; 0 = any contact refused): the robot may
+    brush leaves it does not hold, on the approach (the joint move to the
+    via pose, the ready pose, the pre-grasp and the final approach) and at
+    the action's checked poses, when it pushes each of their observed
+    points at most this far (the point's penetration into the robot's
+    geometry plus ``collision_margin``, per checked pose); the grasped leaf
+    (outside the pads, on the approach) and other leaves' points within
+    3 cm of a fruit or 6 cm of the branch keep the margin
+    (``planning.robot_checks.LeafContact``). The bound is the
+    plant-hazard limit's: a leaf pushed 1.5 cm 6 cm from its stem loads the
+    FEM leaf's petiole at most 4.5 N of the 15 N limit
+    (``BrushPetioleForce``; docs/explanation/dense-canopy.md quotes the
+    data and the FEM measurements).
+
     ``check_leaf_branch``: reject an action whose predicted leaf ends within
     ``collision_margin`` of the completed branch (stems and shoots) after
     moving toward it, as the paper's leaf-fruit check does for the fruit
@@ -278,6 +292,7 @@ class PlannerConfig:
     # predicted leaf from the fruit
     collision_margin: float = 0.005
     robot_fruit_margin: float = 0.015
+    max_brush_displacement: float = 0.015  # m: push allowed on leaves not grasped (approach)
     energy_weight: float = 1.0  # lambda of the score N_vis - lambda E (both min-max normalised)
     max_energy_per_node: float = 5.9e-7
     force_action: list[float] = dc.field(default_factory=list)
@@ -341,6 +356,7 @@ _RULES = {
     "visibility_voxel": ">0",
     "collision_margin": ">=0",
     "robot_fruit_margin": ">=0",
+    "max_brush_displacement": "[0,0.05]",
     "energy_weight": ">=0",
     "max_energy_per_node": ">=0",
     "speed_scale": "(0,1]",

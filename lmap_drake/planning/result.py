@@ -68,6 +68,8 @@ class Candidate:
                                      else round(self.approach.opening, 4)),
                 "ready_distance": (None if self.approach is None
                                    else round(self.approach.ready_extra, 4)),
+                "brush_displacement": (None if self.approach is None else round(
+                    float(getattr(self.approach, "brush_displacement", 0.0)), 4)),
                 "approach_tilt_deg": None if self.orientation is None else self.orientation[0],
                 "gripper_turned": None if self.orientation is None else self.orientation[1],
                 "energy_per_node": self.EnergyPerNode(),

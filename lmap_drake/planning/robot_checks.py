@@ -1,8 +1,10 @@
 """Robot checks of the planner at a joint vector and along the executed
 motion: self-collision, the margins to the fruits and branch
-(``collision.RobotCollisionReason``) and to the observed leaves; the IK of
-each action's end (and midway) pose (``MotionChecks``) and of the path the
-controller will execute (``ActionPathReason``). World frame W, metres."""
+(``collision.RobotCollisionReason``) and to the observed leaves, with the
+light brushing of leaves not grasped that the approach may make
+(``LeafContact``); the IK of each action's end (and midway) pose
+(``MotionChecks``) and of the path the controller will execute
+(``ActionPathReason``). World frame W, metres."""
 from __future__ import annotations
 
 import dataclasses as dc
@@ -61,13 +63,161 @@ def TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> 
     return bool(len(near)) and tree.query(near)[0].min() < margin
 
 
+# Leaf points of other leaves this near a fruit (m, the fruits' SDF) or a
+# branch (m, the completed branch) are never brushed: a pushed leaf must
+# not be pressed into a fruit, and a push near where a leaf joins its stem
+# loads its petiole most (``BrushPetioleForce``; docs: dense-canopy.md).
+BRUSH_FRUIT_CLEARANCE = 0.03
+BRUSH_BRANCH_CLEARANCE = 0.06
+
+
+def BrushPetioleForce(displacement: float, lever: float, youngs_modulus: float = 10.0e6,
+                      petiole_width: float = 0.006, thickness: float = 0.002) -> float:
+    """Upper bound (N) of the petiole's axial force estimate (the plant
+    world's ``PetioleForce``, E A (stretch - 1)) when a leaf is pushed
+    ``displacement`` (m) at ``lever`` (m) from where it joins its stem:
+    the leaf as a cantilever clamped there, bending only in the petiole
+    (a stiffer blade only shortens the lever), pushed about the petiole's
+    stiff axis (its larger half-width c): the push takes a moment
+    3 E I d / L^2 at the clamp, a surface strain 3 d c / L^2, hence
+    E A 3 d c / L^2. Defaults: the FEM leaf's (``plant_scene.leaf``)."""
+    c = 0.5 * max(petiole_width, thickness)
+    strain = 3.0 * float(displacement) * c / float(lever) ** 2
+    return float(youngs_modulus * petiole_width * thickness * strain)
+
+
+def LeafNormals(points_W: np.ndarray, tree=None, k: int = 10,
+                radius: float = 0.012) -> np.ndarray:
+    """Unit normals (N, 3) of a leaf point cloud: the least principal axis
+    of each point's ``k`` nearest neighbours within ``radius`` (m); zeros
+    where fewer than 5 are that near (an isolated point: no sheet)."""
+    p = np.asarray(points_W, float).reshape(-1, 3)
+    if len(p) < 5:
+        return np.zeros_like(p)
+    tree = cKDTree(p) if tree is None else tree
+    d, i = tree.query(p, k=min(k, len(p)))
+    nb = p[i]
+    ok = d <= radius
+    w = ok[..., None].astype(float)
+    mean = (nb * w).sum(1) / np.maximum(w.sum(1), 1.0)
+    x = (nb - mean[:, None]) * w
+    _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", x, x))
+    n = vec[:, :, 0]
+    n[ok.sum(1) < 5] = 0.0
+    return n
+
+
+def SheetPush(pts, points_W: np.ndarray, normals: np.ndarray, margin: float,
+              reach: float, step: float = 0.002) -> np.ndarray:
+    """How far (m) each leaf point ``points_W`` must move along its leaf's
+    normal (either sense, the nearer) to keep ``margin`` from the robot at
+    the pose of ``pts`` (``SurfaceSamples``): a leaf is a sheet, so a link
+    that pokes through it pushes it ahead until the link's far side, not
+    only to the nearest face. Marched in ``step`` up to ``reach``
+    (returned as ``reach`` + ``step`` when no free place is that near).
+    Points without a normal (zeros): margin minus their signed distance."""
+    p = np.asarray(points_W, float).reshape(-1, 3)
+    n = np.asarray(normals, float).reshape(-1, 3)
+    s = np.arange(0.0, reach + 0.5 * step, step)
+    free_s = np.full((len(p), 2), reach + step)
+    for k, sign in enumerate((1.0, -1.0)):
+        line = p[:, None, :] + sign * s[None, :, None] * n[:, None, :]
+        free = pts.SignedDistance(line.reshape(-1, 3), margin).reshape(len(p), len(s)) >= margin
+        first = np.argmax(free, axis=1)
+        found = free[np.arange(len(p)), first]
+        free_s[found, k] = s[first[found]]
+    push = free_s.min(axis=1)
+    bare = ~np.any(n != 0.0, axis=1)
+    if bare.any():
+        push[bare] = np.maximum(0.0, margin - pts.SignedDistance(p[bare], margin))
+    return push
+
+
+def _BrushObstacles(ctx: PlanningContext, held: bool = True) -> tuple:
+    """(KD-tree or None of the leaf points the approach may not touch, their
+    box, how many of them (the first) are the held leaf's; the points it
+    may brush, their KD-tree and normals): the held leaf (with ``held``; without,
+    it moves with the gripper) and every point of another leaf within
+    ``BRUSH_FRUIT_CLEARANCE`` of a fruit or ``BRUSH_BRANCH_CLEARANCE`` of
+    the branch (all of them when the branch is not estimated) are not
+    brushed; cached on ``ctx``."""
+    attr = "_brush_obstacles" if held else "_brush_obstacles_moving"
+    cached = getattr(ctx, attr, None)
+    if cached is not None:
+        return cached
+    other = np.asarray(ctx.other_leaves_W, float).reshape(-1, 3)
+    free = np.ones(len(other), bool)
+    if len(other) and ctx.fruit_sdf is not None:
+        d = np.asarray(ctx.fruit_sdf(other), float).reshape(-1)
+        free &= np.nan_to_num(d, nan=-1.0) >= BRUSH_FRUIT_CLEARANCE
+    branch = np.asarray(getattr(ctx, "branch_all_W", np.zeros((0, 3))), float).reshape(-1, 3)
+    d_branch = np.full(len(other), np.inf)
+    if len(other) and ctx.branch_distance is not None:
+        d_branch = np.asarray(ctx.branch_distance(other), float)
+    if len(other) and len(branch):
+        d_branch = np.minimum(d_branch, cKDTree(branch).query(other)[0])
+    if ctx.branch_distance is None and not len(branch):
+        free[:] = False                 # no branch estimate: no lever known
+    free &= d_branch >= BRUSH_BRANCH_CLEARANCE
+    mine = np.asarray(ctx.leaf_W if held else np.zeros((0, 3)), float).reshape(-1, 3)
+    strict = np.vstack([mine, other[~free]])
+    tree = ((cKDTree(strict), (strict.min(0), strict.max(0))) if len(strict)
+            else (None, (None, None)))
+    brushed = other[free]
+    brushed_tree = cKDTree(brushed) if len(brushed) else None
+    normals = LeafNormals(brushed, brushed_tree)
+    cached = (tree[0], tree[1], len(mine), brushed, brushed_tree, normals)
+    setattr(ctx, attr, cached)
+    return cached
+
+
+def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
+                held: bool = True) -> tuple[str, float]:
+    """('' or the reason, the push (m) on the leaves brushed) of the robot's
+    surface samples ``pts`` (a ``SurfaceSamples`` of one pose) against the
+    observed leaves: every leaf (``held``: an approach pose) or the leaves
+    not held (a moved pose). With ``planner.max_brush_displacement`` 0, any
+    leaf point within ``collision_margin`` is 'robot-leaf'. Else the held
+    leaf and the other leaves' points near a fruit or the branch
+    (``_BrushObstacles``) keep that rule, and the other leaves' points may
+    be pushed at most ``max_brush_displacement``: each point within the
+    margin of the robot's geometry as far as its leaf must move along its
+    normal to clear the robot by the margin (``SheetPush``: the robot's
+    depth through the leaf plus the margin)."""
+    margin, bound = cfg.collision_margin, cfg.max_brush_displacement
+    if bound <= 0.0:
+        return ("robot-leaf" if TouchesLeaf(ctx, margin, pts, held) else ""), 0.0
+    tree, box, n_held, brushed, brushed_tree, normals = _BrushObstacles(ctx, held)
+    if tree is not None:
+        near = NearBox(pts, box[0] - margin, box[1] + margin)
+        if len(near):
+            d, i = tree.query(near)
+            k = int(np.argmin(d))
+            if d[k] < margin:
+                return ("robot-leaf" if i[k] < n_held
+                        else "robot-leaf (another leaf near a fruit or the branch)"), 0.0
+    if not len(brushed):
+        return "", 0.0
+    touched = np.flatnonzero(pts.SignedDistance(brushed, margin, brushed_tree) < margin)
+    if not len(touched):
+        return "", 0.0
+    reach = bound + margin + 0.01      # (so a refusal says by how much)
+    push = float(SheetPush(pts, brushed[touched], normals[touched], margin, reach).max())
+    if push > bound:
+        much = f"{100 * push:.1f} cm" if push <= reach else f"over {100 * reach:.1f} cm"
+        return (f"robot-leaf (another leaf pushed {much} > "
+                f"planner.max_brush_displacement {100 * bound:.1f} cm)"), push
+    return "", push
+
+
 def OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
     """'' or why the robot's surface samples ``pts`` (at a moved pose, the
     gripper closed) come within ``planner.collision_margin`` of a leaf that
-    is not the one held (``ctx.other_leaves_W``): the arm would push a
-    neighbouring leaf along the motion and drag it on the way back."""
-    return ("robot-leaf (another leaf)"
-            if TouchesLeaf(ctx, cfg.collision_margin, pts, held=False) else "")
+    is not the one held (``ctx.other_leaves_W``), or push one farther than
+    ``planner.max_brush_displacement`` (``LeafContact``): the arm would
+    push a neighbouring leaf along the motion and drag it on the way back."""
+    why, _ = LeafContact(ctx, cfg, pts, held=False)
+    return "robot-leaf (another leaf)" if why == "robot-leaf" else why
 
 
 def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate],
