@@ -175,4 +175,5 @@ def IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     for c in cands:
         c.approach = approach
         c.q_pregrasp, c.q_grasp = approach.to_pregrasp[-1], approach.to_grasp[-1]
+        c.brush_displacement = approach.brush_displacement
     return MotionChecks(ctx, cfg, cands, approach.to_grasp[-1])

@@ -219,12 +219,13 @@ class PlannerConfig:
     points at most this far (the point's penetration into the robot's
     geometry plus ``collision_margin``, per checked pose); the grasped leaf
     (outside the pads, on the approach) and other leaves' points within
-    3 cm of a fruit or 6 cm of the branch keep the margin
-    (``planning.robot_checks.LeafContact``). The bound is the
-    plant-hazard limit's: a leaf pushed 1.5 cm 6 cm from its stem loads the
-    FEM leaf's petiole at most 4.5 N of the 15 N limit
-    (``BrushPetioleForce``; docs/explanation/dense-canopy.md quotes the
-    data and the FEM measurements).
+    3 cm of a fruit keep the margin, and nearer the branch than 6 cm the
+    push allowed shrinks with the square of the distance
+    (``planning.robot_checks.LeafContact``, ``BrushAllowance``). The bound
+    is the plant-hazard limit's: a leaf pushed 1.5 cm 6 cm from its stem
+    (or 1 cm 4.9 cm from it) loads the FEM leaf's petiole at most 4.5 N of
+    the 15 N limit (``BrushPetioleForce``; docs/explanation/dense-canopy.md
+    quotes the data and the FEM measurements).
 
     ``check_leaf_branch``: reject an action whose predicted leaf ends within
     ``collision_margin`` of the completed branch (stems and shoots) after

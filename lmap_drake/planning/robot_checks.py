@@ -63,12 +63,14 @@ def TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> 
     return bool(len(near)) and tree.query(near)[0].min() < margin
 
 
-# Leaf points of other leaves this near a fruit (m, the fruits' SDF) or a
-# branch (m, the completed branch) are never brushed: a pushed leaf must
-# not be pressed into a fruit, and a push near where a leaf joins its stem
-# loads its petiole most (``BrushPetioleForce``; docs: dense-canopy.md).
+# Leaf points of other leaves this near a fruit (m, the fruits' SDF) are
+# never brushed: a pushed leaf must not be pressed into a fruit. A push
+# near where a leaf joins its stem loads its petiole most
+# (``BrushPetioleForce``): ``planner.max_brush_displacement`` holds from
+# this far from the branch (m), nearer it shrinks with the square of the
+# distance (``BrushAllowance``; docs: dense-canopy.md).
 BRUSH_FRUIT_CLEARANCE = 0.03
-BRUSH_BRANCH_CLEARANCE = 0.06
+BRUSH_REFERENCE_LEVER = 0.06
 
 
 def BrushPetioleForce(displacement: float, lever: float, youngs_modulus: float = 10.0e6,
@@ -84,6 +86,15 @@ def BrushPetioleForce(displacement: float, lever: float, youngs_modulus: float =
     c = 0.5 * max(petiole_width, thickness)
     strain = 3.0 * float(displacement) * c / float(lever) ** 2
     return float(youngs_modulus * petiole_width * thickness * strain)
+
+
+def BrushAllowance(branch_distance, bound: float) -> np.ndarray:
+    """The push (m) allowed on leaf points ``branch_distance`` (m) from the
+    branch: ``bound`` from ``BRUSH_REFERENCE_LEVER`` on, scaled by
+    (distance / it)^2 nearer, so that ``BrushPetioleForce`` stays at most
+    its value for ``bound`` at the reference lever wherever the push is."""
+    d = np.asarray(branch_distance, float)
+    return bound * np.minimum(1.0, (d / BRUSH_REFERENCE_LEVER) ** 2)
 
 
 def LeafNormals(points_W: np.ndarray, tree=None, k: int = 10,
@@ -133,32 +144,31 @@ def SheetPush(pts, points_W: np.ndarray, normals: np.ndarray, margin: float,
     return push
 
 
-def _BrushObstacles(ctx: PlanningContext, held: bool = True) -> tuple:
-    """(KD-tree or None of the leaf points the approach may not touch, their
+def _BrushObstacles(ctx: PlanningContext, held: bool = True) -> tuple | None:
+    """None without a branch estimate (no lever known: nothing is brushed),
+    else (KD-tree or None of the leaf points the robot may not touch, their
     box, how many of them (the first) are the held leaf's; the points it
-    may brush, their KD-tree and normals): the held leaf (with ``held``; without,
-    it moves with the gripper) and every point of another leaf within
-    ``BRUSH_FRUIT_CLEARANCE`` of a fruit or ``BRUSH_BRANCH_CLEARANCE`` of
-    the branch (all of them when the branch is not estimated) are not
-    brushed; cached on ``ctx``."""
+    may brush, their KD-tree, normals and distances to the branch): the
+    held leaf (with ``held``; without, it moves with the gripper) and every
+    point of another leaf within ``BRUSH_FRUIT_CLEARANCE`` of a fruit are
+    not brushed; cached on ``ctx``."""
     attr = "_brush_obstacles" if held else "_brush_obstacles_moving"
-    cached = getattr(ctx, attr, None)
-    if cached is not None:
-        return cached
+    if hasattr(ctx, attr):
+        return getattr(ctx, attr)
     other = np.asarray(ctx.other_leaves_W, float).reshape(-1, 3)
+    branch = np.asarray(getattr(ctx, "branch_all_W", np.zeros((0, 3))), float).reshape(-1, 3)
+    if ctx.branch_distance is None and not len(branch):
+        setattr(ctx, attr, None)
+        return None
     free = np.ones(len(other), bool)
     if len(other) and ctx.fruit_sdf is not None:
         d = np.asarray(ctx.fruit_sdf(other), float).reshape(-1)
         free &= np.nan_to_num(d, nan=-1.0) >= BRUSH_FRUIT_CLEARANCE
-    branch = np.asarray(getattr(ctx, "branch_all_W", np.zeros((0, 3))), float).reshape(-1, 3)
     d_branch = np.full(len(other), np.inf)
     if len(other) and ctx.branch_distance is not None:
         d_branch = np.asarray(ctx.branch_distance(other), float)
     if len(other) and len(branch):
         d_branch = np.minimum(d_branch, cKDTree(branch).query(other)[0])
-    if ctx.branch_distance is None and not len(branch):
-        free[:] = False                 # no branch estimate: no lever known
-    free &= d_branch >= BRUSH_BRANCH_CLEARANCE
     mine = np.asarray(ctx.leaf_W if held else np.zeros((0, 3)), float).reshape(-1, 3)
     strict = np.vstack([mine, other[~free]])
     tree = ((cKDTree(strict), (strict.min(0), strict.max(0))) if len(strict)
@@ -166,7 +176,7 @@ def _BrushObstacles(ctx: PlanningContext, held: bool = True) -> tuple:
     brushed = other[free]
     brushed_tree = cKDTree(brushed) if len(brushed) else None
     normals = LeafNormals(brushed, brushed_tree)
-    cached = (tree[0], tree[1], len(mine), brushed, brushed_tree, normals)
+    cached = (tree[0], tree[1], len(mine), brushed, brushed_tree, normals, d_branch[free])
     setattr(ctx, attr, cached)
     return cached
 
@@ -176,18 +186,20 @@ def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
     """('' or the reason, the push (m) on the leaves brushed) of the robot's
     surface samples ``pts`` (a ``SurfaceSamples`` of one pose) against the
     observed leaves: every leaf (``held``: an approach pose) or the leaves
-    not held (a moved pose). With ``planner.max_brush_displacement`` 0, any
-    leaf point within ``collision_margin`` is 'robot-leaf'. Else the held
-    leaf and the other leaves' points near a fruit or the branch
-    (``_BrushObstacles``) keep that rule, and the other leaves' points may
-    be pushed at most ``max_brush_displacement``: each point within the
-    margin of the robot's geometry as far as its leaf must move along its
-    normal to clear the robot by the margin (``SheetPush``: the robot's
-    depth through the leaf plus the margin)."""
+    not held (a moved pose). With ``planner.max_brush_displacement`` 0 (or
+    no branch estimate), any leaf point within ``collision_margin`` is
+    'robot-leaf'. Else the held leaf and the other leaves' points near a
+    fruit (``_BrushObstacles``) keep that rule, and the other leaves'
+    points may be pushed, each at most ``BrushAllowance`` (the key's value
+    from 6 cm from the branch on): each point within the margin of the
+    robot's geometry as far as its leaf must move along its normal to
+    clear the robot by the margin (``SheetPush``: the robot's depth through
+    the leaf plus the margin)."""
     margin, bound = cfg.collision_margin, cfg.max_brush_displacement
-    if bound <= 0.0:
+    obstacles = _BrushObstacles(ctx, held) if bound > 0.0 else None
+    if obstacles is None:
         return ("robot-leaf" if TouchesLeaf(ctx, margin, pts, held) else ""), 0.0
-    tree, box, n_held, brushed, brushed_tree, normals = _BrushObstacles(ctx, held)
+    tree, box, n_held, brushed, brushed_tree, normals, d_branch = obstacles
     if tree is not None:
         near = NearBox(pts, box[0] - margin, box[1] + margin)
         if len(near):
@@ -195,29 +207,35 @@ def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
             k = int(np.argmin(d))
             if d[k] < margin:
                 return ("robot-leaf" if i[k] < n_held
-                        else "robot-leaf (another leaf near a fruit or the branch)"), 0.0
+                        else "robot-leaf (another leaf) near a fruit"), 0.0
     if not len(brushed):
         return "", 0.0
     touched = np.flatnonzero(pts.SignedDistance(brushed, margin, brushed_tree) < margin)
     if not len(touched):
         return "", 0.0
     reach = bound + margin + 0.01      # (so a refusal says by how much)
-    push = float(SheetPush(pts, brushed[touched], normals[touched], margin, reach).max())
-    if push > bound:
-        much = f"{100 * push:.1f} cm" if push <= reach else f"over {100 * reach:.1f} cm"
-        return (f"robot-leaf (another leaf pushed {much} > "
-                f"planner.max_brush_displacement {100 * bound:.1f} cm)"), push
-    return "", push
+    push = SheetPush(pts, brushed[touched], normals[touched], margin, reach)
+    allowed = BrushAllowance(d_branch[touched], bound)
+    worst = int(np.argmax(push - allowed))
+    p, a = float(push[worst]), float(allowed[worst])
+    if p > a:
+        much = f"{100 * p:.1f} cm" if p <= reach else f"over {100 * reach:.1f} cm"
+        limit = (f"planner.max_brush_displacement {100 * bound:.1f} cm" if a >= bound
+                 else f"{100 * a:.1f} cm allowed {100 * d_branch[touched][worst]:.1f} cm "
+                      f"from the branch")
+        return f"robot-leaf (another leaf) pushed {much} > {limit}", float(push.max())
+    return "", float(push.max())
 
 
-def OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
-    """'' or why the robot's surface samples ``pts`` (at a moved pose, the
-    gripper closed) come within ``planner.collision_margin`` of a leaf that
-    is not the one held (``ctx.other_leaves_W``), or push one farther than
+def OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> tuple[str, float]:
+    """('' or why, the push (m) on leaves brushed): the robot's surface
+    samples ``pts`` (at a moved pose, the gripper closed) come within
+    ``planner.collision_margin`` of a leaf that is not the one held
+    (``ctx.other_leaves_W``), or push one farther than
     ``planner.max_brush_displacement`` (``LeafContact``): the arm would
     push a neighbouring leaf along the motion and drag it on the way back."""
-    why, _ = LeafContact(ctx, cfg, pts, held=False)
-    return "robot-leaf (another leaf)" if why == "robot-leaf" else why
+    why, push = LeafContact(ctx, cfg, pts, held=False)
+    return ("robot-leaf (another leaf)" if why == "robot-leaf" else why), push
 
 
 def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate],
@@ -225,7 +243,8 @@ def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate
     """IK for each action's end pose (and an arc's midway pose), warm-started
     along each direction's distances from ``q_grasp`` (the joints holding
     the grasp), and robot-vs-fruit/branch checks there (gripper closed), and
-    robot vs the leaves not held (``OtherLeafReason``)."""
+    robot vs the leaves not held (``OtherLeafReason``; the largest push on
+    them joins the approach's in ``brush_displacement``)."""
     robot = ctx.robot
     seeds: dict[int, np.ndarray] = {}
     solved: dict[tuple, tuple] = {}
@@ -246,21 +265,23 @@ def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate
         for angle, p, R_end in poses:
             key = (a.direction_id, round(angle, 9)) if a.family != "pull" else None
             if key in solved:
-                r, pose_why = solved[key]
+                r, pose_why, push = solved[key]
             else:
                 r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
-                pose_why = ""
+                pose_why, push = "", 0.0
                 if r.success:
                     pts = robot.SurfacePointsByBody(r.q, 0.0)
-                    pose_why = (RobotPoseReason(robot, r.q, 0.0, pts, ctx, cfg)
-                                or OtherLeafReason(ctx, cfg, pts))
+                    pose_why = RobotPoseReason(robot, r.q, 0.0, pts, ctx, cfg)
+                    if not pose_why:
+                        pose_why, push = OtherLeafReason(ctx, cfg, pts)
                 if key is not None:
-                    solved[key] = (r, pose_why)
+                    solved[key] = (r, pose_why, push)
             if not r.success:
                 why = f"IK failed ({'pulled pose' if a.family == 'pull' else 'along the ' + a.family})"
                 break
             seed = r.q
             why = why or pose_why
+            c.brush_displacement = max(c.brush_displacement, push)
         if why.startswith("IK failed"):
             c.reason = why
             continue
@@ -286,10 +307,12 @@ def ActionPathReason(ctx: PlanningContext, cfg: PlannerConfig, c: Candidate) -> 
         return f"executed path: {' '.join(str(err).split())}"
     for q in path:
         pts = ctx.robot.SurfacePointsByBody(q, 0.0)
-        why = (RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
-                                    cfg.collision_margin, ctx.fruit_box, ctx.branch_box,
-                                    cfg.robot_fruit_margin)
-               or OtherLeafReason(ctx, cfg, pts))
+        why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
+                                   cfg.collision_margin, ctx.fruit_box, ctx.branch_box,
+                                   cfg.robot_fruit_margin)
+        if not why:
+            why, push = OtherLeafReason(ctx, cfg, pts)
+            c.brush_displacement = max(c.brush_displacement, push)
         if why:
             return f"{why} along the executed {c.action.family}"
     return ""

@@ -3,9 +3,10 @@ outcome flags, visibilities and shape errors that ``episode.sim_world.SimWorld``
 writes into ``episode.json`` (``outcome``, ``release_outcome``,
 ``shape_initial`` / ``shape_final``, ``leaf_loads`` (per FEM leaf: its
 worst petiole force, strain and robot contact force, grasped or brushed),
-and for several fruits ``fruits``, ``targets``, ``phantom_targets``). Never from the planner's model: from the
-plant world's samples (``PlantWorldSim.samples``), its render labels and the
-generated plant (``PlantWorldSim.model``). World frame W, metres, newtons.
+and for several fruits ``fruits``, ``targets``, ``phantom_targets``).
+Never from the planner's model: from the plant world's samples
+(``PlantWorldSim.samples``), its render labels and the generated plant
+(``PlantWorldSim.model``). World frame W, metres, newtons.
 """
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
-"""Reaching through foliage: the approach may push a leaf it does not grasp
-by at most ``planner.max_brush_displacement`` (its points' penetration into
-the robot's geometry plus the collision margin); the grasped leaf, leaf
-points near a fruit or the branch, the fruit and the branch keep today's
-rules."""
+"""Reaching through foliage: the robot may push a leaf it does not hold by
+at most ``planner.max_brush_displacement`` (how far the leaf must move
+along its normal to clear the robot by the collision margin), less near a
+stem; the grasped leaf, leaf points near a fruit, the fruit and the branch
+keep today's rules."""
 from types import SimpleNamespace
 
 import numpy as np
@@ -11,8 +11,8 @@ import pytest
 from lmap_drake.deformation.action import Action
 from lmap_drake.planning.approach import IkAndRobotChecks
 from lmap_drake.planning.config import PlannerConfig, ValidatePlannerConfig
-from lmap_drake.planning.robot_checks import (BRUSH_BRANCH_CLEARANCE, BRUSH_FRUIT_CLEARANCE,
-                                              BrushPetioleForce)
+from lmap_drake.planning.robot_checks import (BRUSH_FRUIT_CLEARANCE, BRUSH_REFERENCE_LEVER,
+                                              BrushAllowance, BrushPetioleForce)
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.errors import ConfigError
 from lmap_drake.station.config import RobotConfig
@@ -81,11 +81,18 @@ def test_the_brush_bound_is_well_below_the_plant_hazard_limit():
     """1.5 cm at 6 cm from the stem: 4.5 N on the FEM petiole (E 10 MPa,
     6 x 2 mm), under a third of the 15 N plant-hazard limit; more push or
     a shorter lever loads it more."""
-    f = BrushPetioleForce(PlannerConfig().max_brush_displacement, BRUSH_BRANCH_CLEARANCE)
+    bound = PlannerConfig().max_brush_displacement
+    f = BrushPetioleForce(bound, BRUSH_REFERENCE_LEVER)
     assert f == pytest.approx(4.5, abs=0.01) and f < 15.0 / 3
     assert BrushPetioleForce(0.03, 0.06) > f > BrushPetioleForce(0.015, 0.10)
-    assert BrushPetioleForce(0.015, 0.03) > 15.0      # why points near a stem are not brushed
-    assert (BRUSH_FRUIT_CLEARANCE, BRUSH_BRANCH_CLEARANCE) == (0.03, 0.06)
+    assert BrushPetioleForce(0.015, 0.03) > 15.0      # why the push shrinks near a stem
+    assert (BRUSH_FRUIT_CLEARANCE, BRUSH_REFERENCE_LEVER) == (0.03, 0.06)
+    levers = np.linspace(0.005, 0.2, 60)
+    allowed = BrushAllowance(levers, bound)
+    assert np.all(allowed <= bound) and np.all(allowed[levers >= 0.06] == bound)
+    assert np.all(np.diff(allowed) >= 0)
+    loads = [BrushPetioleForce(a, L) for a, L in zip(allowed, levers)]
+    assert max(loads) == pytest.approx(f) and np.all(np.asarray(loads) <= f + 1e-9)
 
 
 def test_the_key_is_checked():
@@ -108,8 +115,8 @@ def test_a_light_brush_is_accepted_and_a_hard_one_refused(robot):
     assert light.approach is not None and light.q_grasp is not None
     # 1.7 cm through it: a 2.2 cm push
     hard = _Plan(robot, _Ctx(robot, other=_Sheet(-0.002)))
-    assert hard.reason.startswith("robot-leaf (another leaf pushed 2.2 cm > "
-                                  "planner.max_brush_displacement 1.5 cm)"), hard.reason
+    assert hard.reason == ("robot-leaf (another leaf) pushed 2.2 cm > "
+                           "planner.max_brush_displacement 1.5 cm during the approach"), hard.reason
     assert hard.approach is None
     # a wider bound lets it through; 0 is the old rule: any contact refused
     wide = _Plan(robot, _Ctx(robot, other=_Sheet(-0.002)), max_brush_displacement=0.03)
@@ -119,7 +126,7 @@ def test_a_light_brush_is_accepted_and_a_hard_one_refused(robot):
     assert old.reason == "robot-leaf during the approach (leaf not between the pads)"
 
 
-def test_the_grasped_leaf_and_leaves_near_a_fruit_or_the_branch_are_never_brushed(robot):
+def test_the_grasped_leaf_and_leaves_near_a_fruit_are_never_brushed_nor_near_a_stem_much(robot):
     patch = _Sheet(-0.012)
     held = _Plan(robot, _Ctx(robot, leaf=patch))
     assert held.reason == "robot-leaf during the approach (leaf not between the pads)"
@@ -129,14 +136,19 @@ def test_the_grasped_leaf_and_leaves_near_a_fruit_or_the_branch_are_never_brushe
     def sdf(p):
         return np.linalg.norm(np.asarray(p) - center, axis=1) - radius
     near_fruit = _Plan(robot, _Ctx(robot, other=patch, fruit_sdf=sdf))
-    assert near_fruit.reason.startswith(
-        "robot-leaf (another leaf near a fruit or the branch)"), near_fruit.reason
+    assert near_fruit.reason == "robot-leaf (another leaf) near a fruit during the approach", \
+        near_fruit.reason
     # without the leaf the fruit is no obstacle: only the leaf rule refused
     assert _Plan(robot, _Ctx(robot, fruit_sdf=sdf)).reason == ""
+    # a stem 4 cm beside the pads: the 1.2 cm push loads the petiole too much there
     stem = P_WG + np.c_[np.full(30, 0.05), np.zeros(30), np.linspace(-0.1, 0.1, 30)]
     near_stem = _Plan(robot, _Ctx(robot, other=patch, branch=stem))
-    assert near_stem.reason.startswith("robot-leaf (another leaf near a fruit or the branch)")
+    assert near_stem.reason.startswith("robot-leaf (another leaf) pushed 1.2 cm > 0."), \
+        near_stem.reason
+    assert "cm from the branch" in near_stem.reason
     assert _Plan(robot, _Ctx(robot, branch=stem)).reason == ""
+    # the stem farther away: the same push is allowed
+    assert _Plan(robot, _Ctx(robot, other=patch, branch=stem + [0.06, 0, 0])).reason == ""
     # no branch estimate: no lever known, no brushing
     assert _Plan(robot, _Ctx(robot, other=patch, branch=NONE)).reason.startswith("robot-leaf")
 
