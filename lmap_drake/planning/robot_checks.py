@@ -64,37 +64,46 @@ def TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> 
 
 
 # Leaf points of other leaves this near a fruit (m, the fruits' SDF) are
-# never brushed: a pushed leaf must not be pressed into a fruit. A push
-# near where a leaf joins its stem loads its petiole most
-# (``BrushPetioleForce``): ``planner.max_brush_displacement`` holds from
-# this far from the branch (m), nearer it shrinks with the square of the
-# distance (``BrushAllowance``; docs: dense-canopy.md).
+# never brushed: a pushed leaf must not be pressed into a fruit.
 BRUSH_FRUIT_CLEARANCE = 0.03
-BRUSH_REFERENCE_LEVER = 0.06
+# A push d (m) at a lever L (m) from where a leaf joins its stem loads its
+# petiole about k d / L^2 (``BrushPetioleForce``); k (N m) measured on the
+# FEM leaf (``studies.brush``: the largest steady load of its pushes), at
+# most ``BRUSH_MAX_FORCE`` (N, a third of the plant-hazard limit) is
+# allowed (``BrushAllowance``; docs: dense-canopy.md).
+BRUSH_PETIOLE_STIFFNESS = 4.3
+BRUSH_MAX_FORCE = 5.0
 
 
-def BrushPetioleForce(displacement: float, lever: float, youngs_modulus: float = 10.0e6,
-                      petiole_width: float = 0.006, thickness: float = 0.002) -> float:
-    """Upper bound (N) of the petiole's axial force estimate (the plant
-    world's ``PetioleForce``, E A (stretch - 1)) when a leaf is pushed
-    ``displacement`` (m) at ``lever`` (m) from where it joins its stem:
-    the leaf as a cantilever clamped there, bending only in the petiole
-    (a stiffer blade only shortens the lever), pushed about the petiole's
-    stiff axis (its larger half-width c): the push takes a moment
-    3 E I d / L^2 at the clamp, a surface strain 3 d c / L^2, hence
-    E A 3 d c / L^2. Defaults: the FEM leaf's (``plant_scene.leaf``)."""
+def BeamPetioleForce(displacement: float, lever: float, youngs_modulus: float = 10.0e6,
+                     petiole_width: float = 0.006, thickness: float = 0.002) -> float:
+    """The petiole's axial force estimate (N; the plant world's
+    ``PetioleForce``, E A (stretch - 1)) of a leaf pushed ``displacement``
+    (m) at ``lever`` (m) from where it joins its stem, as a beam: a
+    cantilever clamped there, bending only in the petiole, pushed about
+    its stiff axis (half-width c): a moment 3 E I d / L^2 at the clamp, a
+    surface strain 3 d c / L^2, hence E A 3 d c / L^2 (k = 1.08 N m for the
+    FEM leaf's E 10 MPa and 6 x 2 mm petiole). The FEM leaf measures 2-4
+    times more (``BRUSH_PETIOLE_STIFFNESS``): the model's form, not its k."""
     c = 0.5 * max(petiole_width, thickness)
     strain = 3.0 * float(displacement) * c / float(lever) ** 2
     return float(youngs_modulus * petiole_width * thickness * strain)
 
 
+def BrushPetioleForce(displacement, lever, stiffness: float = BRUSH_PETIOLE_STIFFNESS):
+    """The petiole load (N) predicted for a push of ``displacement`` (m) at
+    ``lever`` (m) from the stem: ``stiffness`` d / L^2 (the beam's form,
+    ``BeamPetioleForce``, with the FEM leaf's measured k)."""
+    return stiffness * np.asarray(displacement, float) / np.asarray(lever, float) ** 2
+
+
 def BrushAllowance(branch_distance, bound: float) -> np.ndarray:
     """The push (m) allowed on leaf points ``branch_distance`` (m) from the
-    branch: ``bound`` from ``BRUSH_REFERENCE_LEVER`` on, scaled by
-    (distance / it)^2 nearer, so that ``BrushPetioleForce`` stays at most
-    its value for ``bound`` at the reference lever wherever the push is."""
+    branch: ``bound``, or less where a push that far would load the
+    petiole more than ``BRUSH_MAX_FORCE`` (``BrushPetioleForce``): a
+    1.5 cm push needs 11.4 cm, 1 cm 9.3 cm, 5 mm 6.6 cm."""
     d = np.asarray(branch_distance, float)
-    return bound * np.minimum(1.0, (d / BRUSH_REFERENCE_LEVER) ** 2)
+    return np.minimum(bound, BRUSH_MAX_FORCE * d ** 2 / BRUSH_PETIOLE_STIFFNESS)
 
 
 def LeafNormals(points_W: np.ndarray, tree=None, k: int = 10,
@@ -191,7 +200,7 @@ def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
     'robot-leaf'. Else the held leaf and the other leaves' points near a
     fruit (``_BrushObstacles``) keep that rule, and the other leaves'
     points may be pushed, each at most ``BrushAllowance`` (the key's value
-    from 6 cm from the branch on): each point within the margin of the
+    far enough from the branch): each point within the margin of the
     robot's geometry as far as its leaf must move along its normal to
     clear the robot by the margin (``SheetPush``: the robot's depth through
     the leaf plus the margin)."""
@@ -210,9 +219,15 @@ def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
                         else "robot-leaf (another leaf) near a fruit"), 0.0
     if not len(brushed):
         return "", 0.0
-    touched = np.flatnonzero(pts.SignedDistance(brushed, margin, brushed_tree) < margin)
+    sd = pts.SignedDistance(brushed, margin, brushed_tree)
+    touched = np.flatnonzero(sd < margin)
     if not len(touched):
         return "", 0.0
+    # the deepest point per 4 mm cell (the push varies smoothly over a leaf)
+    order = touched[np.argsort(sd[touched])]
+    _, first = np.unique(np.floor(brushed[order] / 0.004).astype(np.int64), axis=0,
+                         return_index=True)
+    touched = order[first]
     reach = bound + margin + 0.01      # (so a refusal says by how much)
     push = SheetPush(pts, brushed[touched], normals[touched], margin, reach)
     allowed = BrushAllowance(d_branch[touched], bound)

@@ -75,6 +75,17 @@ def _ShapeParams(shape) -> tuple:
     return kind, np.array([shape.radius(), shape.length() / 2])
 
 
+def _LongAxis(kind: str, dims: np.ndarray) -> tuple[int, float, float]:
+    """(axis index, half length along it, radius of the cross-section
+    around it) of a shape of ``_ShapeParams`` in its own frame: every
+    point of the shape lies within that radius of that segment."""
+    if kind == "box":
+        axis = int(np.argmax(dims))
+        return axis, float(dims[axis]), float(np.linalg.norm(np.delete(dims, axis)))
+    r, h = dims
+    return 2, float(h + (r if kind == "capsule" else 0.0)), float(r)
+
+
 def ShapeSignedDistance(kind: str, dims: np.ndarray, p_G: np.ndarray) -> np.ndarray:
     """Signed distance (m, negative inside) of points ``p_G`` (N, 3, in the
     shape's own frame, Drake's conventions: a box centred, capsules and
@@ -123,17 +134,24 @@ class SurfaceSamples:
         each box). Needs ``shapes``."""
         p = np.asarray(points_W, float).reshape(-1, 3)
         out = np.full(len(p), np.inf)
+        if not len(p):
+            return out
+        p_lo, p_hi = p.min(axis=0), p.max(axis=0)
         for i, (kind, dims, X_BG) in enumerate(self._shapes):
             lo, hi = self.boxes[i] + np.array([[-reach], [reach]])
-            if tree is not None:
-                near = np.asarray(tree.query_ball_point(0.5 * (lo + hi),
-                                                        0.5 * np.linalg.norm(hi - lo)), int)
-                near = near[np.all((p[near] >= lo) & (p[near] <= hi), axis=1)]
+            if np.any(p_lo > hi) or np.any(p_hi < lo):
+                continue
+            X_WG = self._X[i] @ X_BG
+            if tree is not None:     # balls along the shape's long axis
+                axis, half, r = _LongAxis(kind, dims)
+                k = max(1, int(np.ceil(2 * half / max(r, 1e-3))))
+                c = np.outer((np.arange(k) + 0.5) / k * 2 * half - half, X_WG[:3, axis])
+                found = tree.query_ball_point(c + X_WG[:3, 3], np.hypot(r, half / k) + reach)
+                near = np.unique(np.concatenate([np.asarray(f, int) for f in found]))
             else:
                 near = np.flatnonzero(np.all((p >= lo) & (p <= hi), axis=1))
             if not len(near):
                 continue
-            X_WG = self._X[i] @ X_BG
             p_G = (p[near] - X_WG[:3, 3]) @ X_WG[:3, :3]
             out[near] = np.minimum(out[near], ShapeSignedDistance(kind, dims, p_G))
         return out

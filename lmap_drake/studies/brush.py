@@ -14,8 +14,9 @@ stand ``depth`` beyond the blade's rest surface, holds ``--hold`` s and
 backs out. Each is one fork of the settled world. Rows: the planner's
 predicted push at the deepest pose (``SheetPush`` over the blade's rest
 vertices, the margin included), the lever (the point's distance to the
-petiole's fixed vertices), the bound ``BrushPetioleForce(push, lever)``, and
-what the plant world measured over the motion: the petiole force, the
+petiole's fixed vertices), the petiole load the beam model gives
+(``BeamPetioleForce``) and the planner predicts (``BrushPetioleForce``,
+its k calibrated on these rows), and what the plant world measured over the motion: the petiole force, the
 blade strain percentile, the robot's contact force on the leaf.
 """
 from __future__ import annotations
@@ -29,7 +30,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.paths import DEFAULT_SCENARIO_FILE
 from lmap_drake.planning.motion import TimeJointPath
-from lmap_drake.planning.robot_checks import BrushPetioleForce, LeafNormals, SheetPush
+from lmap_drake.planning.robot_checks import (BeamPetioleForce, BrushPetioleForce, LeafNormals,
+                                              SheetPush)
 from lmap_drake.plants.outcome import LeafLoadRows
 from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.plants.scripted import LeafPoint, _LeafNormal
@@ -59,7 +61,8 @@ def _Pose(world: PlantWorldSim, p: np.ndarray, n: np.ndarray, back: float) -> Ri
     return RigidTransform(RotationMatrix(np.c_[x, y, z]), p - (PAD_TIP + back) * z)
 
 
-def BrushOnce(settled: PlantWorldSim, uv, depth: float, hold: float) -> dict:
+def BrushOnce(settled: PlantWorldSim, uv, depth: float, hold: float,
+              debug: bool = False) -> dict:
     """One push of ``depth`` (m) at leaf coordinates ``uv`` from a fork of
     ``settled`` (see the module docstring)."""
     world = settled.Fork()
@@ -93,15 +96,20 @@ def BrushOnce(settled: PlantWorldSim, uv, depth: float, hold: float) -> dict:
         world.AdvanceTo(traj.end_time(), traj)
         if q1 is r_in.q:
             world.Hold(hold)
+    if debug:
+        for x in world.samples[start:]:
+            print(round(x.t, 2), [round(v, 3) for v in x.leaf_loads.get(0, ())],
+                  world.robot.TcpPose(world.q_cmd).translation().round(3))
     rows = LeafLoadRows(world.samples[start:], world.scenario.plant_scene.outcome)
     row = rows[0] if rows else {}
     before = LeafLoadRows(world.samples[t0:start], world.scenario.plant_scene.outcome)
     return {"uv": [float(x) for x in uv], "vertex": idx, "depth": float(depth),
             "lever": round(lever, 4), "predicted_push": round(push, 4),
-            "bound_N": round(BrushPetioleForce(push, lever,
-                                               world.scenario.plant_scene.leaf.youngs_modulus,
-                                               world.scenario.plant_scene.leaf.petiole_width,
-                                               world.scenario.plant_scene.leaf.thickness), 3),
+            "predicted_N": round(float(BrushPetioleForce(push, lever)), 3),
+            "beam_N": round(BeamPetioleForce(push, lever,
+                                             world.scenario.plant_scene.leaf.youngs_modulus,
+                                             world.scenario.plant_scene.leaf.petiole_width,
+                                             world.scenario.plant_scene.leaf.thickness), 3),
             "petiole_force_N": row.get("max_petiole_force"),
             "petiole_force_before_N": before[0]["max_petiole_force"] if before else None,
             "strain_percentile": row.get("max_strain_percentile"),
@@ -112,7 +120,7 @@ def BrushOnce(settled: PlantWorldSim, uv, depth: float, hold: float) -> dict:
 def RunBrushStudy(o: BrushStudyOptions, log=print) -> list[dict]:
     """Every (point, depth) of ``o``; the JSON list written to ``o.out``
     after each row (an interrupted study keeps the rows so far)."""
-    text = "{plant_scene: {leaf: {clearance: %g}}}" % o.clearance
+    text = "{plant_scene: {occlusion: 0.45, leaf: {clearance: %g}}}" % o.clearance
     scenario = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults",
                             scenario_text=o.scenario_text or text)
     world = PlantWorldSim(scenario)

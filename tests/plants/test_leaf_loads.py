@@ -28,16 +28,18 @@ def test_leaf_rows_keep_each_leafs_worst_and_say_how_it_was_touched():
 
 
 def test_a_brushed_fem_leaf_is_recorded_and_stays_under_the_planners_bound():
-    """The closed gripper pushes the single plant's FEM leaf 1 cm at mid
-    blade and backs out (``studies.brush``): the plant world records the
-    robot's contact force on that leaf, the leaf as brushed, not grasped,
-    and its petiole force stays under what the planner's bound predicts
-    for the predicted push."""
+    """The closed gripper's pads come in along the single plant's FEM leaf's
+    normal until their tips reach its rest surface, 11 cm out on the blade,
+    and back out (``studies.brush``): the plant world records the robot's
+    contact force on that leaf and the leaf as brushed, not grasped; the
+    planner predicts a push within its allowance there and a petiole load
+    above the one measured."""
+    from lmap_drake.planning.robot_checks import BrushAllowance
     from lmap_drake.studies.brush import BrushStudyOptions, RunBrushStudy
-    (row,) = RunBrushStudy(BrushStudyOptions(points=[[0.06, 0.0]], depths=[0.01], hold=0.2),
+    (row,) = RunBrushStudy(BrushStudyOptions(points=[[0.11, 0.0]], depths=[0.0], hold=0.2),
                            log=lambda _: None)
     assert "error" not in row, row
     assert row["robot_contact_force_N"] > 0.0
-    assert row["predicted_push"] == pytest.approx(0.015, abs=0.003)
-    assert 0.0 < row["petiole_force_N"] <= row["bound_N"] < 15.0
+    assert 0.005 < row["predicted_push"] <= BrushAllowance(row["lever"], 0.015)
+    assert row["petiole_force_before_N"] < row["petiole_force_N"] <= row["predicted_N"] < 5.0
     assert not row["damaged"]
