@@ -216,16 +216,19 @@ class PlannerConfig:
     brush leaves it does not hold, on the approach (the joint move to the
     via pose, the ready pose, the pre-grasp and the final approach) and at
     the action's checked poses, when it pushes each of their observed
-    points at most this far (the point's penetration into the robot's
-    geometry plus ``collision_margin``, per checked pose); the grasped leaf
+    points at most this far (how far the point's leaf must move along its
+    normal to clear the robot's geometry by ``collision_margin``, per
+    checked pose); the grasped leaf
     (outside the pads, on the approach) and other leaves' points within
-    3 cm of a fruit keep the margin, and nearer the branch than 6 cm the
-    push allowed shrinks with the square of the distance
-    (``planning.robot_checks.LeafContact``, ``BrushAllowance``). The bound
-    is the plant-hazard limit's: a leaf pushed 1.5 cm 6 cm from its stem
-    (or 1 cm 4.9 cm from it) loads the FEM leaf's petiole at most 4.5 N of
-    the 15 N limit (``BrushPetioleForce``; docs/explanation/dense-canopy.md
-    quotes the data and the FEM measurements).
+    3 cm of a fruit keep the margin, and nearer the branch the push
+    allowed shrinks so that the predicted petiole load stays at most 5 N,
+    a third of the 15 N plant-hazard limit (``planning.robot_checks.
+    LeafContact``, ``BrushAllowance``: the load k d / L^2 of a push d at a
+    lever L, k measured on the FEM leaf; 1 cm from 10.2 cm from the branch
+    on). 1 cm, not more: the FEM study's pushes of at most 0.8 cm loaded
+    the petiole at most 0.5 N, while one of 1.2 cm (within the load bound)
+    strained the blade past the tear limit, pressed by a pad's edge.
+    docs/explanation/dense-canopy.md quotes the data and the measurements.
 
     ``check_leaf_branch``: reject an action whose predicted leaf ends within
     ``collision_margin`` of the completed branch (stems and shoots) after
@@ -293,7 +296,7 @@ class PlannerConfig:
     # predicted leaf from the fruit
     collision_margin: float = 0.005
     robot_fruit_margin: float = 0.015
-    max_brush_displacement: float = 0.015  # m: push allowed on leaves not grasped (approach)
+    max_brush_displacement: float = 0.01  # m: push allowed on leaves not held (0 = none)
     energy_weight: float = 1.0  # lambda of the score N_vis - lambda E (both min-max normalised)
     max_energy_per_node: float = 5.9e-7
     force_action: list[float] = dc.field(default_factory=list)

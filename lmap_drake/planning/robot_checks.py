@@ -68,10 +68,10 @@ def TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> 
 BRUSH_FRUIT_CLEARANCE = 0.03
 # A push d (m) at a lever L (m) from where a leaf joins its stem loads its
 # petiole about k d / L^2 (``BrushPetioleForce``); k (N m) measured on the
-# FEM leaf (``studies.brush``: the largest steady load of its pushes), at
+# FEM leaf (``studies.brush``: the largest of its steady pushes), at
 # most ``BRUSH_MAX_FORCE`` (N, a third of the plant-hazard limit) is
 # allowed (``BrushAllowance``; docs: dense-canopy.md).
-BRUSH_PETIOLE_STIFFNESS = 4.3
+BRUSH_PETIOLE_STIFFNESS = 5.2
 BRUSH_MAX_FORCE = 5.0
 
 
@@ -83,7 +83,7 @@ def BeamPetioleForce(displacement: float, lever: float, youngs_modulus: float = 
     cantilever clamped there, bending only in the petiole, pushed about
     its stiff axis (half-width c): a moment 3 E I d / L^2 at the clamp, a
     surface strain 3 d c / L^2, hence E A 3 d c / L^2 (k = 1.08 N m for the
-    FEM leaf's E 10 MPa and 6 x 2 mm petiole). The FEM leaf measures 2-4
+    FEM leaf's E 10 MPa and 6 x 2 mm petiole). The FEM leaf measures 2-5
     times more (``BRUSH_PETIOLE_STIFFNESS``): the model's form, not its k."""
     c = 0.5 * max(petiole_width, thickness)
     strain = 3.0 * float(displacement) * c / float(lever) ** 2
@@ -101,7 +101,7 @@ def BrushAllowance(branch_distance, bound: float) -> np.ndarray:
     """The push (m) allowed on leaf points ``branch_distance`` (m) from the
     branch: ``bound``, or less where a push that far would load the
     petiole more than ``BRUSH_MAX_FORCE`` (``BrushPetioleForce``): a
-    1.5 cm push needs 11.4 cm, 1 cm 9.3 cm, 5 mm 6.6 cm."""
+    1 cm push needs 10.2 cm, 5 mm 7.2 cm."""
     d = np.asarray(branch_distance, float)
     return np.minimum(bound, BRUSH_MAX_FORCE * d ** 2 / BRUSH_PETIOLE_STIFFNESS)
 

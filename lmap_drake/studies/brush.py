@@ -61,8 +61,7 @@ def _Pose(world: PlantWorldSim, p: np.ndarray, n: np.ndarray, back: float) -> Ri
     return RigidTransform(RotationMatrix(np.c_[x, y, z]), p - (PAD_TIP + back) * z)
 
 
-def BrushOnce(settled: PlantWorldSim, uv, depth: float, hold: float,
-              debug: bool = False) -> dict:
+def BrushOnce(settled: PlantWorldSim, uv, depth: float, hold: float) -> dict:
     """One push of ``depth`` (m) at leaf coordinates ``uv`` from a fork of
     ``settled`` (see the module docstring)."""
     world = settled.Fork()
@@ -96,10 +95,6 @@ def BrushOnce(settled: PlantWorldSim, uv, depth: float, hold: float,
         world.AdvanceTo(traj.end_time(), traj)
         if q1 is r_in.q:
             world.Hold(hold)
-    if debug:
-        for x in world.samples[start:]:
-            print(round(x.t, 2), [round(v, 3) for v in x.leaf_loads.get(0, ())],
-                  world.robot.TcpPose(world.q_cmd).translation().round(3))
     rows = LeafLoadRows(world.samples[start:], world.scenario.plant_scene.outcome)
     row = rows[0] if rows else {}
     before = LeafLoadRows(world.samples[t0:start], world.scenario.plant_scene.outcome)
