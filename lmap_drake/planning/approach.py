@@ -14,16 +14,19 @@ from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.motion import ApproachBlocked, ApproachPlan, MotionError, PlanApproach
 from lmap_drake.planning.result import Candidate, DistanceId
-from lmap_drake.planning.robot_checks import MotionChecks, RobotPoseReason, TouchesLeaf
+from lmap_drake.planning.robot_checks import LeafContact, MotionChecks, RobotPoseReason
 from lmap_drake.planning.robot_model import SELF_MARGIN
 
 
 class _ApproachChecks:
     """Robot checks along an approach with the pads ``half_open`` (m) apart:
-    fruit, branch and every observed leaf keep the margin from the robot
-    (in the final approach the leaf must therefore pass between the open
-    pads), and links three or more joints apart keep ``SELF_MARGIN`` (the
-    approach's joint moves are fast and sampled). ``Pose(segment, q)`` is
+    fruit, branch and the grasped leaf keep the margin from the robot (in
+    the final approach the leaf must therefore pass between the open
+    pads), the other leaves too or, with ``planner.max_brush_displacement``,
+    are pushed at most that far (``LeafContact``; ``brush``: the
+    largest push of the poses checked, m), and links three or more joints
+    apart keep ``SELF_MARGIN`` (the approach's joint moves are fast and
+    sampled). ``Pose(segment, q)`` is
     ``PlanApproach``'s check: "grasp" poses are the final approach, the
     others lie on the way to the pre-grasp; ``FreeMove`` samples the joint
     move from the current joints to the via point. Results are kept by
@@ -34,19 +37,20 @@ class _ApproachChecks:
                  memo: dict | None = None):
         self.ctx, self.cfg, self.half_open = ctx, cfg, float(half_open)
         self.memo = {} if memo is None else memo
+        self.brush = 0.0
 
     def _Reason(self, q: np.ndarray) -> str:
         """'' or the robot's reason at ``q`` without where: '...', or
-        'robot-leaf'."""
+        'robot-leaf ...'."""
         key = (np.asarray(q, float).tobytes(), self.half_open)
-        if key in self.memo:
-            return self.memo[key]
-        robot, cfg = self.ctx.robot, self.cfg
-        pts = robot.SurfacePointsByBody(q, self.half_open)
-        why = RobotPoseReason(robot, q, self.half_open, pts, self.ctx, cfg, SELF_MARGIN)
-        if not why and TouchesLeaf(self.ctx, cfg.collision_margin, pts):
-            why = "robot-leaf"
-        self.memo[key] = why
+        if key not in self.memo:
+            robot, cfg = self.ctx.robot, self.cfg
+            pts = robot.SurfacePointsByBody(q, self.half_open)
+            why = RobotPoseReason(robot, q, self.half_open, pts, self.ctx, cfg, SELF_MARGIN)
+            self.memo[key] = (why, 0.0) if why else LeafContact(self.ctx, cfg, pts)
+        why, push = self.memo[key]
+        if not why:
+            self.brush = max(self.brush, push)
         return why
 
     def Pose(self, segment: str, q: np.ndarray) -> str:
@@ -131,6 +135,7 @@ def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
                                     check=None if checks is None else checks.Pose,
                                     memo=memo.setdefault("ik", {}))
             why = "" if checks is None else checks.FreeMove(approach.via)
+            approach.brush_displacement = 0.0 if checks is None else checks.brush
         except MotionError as err:
             return f"IK failed ({'staging' if err.staging else 'approach'}): {err}"
         except ApproachBlocked as err:
@@ -170,4 +175,5 @@ def IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     for c in cands:
         c.approach = approach
         c.q_pregrasp, c.q_grasp = approach.to_pregrasp[-1], approach.to_grasp[-1]
+        c.brush_displacement = approach.brush_displacement
     return MotionChecks(ctx, cfg, cands, approach.to_grasp[-1])

@@ -212,6 +212,24 @@ class PlannerConfig:
     estimate of a fully visible fruit and 5.1 mm inside the real one (237
     N on the fruit). Off (below ``collision_margin``) means the one margin.
 
+    ``max_brush_displacement`` (m; 0 = any contact refused): the robot may
+    brush leaves it does not hold, on the approach (the joint move to the
+    via pose, the ready pose, the pre-grasp and the final approach) and at
+    the action's checked poses, when it pushes each of their observed
+    points at most this far (how far the point's leaf must move along its
+    normal to clear the robot's geometry by ``collision_margin``, per
+    checked pose); the grasped leaf
+    (outside the pads, on the approach) and other leaves' points within
+    3 cm of a fruit keep the margin, and nearer the branch the push
+    allowed shrinks so that the predicted petiole load stays at most 5 N,
+    a third of the 15 N plant-hazard limit (``planning.robot_checks.
+    LeafContact``, ``BrushAllowance``: the load k d / L^2 of a push d at a
+    lever L, k measured on the FEM leaf; 1 cm from 10.2 cm from the branch
+    on). 1 cm, not more: the FEM study's pushes of at most 0.8 cm loaded
+    the petiole at most 0.5 N, while one of 1.2 cm (within the load bound)
+    strained the blade past the tear limit, pressed by a pad's edge.
+    docs/explanation/dense-canopy.md quotes the data and the measurements.
+
     ``check_leaf_branch``: reject an action whose predicted leaf ends within
     ``collision_margin`` of the completed branch (stems and shoots) after
     moving toward it, as the paper's leaf-fruit check does for the fruit
@@ -290,6 +308,7 @@ class PlannerConfig:
     # predicted leaf from the fruit
     collision_margin: float = 0.005
     robot_fruit_margin: float = 0.015
+    max_brush_displacement: float = 0.01  # m: push allowed on leaves not held (0 = none)
     energy_weight: float = 1.0  # lambda of the score N_vis - lambda E (both min-max normalised)
     max_energy_per_node: float = 5.9e-7
     force_action: list[float] = dc.field(default_factory=list)
@@ -367,6 +386,7 @@ _RULES = {
     "visibility_voxel": ">0",
     "collision_margin": ">=0",
     "robot_fruit_margin": ">=0",
+    "max_brush_displacement": "[0,0.05]",
     "energy_weight": ">=0",
     "max_energy_per_node": ">=0",
     "speed_scale": "(0,1]",

@@ -181,6 +181,8 @@ class ApproachPlan:
     to_grasp: list[np.ndarray]
     opening: float = 0.0   # gripper opening (m) along the approach
     ready_extra: float = 0.0   # the ready pose's distance (m) behind the pre-grasp
+    # the largest push (m) of another leaf along it (``planner.max_brush_displacement``)
+    brush_displacement: float = 0.0
 
 
 def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,

@@ -42,6 +42,9 @@ class Candidate:
     # a second-chance grasp orientation (``GraspAlternatives``): approach
     # tilted this many degrees in the blade's plane, gripper turned 180 deg
     orientation: tuple | None = None        # (tilt_deg, turned) or None: as generated
+    # the largest push (m) the robot makes on a leaf it does not hold, over
+    # the approach and the action's checked poses (``planner.max_brush_displacement``)
+    brush_displacement: float = 0.0
 
     @property
     def feasible(self) -> bool:
@@ -68,6 +71,8 @@ class Candidate:
                                      else round(self.approach.opening, 4)),
                 "ready_distance": (None if self.approach is None
                                    else round(self.approach.ready_extra, 4)),
+                "brush_displacement": (None if self.approach is None
+                                       else round(float(self.brush_displacement), 4)),
                 "approach_tilt_deg": None if self.orientation is None else self.orientation[0],
                 "gripper_turned": None if self.orientation is None else self.orientation[1],
                 "energy_per_node": self.EnergyPerNode(),

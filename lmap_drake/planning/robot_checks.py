@@ -1,8 +1,10 @@
 """Robot checks of the planner at a joint vector and along the executed
 motion: self-collision, the margins to the fruits and branch
-(``collision.RobotCollisionReason``) and to the observed leaves; the IK of
-each action's end (and midway) pose (``MotionChecks``) and of the path the
-controller will execute (``ActionPathReason``). World frame W, metres."""
+(``collision.RobotCollisionReason``) and to the observed leaves, with the
+light brushing of leaves not grasped that the approach may make
+(``LeafContact``); the IK of each action's end (and midway) pose
+(``MotionChecks``) and of the path the controller will execute
+(``ActionPathReason``). World frame W, metres."""
 from __future__ import annotations
 
 import dataclasses as dc
@@ -61,13 +63,194 @@ def TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> 
     return bool(len(near)) and tree.query(near)[0].min() < margin
 
 
-def OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
-    """'' or why the robot's surface samples ``pts`` (at a moved pose, the
-    gripper closed) come within ``planner.collision_margin`` of a leaf that
-    is not the one held (``ctx.other_leaves_W``): the arm would push a
-    neighbouring leaf along the motion and drag it on the way back."""
-    return ("robot-leaf (another leaf)"
-            if TouchesLeaf(ctx, cfg.collision_margin, pts, held=False) else "")
+# Leaf points of other leaves this near a fruit (m, the fruits' SDF) are
+# never brushed: a pushed leaf must not be pressed into a fruit.
+BRUSH_FRUIT_CLEARANCE = 0.03
+# A push d (m) at a lever L (m) from where a leaf joins its stem loads its
+# petiole about k d / L^2 (``BrushPetioleForce``); k (N m) measured on the
+# FEM leaf (``studies.brush``: the largest of its steady pushes), at
+# most ``BRUSH_MAX_FORCE`` (N, a third of the plant-hazard limit) is
+# allowed (``BrushAllowance``; docs: dense-canopy.md).
+BRUSH_PETIOLE_STIFFNESS = 5.2
+BRUSH_MAX_FORCE = 5.0
+
+
+def BeamPetioleForce(displacement: float, lever: float, youngs_modulus: float = 10.0e6,
+                     petiole_width: float = 0.006, thickness: float = 0.002) -> float:
+    """The petiole's axial force estimate (N; the plant world's
+    ``PetioleForce``, E A (stretch - 1)) of a leaf pushed ``displacement``
+    (m) at ``lever`` (m) from where it joins its stem, as a beam: a
+    cantilever clamped there, bending only in the petiole, pushed about
+    its stiff axis (half-width c): a moment 3 E I d / L^2 at the clamp, a
+    surface strain 3 d c / L^2, hence E A 3 d c / L^2 (k = 1.08 N m for the
+    FEM leaf's E 10 MPa and 6 x 2 mm petiole). The FEM leaf measures 2-5
+    times more (``BRUSH_PETIOLE_STIFFNESS``): the model's form, not its k."""
+    c = 0.5 * max(petiole_width, thickness)
+    strain = 3.0 * float(displacement) * c / float(lever) ** 2
+    return float(youngs_modulus * petiole_width * thickness * strain)
+
+
+def BrushPetioleForce(displacement, lever, stiffness: float = BRUSH_PETIOLE_STIFFNESS):
+    """The petiole load (N) predicted for a push of ``displacement`` (m) at
+    ``lever`` (m) from the stem: ``stiffness`` d / L^2 (the beam's form,
+    ``BeamPetioleForce``, with the FEM leaf's measured k)."""
+    return stiffness * np.asarray(displacement, float) / np.asarray(lever, float) ** 2
+
+
+def BrushAllowance(branch_distance, bound: float) -> np.ndarray:
+    """The push (m) allowed on leaf points ``branch_distance`` (m) from the
+    branch: ``bound``, or less where a push that far would load the
+    petiole more than ``BRUSH_MAX_FORCE`` (``BrushPetioleForce``): a
+    1 cm push needs 10.2 cm, 5 mm 7.2 cm."""
+    d = np.asarray(branch_distance, float)
+    return np.minimum(bound, BRUSH_MAX_FORCE * d ** 2 / BRUSH_PETIOLE_STIFFNESS)
+
+
+def LeafNormals(points_W: np.ndarray, tree=None, k: int = 10,
+                radius: float = 0.012) -> np.ndarray:
+    """Unit normals (N, 3) of a leaf point cloud: the least principal axis
+    of each point's ``k`` nearest neighbours within ``radius`` (m); zeros
+    where fewer than 5 are that near (an isolated point: no sheet)."""
+    p = np.asarray(points_W, float).reshape(-1, 3)
+    if len(p) < 5:
+        return np.zeros_like(p)
+    tree = cKDTree(p) if tree is None else tree
+    d, i = tree.query(p, k=min(k, len(p)))
+    nb = p[i]
+    ok = d <= radius
+    w = ok[..., None].astype(float)
+    mean = (nb * w).sum(1) / np.maximum(w.sum(1), 1.0)
+    x = (nb - mean[:, None]) * w
+    _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", x, x))
+    n = vec[:, :, 0]
+    n[ok.sum(1) < 5] = 0.0
+    return n
+
+
+def SheetPush(pts, points_W: np.ndarray, normals: np.ndarray, margin: float,
+              reach: float, step: float = 0.002) -> np.ndarray:
+    """How far (m) each leaf point ``points_W`` must move along its leaf's
+    normal (either sense, the nearer) to keep ``margin`` from the robot at
+    the pose of ``pts`` (``SurfaceSamples``): a leaf is a sheet, so a link
+    that pokes through it pushes it ahead until the link's far side, not
+    only to the nearest face. Marched in ``step`` up to ``reach``
+    (returned as ``reach`` + ``step`` when no free place is that near).
+    Points without a normal (zeros): margin minus their signed distance."""
+    p = np.asarray(points_W, float).reshape(-1, 3)
+    n = np.asarray(normals, float).reshape(-1, 3)
+    s = np.arange(0.0, reach + 0.5 * step, step)
+    free_s = np.full((len(p), 2), reach + step)
+    for k, sign in enumerate((1.0, -1.0)):
+        line = p[:, None, :] + sign * s[None, :, None] * n[:, None, :]
+        free = pts.SignedDistance(line.reshape(-1, 3), margin).reshape(len(p), len(s)) >= margin
+        first = np.argmax(free, axis=1)
+        found = free[np.arange(len(p)), first]
+        free_s[found, k] = s[first[found]]
+    push = free_s.min(axis=1)
+    bare = ~np.any(n != 0.0, axis=1)
+    if bare.any():
+        push[bare] = np.maximum(0.0, margin - pts.SignedDistance(p[bare], margin))
+    return push
+
+
+def _BrushObstacles(ctx: PlanningContext, held: bool = True) -> tuple | None:
+    """None without a branch estimate (no lever known: nothing is brushed),
+    else (KD-tree or None of the leaf points the robot may not touch, their
+    box, how many of them (the first) are the held leaf's; the points it
+    may brush, their KD-tree, normals and distances to the branch): the
+    held leaf (with ``held``; without, it moves with the gripper) and every
+    point of another leaf within ``BRUSH_FRUIT_CLEARANCE`` of a fruit are
+    not brushed; cached on ``ctx``."""
+    attr = "_brush_obstacles" if held else "_brush_obstacles_moving"
+    if hasattr(ctx, attr):
+        return getattr(ctx, attr)
+    other = np.asarray(ctx.other_leaves_W, float).reshape(-1, 3)
+    branch = np.asarray(getattr(ctx, "branch_all_W", np.zeros((0, 3))), float).reshape(-1, 3)
+    if ctx.branch_distance is None and not len(branch):
+        setattr(ctx, attr, None)
+        return None
+    free = np.ones(len(other), bool)
+    if len(other) and ctx.fruit_sdf is not None:
+        d = np.asarray(ctx.fruit_sdf(other), float).reshape(-1)
+        free &= np.nan_to_num(d, nan=-1.0) >= BRUSH_FRUIT_CLEARANCE
+    d_branch = np.full(len(other), np.inf)
+    if len(other) and ctx.branch_distance is not None:
+        d_branch = np.asarray(ctx.branch_distance(other), float)
+    if len(other) and len(branch):
+        d_branch = np.minimum(d_branch, cKDTree(branch).query(other)[0])
+    mine = np.asarray(ctx.leaf_W if held else np.zeros((0, 3)), float).reshape(-1, 3)
+    strict = np.vstack([mine, other[~free]])
+    tree = ((cKDTree(strict), (strict.min(0), strict.max(0))) if len(strict)
+            else (None, (None, None)))
+    brushed = other[free]
+    brushed_tree = cKDTree(brushed) if len(brushed) else None
+    normals = LeafNormals(brushed, brushed_tree)
+    cached = (tree[0], tree[1], len(mine), brushed, brushed_tree, normals, d_branch[free])
+    setattr(ctx, attr, cached)
+    return cached
+
+
+def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
+                held: bool = True) -> tuple[str, float]:
+    """('' or the reason, the push (m) on the leaves brushed) of the robot's
+    surface samples ``pts`` (a ``SurfaceSamples`` of one pose) against the
+    observed leaves: every leaf (``held``: an approach pose) or the leaves
+    not held (a moved pose). With ``planner.max_brush_displacement`` 0 (or
+    no branch estimate), any leaf point within ``collision_margin`` is
+    'robot-leaf'. Else the held leaf and the other leaves' points near a
+    fruit (``_BrushObstacles``) keep that rule, and the other leaves'
+    points may be pushed, each at most ``BrushAllowance`` (the key's value
+    far enough from the branch): each point within the margin of the
+    robot's geometry as far as its leaf must move along its normal to
+    clear the robot by the margin (``SheetPush``: the robot's depth through
+    the leaf plus the margin)."""
+    margin, bound = cfg.collision_margin, cfg.max_brush_displacement
+    obstacles = _BrushObstacles(ctx, held) if bound > 0.0 else None
+    if obstacles is None:
+        return ("robot-leaf" if TouchesLeaf(ctx, margin, pts, held) else ""), 0.0
+    tree, box, n_held, brushed, brushed_tree, normals, d_branch = obstacles
+    if tree is not None:
+        near = NearBox(pts, box[0] - margin, box[1] + margin)
+        if len(near):
+            d, i = tree.query(near)
+            k = int(np.argmin(d))
+            if d[k] < margin:
+                return ("robot-leaf" if i[k] < n_held
+                        else "robot-leaf (another leaf) near a fruit"), 0.0
+    if not len(brushed):
+        return "", 0.0
+    sd = pts.SignedDistance(brushed, margin, brushed_tree)
+    touched = np.flatnonzero(sd < margin)
+    if not len(touched):
+        return "", 0.0
+    # the deepest point per 4 mm cell (the push varies smoothly over a leaf)
+    order = touched[np.argsort(sd[touched])]
+    _, first = np.unique(np.floor(brushed[order] / 0.004).astype(np.int64), axis=0,
+                         return_index=True)
+    touched = order[first]
+    reach = bound + margin + 0.01      # (so a refusal says by how much)
+    push = SheetPush(pts, brushed[touched], normals[touched], margin, reach)
+    allowed = BrushAllowance(d_branch[touched], bound)
+    worst = int(np.argmax(push - allowed))
+    p, a = float(push[worst]), float(allowed[worst])
+    if p > a:
+        much = f"{100 * p:.1f} cm" if p <= reach else f"over {100 * reach:.1f} cm"
+        limit = (f"planner.max_brush_displacement {100 * bound:.1f} cm" if a >= bound
+                 else f"{100 * a:.1f} cm allowed {100 * d_branch[touched][worst]:.1f} cm "
+                      f"from the branch")
+        return f"robot-leaf (another leaf) pushed {much} > {limit}", float(push.max())
+    return "", float(push.max())
+
+
+def OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> tuple[str, float]:
+    """('' or why, the push (m) on leaves brushed): the robot's surface
+    samples ``pts`` (at a moved pose, the gripper closed) come within
+    ``planner.collision_margin`` of a leaf that is not the one held
+    (``ctx.other_leaves_W``), or push one farther than
+    ``planner.max_brush_displacement`` (``LeafContact``): the arm would
+    push a neighbouring leaf along the motion and drag it on the way back."""
+    why, push = LeafContact(ctx, cfg, pts, held=False)
+    return ("robot-leaf (another leaf)" if why == "robot-leaf" else why), push
 
 
 def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate],
@@ -75,7 +258,8 @@ def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate
     """IK for each action's end pose (and an arc's midway pose), warm-started
     along each direction's distances from ``q_grasp`` (the joints holding
     the grasp), and robot-vs-fruit/branch checks there (gripper closed), and
-    robot vs the leaves not held (``OtherLeafReason``)."""
+    robot vs the leaves not held (``OtherLeafReason``; the largest push on
+    them joins the approach's in ``brush_displacement``)."""
     robot = ctx.robot
     seeds: dict[int, np.ndarray] = {}
     solved: dict[tuple, tuple] = {}
@@ -96,21 +280,23 @@ def MotionChecks(ctx: PlanningContext, cfg: PlannerConfig, cands: list[Candidate
         for angle, p, R_end in poses:
             key = (a.direction_id, round(angle, 9)) if a.family != "pull" else None
             if key in solved:
-                r, pose_why = solved[key]
+                r, pose_why, push = solved[key]
             else:
                 r = robot.Ik(RigidTransform(RotationMatrix(R_end), p), seed, 0.0)
-                pose_why = ""
+                pose_why, push = "", 0.0
                 if r.success:
                     pts = robot.SurfacePointsByBody(r.q, 0.0)
-                    pose_why = (RobotPoseReason(robot, r.q, 0.0, pts, ctx, cfg)
-                                or OtherLeafReason(ctx, cfg, pts))
+                    pose_why = RobotPoseReason(robot, r.q, 0.0, pts, ctx, cfg)
+                    if not pose_why:
+                        pose_why, push = OtherLeafReason(ctx, cfg, pts)
                 if key is not None:
-                    solved[key] = (r, pose_why)
+                    solved[key] = (r, pose_why, push)
             if not r.success:
                 why = f"IK failed ({'pulled pose' if a.family == 'pull' else 'along the ' + a.family})"
                 break
             seed = r.q
             why = why or pose_why
+            c.brush_displacement = max(c.brush_displacement, push)
         if why.startswith("IK failed"):
             c.reason = why
             continue
@@ -136,10 +322,12 @@ def ActionPathReason(ctx: PlanningContext, cfg: PlannerConfig, c: Candidate) -> 
         return f"executed path: {' '.join(str(err).split())}"
     for q in path:
         pts = ctx.robot.SurfacePointsByBody(q, 0.0)
-        why = (RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
-                                    cfg.collision_margin, ctx.fruit_box, ctx.branch_box,
-                                    cfg.robot_fruit_margin)
-               or OtherLeafReason(ctx, cfg, pts))
+        why = RobotCollisionReason(pts, ctx.fruit_sdf, ctx.branch_distance,
+                                   cfg.collision_margin, ctx.fruit_box, ctx.branch_box,
+                                   cfg.robot_fruit_margin)
+        if not why:
+            why, push = OtherLeafReason(ctx, cfg, pts)
+            c.brush_displacement = max(c.brush_displacement, push)
         if why:
             return f"{why} along the executed {c.action.family}"
     return ""

@@ -66,14 +66,52 @@ def _SampleShape(shape, spacing: float) -> np.ndarray:
     return np.vstack([side] + discs)
 
 
+def _ShapeParams(shape) -> tuple:
+    """(kind, dims) of a Drake Box, Capsule or Cylinder: 'box' with its
+    half extents (3,), 'capsule' / 'cylinder' with (radius, half length)."""
+    if isinstance(shape, Box):
+        return "box", np.array([shape.width(), shape.depth(), shape.height()]) / 2
+    kind = "capsule" if isinstance(shape, Capsule) else "cylinder"
+    return kind, np.array([shape.radius(), shape.length() / 2])
+
+
+def _LongAxis(kind: str, dims: np.ndarray) -> tuple[int, float, float]:
+    """(axis index, half length along it, radius of the cross-section
+    around it) of a shape of ``_ShapeParams`` in its own frame: every
+    point of the shape lies within that radius of that segment."""
+    if kind == "box":
+        axis = int(np.argmax(dims))
+        return axis, float(dims[axis]), float(np.linalg.norm(np.delete(dims, axis)))
+    r, h = dims
+    return 2, float(h + (r if kind == "capsule" else 0.0)), float(r)
+
+
+def ShapeSignedDistance(kind: str, dims: np.ndarray, p_G: np.ndarray) -> np.ndarray:
+    """Signed distance (m, negative inside) of points ``p_G`` (N, 3, in the
+    shape's own frame, Drake's conventions: a box centred, capsules and
+    cylinders along z) to a shape of ``_ShapeParams``."""
+    p = np.asarray(p_G, float).reshape(-1, 3)
+    if kind == "box":
+        d = np.abs(p) - dims
+        return (np.linalg.norm(np.maximum(d, 0.0), axis=1) + np.minimum(d.max(axis=1), 0.0))
+    r, h = dims
+    if kind == "capsule":
+        axis = np.c_[np.zeros((len(p), 2)), np.clip(p[:, 2], -h, h)]
+        return np.linalg.norm(p - axis, axis=1) - r
+    d = np.c_[np.linalg.norm(p[:, :2], axis=1) - r, np.abs(p[:, 2]) - h]
+    return np.linalg.norm(np.maximum(d, 0.0), axis=1) + np.minimum(d.max(axis=1), 0.0)
+
+
 class SurfaceSamples:
     """The robot's surface samples at one pose, per geometry (see
     ``RobotModel.SurfacePointsByBody``): ``samples[i]`` (N_i, 3, world) is
     computed when first read; ``boxes`` (G, 2, 3) at once from 8 corners
-    per geometry, ``corners`` (G, 8, 3) those corners in the world."""
+    per geometry, ``corners`` (G, 8, 3) those corners in the world.
+    ``shapes``: per geometry (kind, dims, X_BG 4x4) for ``SignedDistance``."""
 
-    def __init__(self, local: list, corners: list, X: list, fingers: np.ndarray | None = None):
-        self._local, self._X = local, X
+    def __init__(self, local: list, corners: list, X: list, fingers: np.ndarray | None = None,
+                 shapes: list | None = None):
+        self._local, self._X, self._shapes = local, X, shapes
         # which geometries are on the two fingers (pads and links)
         self.fingers = (np.zeros(len(local), bool) if fingers is None
                         else np.asarray(fingers, bool))
@@ -86,6 +124,37 @@ class SurfaceSamples:
 
     def __len__(self) -> int:
         return len(self._local)
+
+    def SignedDistance(self, points_W: np.ndarray, reach: float, tree=None) -> np.ndarray:
+        """Signed distance (m, negative inside) of ``points_W`` (N, 3) to the
+        robot's collision geometry at this pose, exact where it is below
+        ``reach`` (m); points farther than ``reach`` from every geometry's
+        box get ``inf``. ``tree``: a ``cKDTree`` of ``points_W`` to find
+        each geometry's neighbours by (else every point is tested against
+        each box). Needs ``shapes``."""
+        p = np.asarray(points_W, float).reshape(-1, 3)
+        out = np.full(len(p), np.inf)
+        if not len(p):
+            return out
+        p_lo, p_hi = p.min(axis=0), p.max(axis=0)
+        for i, (kind, dims, X_BG) in enumerate(self._shapes):
+            lo, hi = self.boxes[i] + np.array([[-reach], [reach]])
+            if np.any(p_lo > hi) or np.any(p_hi < lo):
+                continue
+            X_WG = self._X[i] @ X_BG
+            if tree is not None:     # balls along the shape's long axis
+                axis, half, r = _LongAxis(kind, dims)
+                k = max(1, int(np.ceil(2 * half / max(r, 1e-3))))
+                c = np.outer((np.arange(k) + 0.5) / k * 2 * half - half, X_WG[:3, axis])
+                found = tree.query_ball_point(c + X_WG[:3, 3], np.hypot(r, half / k) + reach)
+                near = np.unique(np.concatenate([np.asarray(f, int) for f in found]))
+            else:
+                near = np.flatnonzero(np.all((p >= lo) & (p <= hi), axis=1))
+            if not len(near):
+                continue
+            p_G = (p[near] - X_WG[:3, 3]) @ X_WG[:3, :3]
+            out[near] = np.minimum(out[near], ShapeSignedDistance(kind, dims, p_G))
+        return out
 
     def __getitem__(self, i: int) -> np.ndarray:
         if not 0 <= i < len(self._local):
@@ -116,7 +185,7 @@ class RobotModel:
         self._ik_context = self.plant.CreateDefaultContext()
         self.tcp = self.plant.GetFrameByName("tcp")
         inspector = self.scene_graph.model_inspector()
-        self._bodies, self._points = [], []
+        self._bodies, self._points, self._shapes = [], [], []
         for gid in inspector.GetAllGeometryIds(Role.kProximity):
             shape = inspector.GetShape(gid)
             if not isinstance(shape, (Box, Capsule, Cylinder)):
@@ -128,6 +197,7 @@ class RobotModel:
             p = _SampleShape(shape, gripper_spacing if on_gripper else spacing)
             self._bodies.append(body)
             self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
+            self._shapes.append(_ShapeParams(shape) + (X_BG.GetAsMatrix4(),))
         self.num_points = int(sum(len(p) for p in self._points))
         # the geometries on the two fingers (pads and finger links)
         self._fingers = np.array([b.name() in ("left_finger", "right_finger")
@@ -177,7 +247,7 @@ class RobotModel:
         self.SetQ(q, half_opening)
         X = [self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
              for body in self._bodies]
-        return SurfaceSamples(self._points, self._corners, X, self._fingers)
+        return SurfaceSamples(self._points, self._corners, X, self._fingers, self._shapes)
 
     def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
                       margin: float = 0.0) -> str:

@@ -19,6 +19,10 @@ class OutcomeSample:
     fruit_contact_force: float    # N, contact force on the fruit geometry
     robot_contact_force: float = 0.0   # N, largest robot-robot or robot-branch contact
     t: float = 0.0                # s, simulated time of the sample
+    # per FEM leaf j (its ground-truth index): (strain percentile, petiole
+    # force N, robot contact force N on it) now; a frozen leaf as last measured
+    leaf_loads: dict = dc.field(default_factory=dict)
+    grasped_leaf: int | None = None   # the FEM leaf held by the pads now
 
 
 @dc.dataclass
@@ -39,6 +43,49 @@ class Outcome:
     def to_dict(self) -> dict:
         return {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
                 for k, v in dc.asdict(self).items()}
+
+
+def RobotLeafContactForces(contact_results, inspector, leaf_geometry_ids: list) -> dict:
+    """Per FEM leaf j (``leaf_geometry_ids[j]``: its deformable geometry),
+    the total contact force (N) the robot (arm or gripper geometries) puts
+    on it now, from a MultibodyPlant's ``ContactResults``; leaves the robot
+    does not touch are left out."""
+    leaf_of = {g: j for j, g in enumerate(leaf_geometry_ids)}
+    out: dict = {}
+    for i in range(contact_results.num_deformable_contacts()):
+        info = contact_results.deformable_contact_info(i)
+        j = leaf_of.get(info.id_A())
+        if j is None or not inspector.GetName(info.id_B()).startswith(("ur5::",
+                                                                       "robotiq_2f85::")):
+            continue
+        out[j] = out.get(j, 0.0) + float(np.linalg.norm(info.F_Ac_W().translational()))
+    return out
+
+
+def LeafLoadRows(samples: list[OutcomeSample], cfg) -> list[dict]:
+    """Per FEM leaf over ``samples`` (``OutcomeConfig`` ``cfg``): its
+    largest petiole force (N, and when), blade strain percentile and robot
+    contact force (N); ``grasped``: held by the pads at some sample;
+    ``touched``: grasped or touched by the robot; ``brushed``: touched but
+    never grasped; ``damaged``: past the leaf-damage or plant-hazard
+    threshold. Sorted by leaf."""
+    rows: dict = {}
+    for x in samples:
+        for j, (strain, force, contact) in x.leaf_loads.items():
+            r = rows.setdefault(j, {"leaf": int(j), "max_petiole_force": 0.0,
+                                    "max_petiole_force_t": None, "max_strain_percentile": 1.0,
+                                    "max_robot_contact_force": 0.0, "grasped": False})
+            if force > r["max_petiole_force"]:
+                r["max_petiole_force"], r["max_petiole_force_t"] = float(force), float(x.t)
+            r["max_strain_percentile"] = max(r["max_strain_percentile"], float(strain))
+            r["max_robot_contact_force"] = max(r["max_robot_contact_force"], float(contact))
+            r["grasped"] |= x.grasped_leaf == j
+    for r in rows.values():
+        r["touched"] = bool(r["grasped"] or r["max_robot_contact_force"] > 0.0)
+        r["brushed"] = bool(r["touched"] and not r["grasped"])
+        r["damaged"] = bool(r["max_strain_percentile"] > cfg.tear_stretch
+                            or r["max_petiole_force"] > cfg.petiole_max_force)
+    return [rows[j] for j in sorted(rows)]
 
 
 def ConstrainedTetMask(tets: np.ndarray, constrained_vertices: np.ndarray) -> np.ndarray:

@@ -32,7 +32,8 @@ from lmap_drake.plants.leaf import MaxPrincipalStretch, RestShapeInverse
 from lmap_drake.plants.leaf_sleep import LeafProximity
 from lmap_drake.plants.multi import MULTI_KINDS
 from lmap_drake.plants.outcome import (ConstrainedTetMask, OutcomeSample, PetioleForce,
-                                       StrainPercentile, VisibilityFraction)
+                                       RobotLeafContactForces, StrainPercentile,
+                                       VisibilityFraction)
 from lmap_drake.plants.plant_station import (GetPlantModel, LeafGrasp, MakePlantStation,
                                              UnoccludedFruitPixels)
 from lmap_drake.scenario import Scenario
@@ -281,11 +282,17 @@ class PlantWorldSim:
         ctx = self.plant_context
         fresh: dict[int, np.ndarray] = {}      # leaf -> vertices, for the leaves measured now
         measured: dict[int, tuple] = {}        # leaf -> (strain, force, asleep)
+        loads: dict[int, tuple] = {}           # leaf -> (strain, force, robot contact N)
+        touch = RobotLeafContactForces(
+            self.plant.get_contact_results_output_port().Eval(ctx),
+            self.scene_graph.model_inspector(),
+            [self.deformable.GetGeometryId(lid) for lid in self.leaf_ids])
         for j, ref in enumerate(self.leaf_refs):
             asleep = not self.deformable.is_enabled(self.leaf_ids[j], ctx)
             if asleep and j in self._asleep_measures:     # frozen: as last measured
                 s_j, f_j, p_j = self._asleep_measures[j]
                 strain, force, pen = max(strain, s_j), max(force, f_j), max(pen, p_j)
+                loads[j] = (s_j, f_j, touch.get(j, 0.0))
                 continue
             V = fresh[j] = self.LeafVertices(j)
             constrained = np.flatnonzero(ref.fixed)
@@ -302,6 +309,7 @@ class PlantWorldSim:
                                cfg.leaf.petiole_width * cfg.leaf.thickness, stretch)
             strain, force = max(strain, s_j), max(force, f_j)
             measured[j] = (s_j, f_j, asleep)
+            loads[j] = (s_j, f_j, touch.get(j, 0.0))
         if fresh:
             leaves = list(fresh)
             allV = np.vstack([fresh[j] for j in leaves])
@@ -334,8 +342,10 @@ class PlantWorldSim:
                 else:
                     self._asleep_measures.pop(j, None)
         pen = max(pen, self._RobotFruitPenetration())
+        held = self.grasp_state.grasp.leaf if self.grasp_state is not None else None
         return OutcomeSample(strain, force, pen, self._FruitContactForce(),
-                             self._RobotContactForce(), t=self.time)
+                             self._RobotContactForce(), t=self.time, leaf_loads=loads,
+                             grasped_leaf=held)
 
     def _fruit_ids(self) -> set:
         """The fruits' collision geometries (of the current Diagram)."""

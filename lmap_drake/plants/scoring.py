@@ -1,10 +1,12 @@
 """Ground-truth scoring of an episode on the simulated plant world: the
 outcome flags, visibilities and shape errors that ``episode.sim_world.SimWorld``
 writes into ``episode.json`` (``outcome``, ``release_outcome``,
-``shape_initial`` / ``shape_final``, and for several fruits ``fruits``,
-``targets``, ``phantom_targets``). Never from the planner's model: from the
-plant world's samples (``PlantWorldSim.samples``), its render labels and the
-generated plant (``PlantWorldSim.model``). World frame W, metres, newtons.
+``shape_initial`` / ``shape_final``, ``leaf_loads`` (per FEM leaf: its
+worst petiole force, strain and robot contact force, grasped or brushed),
+and for several fruits ``fruits``, ``targets``, ``phantom_targets``).
+Never from the planner's model: from the plant world's samples
+(``PlantWorldSim.samples``), its render labels and the generated plant
+(``PlantWorldSim.model``). World frame W, metres, newtons.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ import numpy as np
 
 from lmap_drake.labels import LEAF
 from lmap_drake.perception.points import Intrinsics
-from lmap_drake.plants.outcome import (FruitShapeErrors, ShapeErrors, Summarize,
+from lmap_drake.plants.outcome import (FruitShapeErrors, LeafLoadRows, ShapeErrors, Summarize,
                                        TruthFruitOfInstance, TruthInstanceOfPoints)
 from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.scenario import Scenario
@@ -29,6 +31,8 @@ def ScoreEpisode(record: dict, sim: PlantWorldSim, scenario: Scenario, views, st
     ``vis_initial``: the visibility when the episode started. Returns the
     initial visibility scored (that of the first view when it has labels)."""
     record["robot_contact"] = dict(sim.worst_robot_contact)   # what touched, if anything
+    # every FEM leaf's worst loads over the whole episode (grasped, brushed)
+    record["leaf_loads"] = LeafLoadRows(sim.samples, scenario.plant_scene.outcome)
     if getattr(sim, "multi", False):
         ScorePlantEpisode(record, sim, scenario, views, st)
         return vis_initial
@@ -151,6 +155,9 @@ def ScorePlantEpisode(record: dict, sim: PlantWorldSim, scenario: Scenario, view
                          "max_petiole_force": (None if worst is None
                                                else float(worst.petiole_force)),
                          "max_strain_percentile": worst_strain(t),
+                         # the FEM leaves the robot touched meanwhile, with their loads
+                         "leaf_loads": [r for r in LeafLoadRows(
+                             during(t), scenario.plant_scene.outcome) if r["touched"]],
                          # fruit fragments dropped as no fruit (CompletePlant)
                          # in the view it was planned in and in its re-estimate
                          "fragments_dropped": [dropped(t.get(k)) for k in

@@ -23,6 +23,7 @@ SHELLS = {
     "bench_twin": ["--out", "--repeats", "--duration", "--variants", "--episodes",
                    "--compare_code"],
     "calibrate_energy_cap": ["records", "--out"],
+    "eval_brush": ["--out", "--points", "--depths", "--clearance", "--hold"],
     "eval_deformation_vs_fem": ["--out", "--scenarios", "--corr_scenarios", "--corr_directions",
                                 "--corr_distances", "--grasp_fallbacks",
                                 "--keep_degenerate_leaf_mesh"],
