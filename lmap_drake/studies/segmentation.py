@@ -63,7 +63,7 @@ import numpy as np
 from tqdm import tqdm
 
 from lmap_drake.errors import InputError
-from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels, NeighbourClassMap
+from lmap_drake.labels import BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels, NeighbourClassMap
 from lmap_drake.perception.leaf_instances import LeafInstanceScores, SummariseLeafInstances
 from lmap_drake.paths import REPO_ROOT as REPO
 from lmap_drake.perception.points import Intrinsics
@@ -134,11 +134,18 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     for key, c in CLASSES:
         v = ClassIou(seg.class_map[keep], truth[keep], c)
         row[key] = None if math.isnan(v) else round(v, 4)
+    # the same without the robot's pixels: what reaches the planner, whose
+    # points pass the robot self-filter (perception.points, from the joints)
+    cls, inst = DecodeLabels(label)
+    plant = keep & (cls != ROBOT)
+    row["without_robot"] = {}
+    for key, c in CLASSES:
+        v = ClassIou(seg.class_map[plant], truth[plant], c)
+        row["without_robot"][key] = None if math.isnan(v) else round(v, 4)
     row["flags"] = seg.flags
     row["fruit_instances"] = FruitInstanceTruth(seg, truth)
     row["phantoms"] = sum(r["fruit"] < 0.5 for r in row["fruit_instances"])
     row["phantoms_no_overlap"] = sum(r["fruit"] == 0.0 for r in row["fruit_instances"])
-    cls, inst = DecodeLabels(label)
     row["leaf_instances"] = LeafInstanceScores(
         np.where(seg.class_map == LEAF, seg.instance_map, -1), np.where(cls == LEAF, inst, -1),
         ignore=~keep)
@@ -165,6 +172,9 @@ def Summary(rows: list[dict]) -> dict:
     colors = sorted({c for r in rows for c in r["fruit_colors"]})
     n = max(len(rows), 1)
     return {"mean": {k: v for k, v in m.items() if k.endswith("_iou")},
+            "mean_without_robot": {k: v for k, v in _mean(
+                [r["without_robot"] for r in rows if "without_robot" in r]).items()
+                if k.endswith("_iou")},
             "counts": {k: v for k, v in m.items() if k.endswith("_n")},
             "mean_non_green": _mean([r for r in rows if r["fruit_color"] != "green"]),
             "mean_green": _mean([r for r in rows if r["fruit_color"] == "green"]),

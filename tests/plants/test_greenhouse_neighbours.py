@@ -46,3 +46,14 @@ def test_view_row_leaves_neighbour_pixels_out_of_the_ious():
     row = ViewRow(seg, truth, label, np.zeros((10, 10, 3), np.uint8))
     assert row["leaf_iou"] == 1.0 and row["neighbour_pixels"] == 50
     assert row["fruit_iou"] is None
+
+
+def test_view_row_reports_the_ious_without_the_robot_pixels():
+    label = np.full((10, 10), 200, np.int16)      # leaf 0
+    label[:, 8:] = 400                            # the robot
+    truth = np.where(label == 200, LEAF, BACKGROUND)
+    pred = np.full((10, 10), LEAF)                # leaf called on the robot's pixels too
+    seg = types.SimpleNamespace(class_map=pred, instance_map=np.zeros((10, 10), int), flags=[])
+    row = ViewRow(seg, truth, label, np.zeros((10, 10, 3), np.uint8))
+    assert row["leaf_iou"] == 0.8
+    assert row["without_robot"]["leaf_iou"] == 1.0
