@@ -94,6 +94,9 @@ class PlanResult:
     # Several fruits (``planner.targets: all``): which fruit this plan is for
     # and which leaf it moves, and why (JSON-able; see systems.planning.PlantPlanning).
     target: dict | None = None
+    # Fruit instances that are no target (``targets.SkippedFruits``: low
+    # segmentation confidence or an implausible completed shape), with why.
+    skipped_fruits: list = dc.field(default_factory=list)
 
     def Summary(self) -> dict:
         out = {"status": self.status, "method": self.method, "message": self.message,
@@ -104,6 +107,8 @@ class PlanResult:
                "hinge_W": None if self.hinge_W is None else np.round(self.hinge_W, 4).tolist()}
         if self.target is not None:
             out["target"] = self.target
+        if self.skipped_fruits:
+            out["skipped_fruits"] = self.skipped_fruits
         if self.chosen is not None:
             out["chosen"] = self.chosen.Row()
         return out

@@ -58,7 +58,10 @@ def TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> 
     if tree is None:
         return False
     near = NearBox(pts, box[0] - margin, box[1] + margin)
-    return bool(len(near)) and tree.query(near)[0].min() < margin
+    # the search stops at ``margin``: farther samples come back inf (a
+    # plant's leaves fill a box the arm is mostly inside)
+    return bool(len(near)) and bool(
+        np.any(tree.query(near, distance_upper_bound=margin)[0] < margin))
 
 
 def OtherLeafReason(ctx: PlanningContext, cfg: PlannerConfig, pts) -> str:
