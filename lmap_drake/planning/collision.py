@@ -59,16 +59,20 @@ class UnionSdf:
         only, the box distance elsewhere (at least ``bound`` +
         ``BELOW_SLACK``). A check against ``bound`` (``RobotCollisionReason``)
         gets the same verdict and the same nearest distance as from
-        ``__call__`` as long as no SDF lies more than ``BELOW_SLACK`` below
-        the distance to its fruit's box there: the single-fruit planner
-        evaluates the SDF within ``bound`` of the box only."""
+        ``__call__`` as long as no SDF beyond that band lies below
+        ``bound`` (a decoder artefact: the fruit's surface is at least the
+        band away there)."""
         return self(points_W, pad=bound + BELOW_SLACK)
 
 
 # m: how far beyond a check's margin ``UnionSdf.Below`` still evaluates the
-# fruits' SDFs. The decoder's SDF is not an exact distance: on the 40-60
-# leaf greenhouse plants of ``scripts/bench_planner.py --plants`` it lay
-# at most 2.3 mm below the distance to the fruit's box 15-50 mm from it.
+# fruits' SDFs (the single-fruit planner evaluates none beyond the margin).
+# Far from the fruit the decoder's SDF is no distance: on the three 36-45
+# leaf greenhouse plants of ``scripts/bench_planner.py --plants`` (label
+# oracle, first plan) it lay up to 19.6 mm below the distance to the
+# fruit's box 10-50 mm beyond the margin, but never below the margin there
+# (3.5 mm above it at the least), so every verdict and nearest distance was
+# that of the full 5 cm band, at 54-62 % fewer decoder evaluations.
 BELOW_SLACK = 0.01
 
 
