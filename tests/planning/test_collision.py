@@ -150,3 +150,18 @@ def test_union_sdf_below_a_bound_evaluates_only_near_each_fruit_and_keeps_the_ve
         reasons.append(RobotCollisionReason(pts, full_union, None, 0.015))
         assert reasons[-1] == RobotCollisionReason(pts, lambda q: full_union(q), None, 0.015)
     assert reasons == ["robot-fruit (1.0 mm)", "robot-fruit (13.0 mm)", ""]
+
+
+def test_near_cells_keep_every_point_within_the_margin():
+    from scipy.spatial import cKDTree
+    from lmap_drake.planning.robot_checks import NearCells
+    rng = np.random.default_rng(1)
+    leaf = rng.uniform(0, 0.3, (3000, 3)) * [1, 1, 0.02]        # a thin sheet
+    q = rng.uniform(-0.05, 0.35, (20000, 3))
+    for margin in (0.005, 0.012):
+        d = cKDTree(leaf).query(q)[0]
+        maybe = NearCells(leaf, margin).Maybe(q)
+        assert np.all(maybe[d < margin])                          # none lost
+        assert maybe.mean() < 0.5                                 # most ruled out
+    # margin 0: no grid, nothing ruled out
+    assert NearCells(leaf, 0.0).Maybe(q).all()
