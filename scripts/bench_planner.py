@@ -55,6 +55,8 @@ def main(argv=None) -> None:
                    help="--plants: an earlier output; its plans must be the same")
     a = p.parse_args(argv)
     if a.plants:
+        if not Path(a.plants).is_file():
+            p.error(f"--plants {a.plants}: no such file")
         if a.repeats < 1:
             p.error(f"--repeats must be at least 1, got {a.repeats}")
         ref = None

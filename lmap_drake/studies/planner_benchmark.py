@@ -180,12 +180,15 @@ def BenchPlantMotions(scenario_file: str, scenario_names: list[str], repeats: in
     record (``_PlanRecord``; every repeat must give the same). ``reference``
     (an earlier result): each scene's record is compared with its own and
     the verdict written (``same_as_reference``). The JSON is rewritten to
-    ``out`` after every scene."""
+    ``out`` after every scene (``complete`` false until the last)."""
     result = {"scenario_file": str(scenario_file), "scenario_text": scenario_text,
-              "repeats": repeats, "threads": DefaultWorkers(), "scenes": {}}
-    for name in scenario_names:
-        s = LoadScenario(filename=scenario_file, scenario_name=name,
-                         scenario_text=scenario_text or "{}")
+              "repeats": repeats, "threads": DefaultWorkers(), "complete": False,
+              "scenes": {}}
+    # every scene read first: a bad name or value stops the run before any plant is built
+    scenarios = {name: LoadScenario(filename=scenario_file, scenario_name=name,
+                                    scenario_text=scenario_text or "{}")
+                 for name in scenario_names}
+    for name, s in scenarios.items():
         inputs = PlantPlanInputs(s)
         runs, records = [], []
         for _ in range(repeats):
@@ -219,6 +222,7 @@ def BenchPlantMotions(scenario_file: str, scenario_names: list[str], repeats: in
     rows = list(result["scenes"].values())
     result["max_median_wall_s"] = max(r["median_wall_s"] for r in rows)
     result["max_median_cpu_s"] = max(r["median_cpu_s"] for r in rows)
+    result["complete"] = True
     if out:
         Path(out).write_text(json.dumps(result, indent=1))
     return result
