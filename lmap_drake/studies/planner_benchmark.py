@@ -172,6 +172,25 @@ def _PlanRecord(plan: PlanResult) -> dict:
             "rejections": RejectionReasons(plan)}
 
 
+def _Rounded(x, digits: int = 8):
+    """``x`` (a JSON-able record) with every float rounded to ``digits``
+    significant digits: two runs of the same code in two processes gave
+    ARAP energies 1e-10 apart (relative; ``gh_immature_partial``)."""
+    if isinstance(x, float):
+        return float(f"{x:.{digits}g}")
+    if isinstance(x, dict):
+        return {k: _Rounded(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_Rounded(v, digits) for v in x]
+    return x
+
+
+def SamePlan(a: dict, b: dict) -> bool:
+    """Whether two plan records (``_PlanRecord``) are the same plan: equal
+    but for floats' digits beyond the 8th (``_Rounded``)."""
+    return (json.dumps(_Rounded(a), sort_keys=True) == json.dumps(_Rounded(b), sort_keys=True))
+
+
 def BenchPlantMotions(scenario_file: str, scenario_names: list[str], repeats: int = 3,
                       scenario_text: str = "", out: str | Path | None = None,
                       reference: dict | None = None) -> dict:
@@ -205,14 +224,10 @@ def BenchPlantMotions(scenario_file: str, scenario_names: list[str], repeats: in
                            for k in runs[0]["stages"]},
             runs=[{"wall_s": round(r["wall_s"], 3), "cpu_s": round(r["cpu_s"], 3)}
                   for r in runs],
-            repeats_agree=all(json.dumps(r, sort_keys=True) == json.dumps(records[0],
-                                                                        sort_keys=True)
-                              for r in records),
+            repeats_agree=all(SamePlan(r, records[0]) for r in records),
             plan=records[0])
         if reference is not None and name in reference.get("scenes", {}):
-            row["same_as_reference"] = (json.dumps(reference["scenes"][name]["plan"],
-                                                   sort_keys=True)
-                                        == json.dumps(records[0], sort_keys=True))
+            row["same_as_reference"] = SamePlan(reference["scenes"][name]["plan"], records[0])
         print(f"[bench_planner] {name}: {row['median_wall_s']} s wall, {row['median_cpu_s']} s "
               f"CPU per motion ({row['num_leaf_instances']} leaf instances, "
               f"{row['plan']['status']})", flush=True)

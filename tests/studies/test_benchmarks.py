@@ -87,3 +87,10 @@ def test_the_planner_benchmark_record_changes_with_any_verdict_or_choice():
     assert not same(plan(), plan(chosen=False))                  # another action chosen
     assert not same(plan(), plan(reason="robot-fruit (3.0 mm)"))  # another verdict
     assert _PlanRecord(plan())["leaf_id"] == 7
+    # the same plan from another process: energies differ in the last digits
+    from lmap_drake.studies.planner_benchmark import SamePlan
+    a, b = plan(), plan()
+    a.chosen.energy, b.chosen.energy = 5.597331689463103e-05, 5.597331689907192e-05
+    assert SamePlan(_PlanRecord(a), _PlanRecord(b))
+    b.chosen.energy = 5.6e-05
+    assert not SamePlan(_PlanRecord(a), _PlanRecord(b))
