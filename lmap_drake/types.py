@@ -37,6 +37,11 @@ class SemanticScene:
     # surfaces (robot included), or a point at the no-return range for
     # pixels beyond the sensor's range. Only used to carve free space.
     background_points_W: np.ndarray = dc.field(default_factory=_empty3)
+    # {fruit instance id: the segmenter's confidence that it is a fruit, in
+    # [0, 1]} (``perception.points.BuildSemanticScene``: the mean over the
+    # instance's pixels of their segmentation instance's confidence); an id
+    # not in it has none (the planner then takes it as a fruit).
+    fruit_confidence: dict = dc.field(default_factory=dict)
 
     def is_empty(self) -> bool:
         return (len(self.branch_points_W) + len(self.leaf_points_W)

@@ -93,6 +93,8 @@ def PlanRecord(plan, stage_seconds: dict | None = None, estimate=None) -> dict:
            "fruit_shapes": getattr(plan, "fruit_shapes", None)}
     if getattr(plan, "target", None):
         out["target"] = plan.target        # which fruit, its occluders, why
+    if getattr(plan, "skipped_fruits", None):
+        out["skipped_fruits"] = plan.skipped_fruits    # fruit instances that are no target
     if stage_seconds is not None:
         out["stage_seconds"] = stage_seconds
     out["shape_hypotheses"] = HypothesesRecord(estimate)

@@ -43,6 +43,21 @@ def _match_instances(old_pts, old_inst, new_pts, new_inst, match_distance):
     return out
 
 
+def _FusedConfidence(old: dict, new: dict, new_inst: np.ndarray, new_ids: np.ndarray) -> dict:
+    """The fused fruit instances' confidences: an instance seen in both
+    views keeps the higher one (a fruit segmented confidently in one view
+    is a fruit; a phantom is unsure in each). ``new_inst``: the new view's
+    instance per point, ``new_ids``: the fused id it was given."""
+    out = dict(old)
+    for i, c in new.items():
+        m = new_inst == i
+        if not m.any():
+            continue
+        j = int(new_ids[np.flatnonzero(m)[0]])
+        out[j] = max(c, out.get(j, c))
+    return out
+
+
 def _SameCameraPose(X_a, X_b, tol_m: float = 1e-3, tol_rad: float = 1e-3) -> bool:
     A, B = np.asarray(X_a, float), np.asarray(X_b, float)
     cos = np.clip((np.trace(A[:3, :3].T @ B[:3, :3]) - 1) / 2, -1.0, 1.0)
@@ -72,6 +87,10 @@ def FuseViews(previous: SemanticScene | None, new: SemanticScene, voxel_size: fl
                                     voxel_size, np.concatenate([old_i, new_i]))
         setattr(fused, f"{name}_points_W", pts)
         setattr(fused, f"{name}_instance", inst)
+        if name == "fruit":
+            fused.fruit_confidence = _FusedConfidence(
+                getattr(previous, "fruit_confidence", {}), getattr(new, "fruit_confidence", {}),
+                np.asarray(new.fruit_instance, np.int64), new_i)
     # Background rays are carved from the newest camera centre: an earlier
     # view's rays only join when the camera has not moved (eye-to-hand).
     fused.background_points_W = np.asarray(new.background_points_W, float).reshape(-1, 3)

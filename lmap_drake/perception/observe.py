@@ -20,4 +20,5 @@ def SemanticSceneFromImages(rgb, depth, label, camera_config, perception_config
     X_WC = camera_config.X_PB.GetDeterministicValue().GetAsMatrix4()
     d = np.asarray(getattr(depth, "data", depth))
     return BuildSemanticScene(seg.class_map, d, K, X_WC, perception_config,
-                              flags=list(getattr(seg, "flags", [])))
+                              flags=list(getattr(seg, "flags", [])),
+                              instance_map=seg.instance_map, confidence=seg.confidence)

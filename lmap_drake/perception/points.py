@@ -212,12 +212,45 @@ def ClassPoints(points_W: np.ndarray, params: PerceptionConfig) -> tuple[np.ndar
     ids). Order: statistical outlier removal, DBSCAN at full resolution (so
     the density the eps / min_points values were chosen for is kept), voxel
     downsampling per instance. DBSCAN noise keeps instance -1 (unassigned)."""
+    pts, inst, _ = ClassPointsAndMeans(points_W, None, params)
+    return pts, inst
+
+
+def ClassPointsAndMeans(points_W: np.ndarray, values: np.ndarray | None,
+                        params: PerceptionConfig) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``ClassPoints``, and per instance the mean of ``values`` (one per
+    full-resolution point, NaN = none) over its full-resolution points
+    ({instance id: mean}, rounded to 4 digits; instances with no value are
+    left out; ``values`` None: {})."""
     if len(points_W) == 0:
-        return np.zeros((0, 3)), np.zeros(0, np.int64)
+        return np.zeros((0, 3)), np.zeros(0, np.int64), {}
     keep = StatisticalOutlierMask(points_W, params.outlier_neighbors, params.outlier_std_ratio)
     pts = points_W[keep]
     inst = DbscanLabels(pts, params.dbscan_eps, params.dbscan_min_points)
-    return VoxelDownsample(pts, params.voxel_size, inst)
+    means = {}
+    if values is not None:
+        v = np.asarray(values, float)[keep]
+        for i in np.unique(inst[inst >= 0]):
+            vi = v[(inst == i) & np.isfinite(v)]
+            if len(vi):
+                means[int(i)] = round(float(vi.mean()), 4)
+    return (*VoxelDownsample(pts, params.voxel_size, inst), means)
+
+
+def InstanceConfidenceImage(class_map: np.ndarray, instance_map: np.ndarray | None,
+                            confidence: dict | None, class_id: int) -> np.ndarray | None:
+    """HxW: each ``class_id`` pixel's segmentation instance's confidence
+    (``Segmentation.confidence``, keyed (class id, instance index)), NaN
+    where there is none; None without instances or confidences."""
+    if instance_map is None or not confidence:
+        return None
+    out = np.full(class_map.shape, np.nan)
+    m = (class_map == class_id) & (instance_map >= 0)
+    for i in np.unique(instance_map[m]):
+        c = confidence.get((int(class_id), int(i)))
+        if c is not None:
+            out[m & (instance_map == i)] = float(c)
+    return out
 
 
 def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
@@ -258,13 +291,18 @@ def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, 
 
 
 def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
-                       params: PerceptionConfig, flags: list[str] | None = None) -> SemanticScene:
+                       params: PerceptionConfig, flags: list[str] | None = None,
+                       instance_map: np.ndarray | None = None,
+                       confidence: dict | None = None) -> SemanticScene:
     """Semantic point sets in W from a per-pixel class map (``lmap_drake.labels``
     ids). Pixels beyond ``params.depth_cut`` or without valid depth are
     dropped. Background pixels (robot included) give the ray ends of
     ``BackgroundRayEnds`` (free-space carving). Never raises on empty input:
     empty sets plus flags (``no_valid_depth``, ``no_<class>_in_view``,
-    ``empty_scene``)."""
+    ``empty_scene``). With the segmentation's ``instance_map`` and
+    ``confidence`` (``Segmentation``), each fruit instance (a DBSCAN cluster
+    of points, not the image's instance) gets the mean over its pixels of
+    their image instance's confidence (``SemanticScene.fruit_confidence``)."""
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim == 3:
         d = d[..., 0]
@@ -276,8 +314,15 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
     valid &= ~FlyingPixelMask(d, params.flying_pixel_jump)
     scene = SemanticScene(X_WC=X.copy())
     for cls, name in CLASS_FIELDS.items():
-        pts = DeprojectPixels(d, (class_map == cls) & valid, K, X)
-        pts, inst = ClassPoints(pts, params)
+        mask = (class_map == cls) & valid
+        pts = DeprojectPixels(d, mask, K, X)
+        conf = (InstanceConfidenceImage(class_map, instance_map, confidence, cls)
+                if cls == FRUIT else None)
+        # DeprojectPixels keeps the mask's pixels with valid depth, row-major
+        values = None if conf is None else conf[mask & ValidDepthMask(d)]
+        pts, inst, means = ClassPointsAndMeans(pts, values, params)
+        if cls == FRUIT:
+            scene.fruit_confidence = means
         setattr(scene, f"{name}_points_W", pts)
         setattr(scene, f"{name}_instance", inst)
         if len(pts) == 0:

@@ -147,13 +147,12 @@ def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
     return why
 
 
-def IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
-                     actions: list[Action]) -> list[Candidate]:
-    """The approach (IK chain via, ready, pre-grasp, grasp; see
-    ``planning.motion.PlanApproach``) with robot checks along it, then IK for
-    each pulled pose (warm-started along each direction's distances) and
-    robot-vs-fruit/branch checks there."""
-    cands = [Candidate(a, DistanceId(a, cfg)) for a in actions]
+def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig
+                  ) -> tuple[ApproachPlan | None, str]:
+    """The approach to ``grasp`` (IK chain via, ready, pre-grasp, grasp; see
+    ``planning.motion.PlanApproach``) with robot checks along it: (the
+    plan, "") or (None, why there is none). It does not depend on the
+    actions from the grasp."""
     # If the arm cannot reach the ready pose or hits something on the way
     # to the pre-grasp, a ready pose closer to the pre-grasp
     # (``ready_distances``): on the far side of a plant the default one
@@ -163,11 +162,21 @@ def IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
     for ready in cfg.ready_distances:
         got = _Approach(ctx, cfg, grasp, ready, memo)
         if isinstance(got, ApproachPlan):
-            approach, why = got, ""
-            break
+            return got, ""
         why = got
         if not why.startswith("IK failed (staging)") and "on the way to the pre-grasp" not in why:
             break
+    return None, why
+
+
+def IkAndRobotChecks(ctx: PlanningContext, grasp, cfg: PlannerConfig,
+                     actions: list[Action], approach: tuple | None = None) -> list[Candidate]:
+    """The approach (``GraspApproach``; ``approach``: its result, when
+    already known) with robot checks along it, then IK for each pulled pose
+    (warm-started along each direction's distances) and robot-vs-fruit/branch
+    checks there."""
+    cands = [Candidate(a, DistanceId(a, cfg)) for a in actions]
+    approach, why = approach if approach is not None else GraspApproach(ctx, grasp, cfg)
     if why:
         for c in cands:
             c.reason = why

@@ -15,7 +15,7 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from lmap_drake.deformation.action import (Action, AxisAngleMatrix, HingeAxes, MakeArcActions,
                                            MakeTwistActions, PullDirections)
-from lmap_drake.planning.approach import IkAndRobotChecks
+from lmap_drake.planning.approach import GraspApproach, IkAndRobotChecks
 from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext, VisibilitySurfaces
@@ -319,12 +319,15 @@ def _FirstApproach(ctx: PlanningContext, cfg: PlannerConfig, g, actions: list[Ac
     ``rotations`` (R_WG; ``labels``: their record orientations) whose
     approach passes, or None when none does."""
     for R, label in zip(rotations, labels):
-        cands = IkAndRobotChecks(ctx, Grasp(g.p_WG, R, g.grasp_id), cfg,
-                                 [dc.replace(a, R_WG=R) for a in actions])
-        if any(c.approach is not None for c in cands):
-            for c in cands:
-                c.orientation = label
-            return cands
+        turned = Grasp(g.p_WG, R, g.grasp_id)
+        approach = GraspApproach(ctx, turned, cfg)
+        if approach[0] is None:
+            continue            # (the actions are turned only for an approach that passes)
+        cands = IkAndRobotChecks(ctx, turned, cfg, [dc.replace(a, R_WG=R) for a in actions],
+                                 approach)
+        for c in cands:
+            c.orientation = label
+        return cands
     return None
 
 

@@ -39,16 +39,41 @@ class UnionSdf:
                        for sdf, (lo, hi) in zip(sdfs, boxes)]
         self.pad = float(pad)
 
-    def __call__(self, points_W: np.ndarray) -> np.ndarray:
+    def __call__(self, points_W: np.ndarray, pad: float | None = None) -> np.ndarray:
+        """The signed distances; ``pad`` (m, at most ``self.pad``): a
+        narrower band for this call (``Below``)."""
+        pad = self.pad if pad is None else min(float(pad), self.pad)
         p = np.asarray(points_W, float).reshape(-1, 3)
         out = np.full(len(p), np.inf)
         for sdf, lo, hi in self._parts:
             d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
-            near = d < self.pad
+            near = d < pad
             if near.any():
                 d[near] = np.asarray(sdf(p[near]), float).reshape(-1)
             out = np.minimum(out, d)
         return out
+
+    def Below(self, points_W: np.ndarray, bound: float) -> np.ndarray:
+        """The distances where they may lie below ``bound`` (m): each SDF
+        evaluated within ``bound`` + ``BELOW_SLACK`` of its fruit's box
+        only, the box distance elsewhere (at least ``bound`` +
+        ``BELOW_SLACK``). A check against ``bound`` (``RobotCollisionReason``)
+        gets the same verdict and the same nearest distance as from
+        ``__call__`` as long as no SDF beyond that band lies below
+        ``bound`` (a decoder artefact: the fruit's surface is at least the
+        band away there)."""
+        return self(points_W, pad=bound + BELOW_SLACK)
+
+
+# m: how far beyond a check's margin ``UnionSdf.Below`` still evaluates the
+# fruits' SDFs (the single-fruit planner evaluates none beyond the margin).
+# Far from the fruit the decoder's SDF is no distance: on the three 36-45
+# leaf greenhouse plants of ``scripts/bench_planner.py --plants`` (label
+# oracle, first plan) it lay up to 19.6 mm below the distance to the
+# fruit's box 10-50 mm beyond the margin, but never below the margin there
+# (3.5 mm above it at the least), so every verdict and nearest distance was
+# that of the full 5 cm band, at 54-62 % fewer decoder evaluations.
+BELOW_SLACK = 0.01
 
 
 class MeshSdf:
@@ -173,7 +198,8 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
             lo, hi = box if box is not None else (np.full(3, -np.inf), np.full(3, np.inf))
             pts = NearBox(robot_points_W, lo - m, hi + m, geoms)
         if len(pts):
-            d = np.asarray(distance(pts), float)
+            below = getattr(distance, "Below", None)       # a plant's fruits: one band
+            d = np.asarray(distance(pts) if below is None else below(pts, m), float)
             if np.isfinite(m) and not np.all(np.isfinite(d)):
                 # NaN passes every comparison: a non-finite distance rejects.
                 return f"robot-{name} (non-finite {name} distance)"

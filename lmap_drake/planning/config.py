@@ -328,6 +328,11 @@ class PlannerConfig:
     max_replans: int = 1
     min_replan_gain: float = 0.05
     min_visibility_gain: float = 0.05
+    # [0, 1]: a fruit instance whose segmentation confidence (perception's
+    # SemanticScene.fruit_confidence) is below this is no target (it stays an
+    # obstacle and occluder; plan.json skipped_fruits says so); 0 = every
+    # instance is a target. See docs/explanation/dense-canopy.md.
+    min_fruit_confidence: float = 0.5
     hinge_bending_weight: float = 3.0e-7
     max_hinge_deg: float = 50.0
     max_replan_turn_deg: float = 45.0  # deg: cap on the equivalent turn after a re-plan
@@ -400,6 +405,7 @@ _RULES = {
     "next_leaf_min_gain": "[0,1]",
     "min_replan_gain": "[0,1]",
     "min_visibility_gain": "[0,1]",
+    "min_fruit_confidence": "[0,1]",
     "hinge_bending_weight": ">=0",
     "max_hinge_deg": "(0,180]",
     "max_replan_turn_deg": "(0,180]",

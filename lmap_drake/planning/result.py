@@ -102,6 +102,9 @@ class PlanResult:
     # which fruit shapes the checks and the visibility used (``planner.fruit_shapes``,
     # ``visibility_shapes``; ``context.FruitShapesRecord``); None: no fruit
     fruit_shapes: dict | None = None
+    # Fruit instances that are no target (``targets.SkippedFruits``: low
+    # segmentation confidence or an implausible completed shape), with why.
+    skipped_fruits: list = dc.field(default_factory=list)
 
     def Summary(self) -> dict:
         out = {"status": self.status, "method": self.method, "message": self.message,
@@ -114,6 +117,8 @@ class PlanResult:
             out["target"] = self.target
         if self.fruit_shapes is not None:
             out["fruit_shapes"] = self.fruit_shapes
+        if self.skipped_fruits:
+            out["skipped_fruits"] = self.skipped_fruits
         if self.chosen is not None:
             out["chosen"] = self.chosen.Row()
         return out

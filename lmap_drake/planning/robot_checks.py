@@ -51,16 +51,65 @@ def _LeafObstacles(ctx: PlanningContext, held: bool = True) -> tuple:
     return cached
 
 
+class NearCells:
+    """Which points may lie within ``margin`` (m) of ``points_W``: a grid
+    of cells a little larger than ``margin`` over their box, the cells
+    holding a point and their 26 neighbours marked. A point within
+    ``margin`` of one of them lies in a marked cell (a cheap, exact
+    pre-filter for the KD-tree; a plant's leaves fill a box the arm is
+    mostly inside, while few of its samples come near a leaf)."""
+
+    MAX_CELLS = 20_000_000
+
+    def __init__(self, points_W: np.ndarray, margin: float):
+        from scipy.ndimage import binary_dilation
+        self.marked = None
+        p = np.asarray(points_W, float).reshape(-1, 3)
+        if not margin > 0 or len(p) == 0:
+            return
+        self.cell = 1.001 * float(margin)
+        self.lo = p.min(0) - 2 * self.cell
+        idx = np.floor((p - self.lo) / self.cell).astype(np.int64)
+        self.shape = idx.max(0) + 3
+        if np.prod(self.shape) <= self.MAX_CELLS:
+            grid = np.zeros(self.shape, bool)
+            grid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+            self.marked = binary_dilation(grid, np.ones((3, 3, 3), bool))
+
+    def Maybe(self, q_W: np.ndarray) -> np.ndarray:
+        """A bool per point of ``q_W`` (N, 3): it may lie within the margin
+        (True everywhere when the grid would be too large)."""
+        q = np.asarray(q_W, float).reshape(-1, 3)
+        if self.marked is None:
+            return np.ones(len(q), bool)
+        idx = np.floor((q - self.lo) / self.cell).astype(np.int64)
+        inside = np.all((idx >= 0) & (idx < self.shape), axis=1)
+        out = np.zeros(len(q), bool)
+        i = idx[inside]
+        out[inside] = self.marked[i[:, 0], i[:, 1], i[:, 2]]
+        return out
+
+
 def TouchesLeaf(ctx: PlanningContext, margin: float, pts, held: bool = True) -> bool:
     """Whether the robot's surface samples ``pts`` come within ``margin``
     of an observed leaf (``_LeafObstacles``: every leaf, or with ``held``
-    False the leaves not held); only samples near the leaves' box are
-    queried."""
+    False the leaves not held); only samples near the leaves' box, and
+    there in cells near a leaf point (``NearCells``), are queried."""
     tree, box = _LeafObstacles(ctx, held)
     if tree is None:
         return False
     near = NearBox(pts, box[0] - margin, box[1] + margin)
-    return bool(len(near)) and tree.query(near)[0].min() < margin
+    if not len(near):
+        return False
+    attr = ("_leaf_cells" if held else "_other_leaf_cells", float(margin))
+    cells = getattr(ctx, "_near_cells", {}).get(attr)
+    if cells is None:
+        cells = NearCells(tree.data, margin)
+        ctx._near_cells = {**getattr(ctx, "_near_cells", {}), attr: cells}
+    near = near[cells.Maybe(near)]
+    # the search stops at ``margin``: farther samples come back inf
+    return bool(len(near)) and bool(
+        np.any(tree.query(near, distance_upper_bound=margin)[0] < margin))
 
 
 # Leaf points of other leaves this near a fruit (m, the fruits' SDF) are

@@ -116,11 +116,12 @@ class SurfaceSamples:
         self.fingers = (np.zeros(len(local), bool) if fingers is None
                         else np.asarray(fingers, bool))
         self._world: dict[int, np.ndarray] = {}
-        self.boxes = np.empty((len(local), 2, 3))
-        self.corners = np.empty((len(local), 8, 3))
-        for i, (c, Xi) in enumerate(zip(corners, X)):
-            w = self.corners[i] = c @ Xi[:3, :3].T + Xi[:3, 3]
-            self.boxes[i] = w.min(axis=0), w.max(axis=0)
+        # every geometry at once (the same products as one geometry at a time)
+        Xs = np.asarray(X, float).reshape(-1, 4, 4)
+        w = np.matmul(np.asarray(corners, float).reshape(-1, 8, 3),
+                      Xs[:, :3, :3].transpose(0, 2, 1)) + Xs[:, None, :3, 3]
+        self.corners = w
+        self.boxes = np.stack([w.min(axis=1), w.max(axis=1)], axis=1)
 
     def __len__(self) -> int:
         return len(self._local)
@@ -199,13 +200,18 @@ class RobotModel:
             self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
             self._shapes.append(_ShapeParams(shape) + (X_BG.GetAsMatrix4(),))
         self.num_points = int(sum(len(p) for p in self._points))
+        index = {b.index(): k for k, b in reversed(list(enumerate(self._bodies)))}
+        self._unique_bodies = [self._bodies[k] for k in sorted(set(index.values()))]
+        order = {b.index(): n for n, b in enumerate(self._unique_bodies)}
+        self._body_of_geometry = [order[b.index()] for b in self._bodies]
         # the geometries on the two fingers (pads and finger links)
         self._fingers = np.array([b.name() in ("left_finger", "right_finger")
                                   for b in self._bodies], bool)
         # each geometry's sample box in its body frame, as 8 corners
-        self._corners = [np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                                   for z in (lo[2], hi[2])])
-                         for lo, hi in ((p.min(axis=0), p.max(axis=0)) for p in self._points)]
+        self._corners = np.array([[[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                    for z in (lo[2], hi[2])]
+                                   for lo, hi in ((p.min(axis=0), p.max(axis=0))
+                                                  for p in self._points)]).reshape(-1, 8, 3)
         # Self-collision pairs worth reporting: the gripper's own parts touch
         # each other by design (pads closing on nothing), the rest is the
         # plant's filtering (bodies joined by a joint).
@@ -245,9 +251,12 @@ class RobotModel:
         a world box (min, max) around each (its body-frame box turned into
         the world: it may be larger than the samples' own)."""
         self.SetQ(q, half_opening)
-        X = [self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
-             for body in self._bodies]
-        return SurfaceSamples(self._points, self._corners, X, self._fingers, self._shapes)
+        # each body's pose once (a body carries several geometries)
+        X_body = [self.plant.EvalBodyPoseInWorld(self.context, body).GetAsMatrix4()
+                  for body in self._unique_bodies]
+        return SurfaceSamples(self._points, self._corners,
+                              [X_body[i] for i in self._body_of_geometry], self._fingers,
+                              self._shapes)
 
     def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
                       margin: float = 0.0) -> str:

@@ -9,6 +9,7 @@ surface voxels seen from the camera (``planning.visibility``).
 from __future__ import annotations
 
 import dataclasses as dc
+import itertools
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -46,8 +47,19 @@ def OccludingLeaves(fruit: FruitEstimate, plant: PlantEstimate, X_WC: np.ndarray
     leaf_id = np.asarray(sem.leaf_instance)
     rest = [np.asarray(sem.branch_points_W, float).reshape(-1, 3)]
     rest += [f.vertices_W for f in plant.fruits if f is not fruit]
-    base = vis.ZBuffer(np.vstack(rest))
-    known = vis.Seen(leaf_W, base)
+    ids = _Instances(leaf_id, min_points)
+    # The grid is global, so the depth buffer of a union of point sets is
+    # the min of their buffers (``VisibilityModel.ZBuffer``): each leaf's
+    # buffer once, and "every leaf but j" as the min of the buffers before
+    # and after j (the same buffers as splatting those points, at one
+    # splat of the plant instead of one per leaf).
+    base = vis.ZBuffer(np.vstack(rest + [leaf_W[~np.isin(leaf_id, ids)]]))
+    bufs = [vis.ZBuffer(leaf_W[leaf_id == j]) for j in ids]
+    before = list(itertools.accumulate([base] + bufs, np.minimum))    # [base, +0, +0..1, ...]
+    after = list(itertools.accumulate([np.full_like(base, np.inf)] + bufs[::-1],
+                                      np.minimum))[::-1]             # [0.., 1.., ..., none]
+    none = np.zeros((0, 3))
+    known = vis.Seen(none, before[-1])
     if seen_before_W is not None:
         known = known | vis.Observed(seen_before_W)
     seen_all = int(known.sum())
@@ -56,10 +68,11 @@ def OccludingLeaves(fruit: FruitEstimate, plant: PlantEstimate, X_WC: np.ndarray
         out["seen_before_W"] = np.asarray(seen_before_W, float).reshape(-1, 3)
     if n_max == 0:
         return out
-    for j in _Instances(leaf_id, min_points):
+    for m, j in enumerate(ids):
         # a leaf's removal only adds seen voxels: the gain is what it hides
         # and nothing (no view) has shown
-        gain = int(np.count_nonzero(vis.Seen(leaf_W[leaf_id != j], base) & ~known)) / n_max
+        without = np.minimum(before[m], after[m + 1])
+        gain = int(np.count_nonzero(vis.Seen(none, without) & ~known)) / n_max
         if gain >= min_gain:
             out["leaves"].append({"leaf_id": j, "gain": float(gain)})
     out["leaves"].sort(key=lambda d: -d["gain"])
@@ -262,25 +275,77 @@ def FruitImplausible(fruit: FruitEstimate, points_W: np.ndarray) -> str:
     return ""
 
 
+def FruitConfidence(plant: PlantEstimate, k: int) -> float | None:
+    """The segmentation confidence of fruit ``k`` (``plant.fruit_ids[k]``'s
+    entry of ``SemanticScene.fruit_confidence``); None when perception gave
+    none."""
+    conf = getattr(plant.semantic, "fruit_confidence", None) or {}
+    return conf.get(int(plant.fruit_ids[k])) if k < len(plant.fruit_ids) else None
+
+
+def LowConfidence(confidence: float | None, min_confidence: float) -> str:
+    """Why a fruit instance of segmentation ``confidence`` is no target
+    (below ``planner.min_fruit_confidence``), or "" (it is one; no
+    confidence: taken as a fruit)."""
+    if confidence is None or not confidence < min_confidence:
+        return ""
+    return (f"segmentation confidence {confidence:.2f} below planner.min_fruit_confidence "
+            f"{min_confidence:g}")
+
+
+def LargestFruitSkipped(scene: SceneEstimate, cfg) -> str:
+    """``planner.targets: largest``: why the most-seen fruit instance of
+    ``scene.semantic`` (the one shape completion completed) is no target
+    (``LowConfidence``), or ""."""
+    sem = scene.semantic
+    inst = np.asarray(sem.fruit_instance)
+    ids, counts = np.unique(inst[inst >= 0], return_counts=True)
+    if len(ids) == 0 or scene.fruit is None:
+        return ""
+    j = int(ids[np.argmax(counts)])
+    why = LowConfidence((getattr(sem, "fruit_confidence", None) or {}).get(j),
+                        getattr(cfg, "min_fruit_confidence", 0.0))
+    return f"fruit instance {j} (the most seen) is no target: {why}" if why else ""
+
+
 def FruitOrder(plant: PlantEstimate, X_WC: np.ndarray, cfg, image_tan: tuple | None = None
                ) -> tuple[list[int], list[dict]]:
     """The fruits' reveal order (``OrderTargets``: least visible first, the
-    ones already visible left out, implausible ones too: their
-    ``OccludingLeaves`` record carries ``implausible``, the reason) and
-    every fruit's ``OccludingLeaves``."""
+    ones already visible left out, and the ones that are no target: a
+    segmentation confidence below ``planner.min_fruit_confidence``
+    (``LowConfidence``) or an implausible completed shape
+    (``FruitImplausible``); their ``OccludingLeaves`` record carries
+    ``implausible``, the reason) and every fruit's ``OccludingLeaves``
+    (with ``confidence`` where perception gave one). Fruits that are no
+    target stay obstacles and occluders of the others."""
     occ = [OccludingLeaves(f, plant, X_WC, cfg.visibility_voxel, image_tan,
                            min_gain=cfg.min_visibility_gain) for f in plant.fruits]
     sem = plant.semantic
     fruit_W = np.asarray(sem.fruit_points_W, float).reshape(-1, 3)
     inst = np.asarray(sem.fruit_instance)
     for k, f in enumerate(plant.fruits):
-        mine = fruit_W[inst == plant.fruit_ids[k]] if len(inst) == len(fruit_W) and \
-            k < len(plant.fruit_ids) else fruit_W[:0]
-        why = FruitImplausible(f, mine)
+        conf = FruitConfidence(plant, k)
+        if conf is not None:
+            occ[k]["confidence"] = conf
+        why = LowConfidence(conf, getattr(cfg, "min_fruit_confidence", 0.0))
+        if not why:
+            mine = fruit_W[inst == plant.fruit_ids[k]] if len(inst) == len(fruit_W) and \
+                k < len(plant.fruit_ids) else fruit_W[:0]
+            why = FruitImplausible(f, mine)
         if why:
             occ[k]["implausible"] = why
     order = OrderTargets([o["visible"] for o in occ], cfg.early_stop_fraction)
     return [k for k in order if "implausible" not in occ[k]], occ
+
+
+def SkippedFruits(plant: PlantEstimate, occ: list[dict]) -> list[dict]:
+    """The fruit instances ``FruitOrder`` left out as no target (JSON-able,
+    for ``plan.json``): index, instance id, centre (W, m), segmentation
+    confidence (None: none given) and why."""
+    return [{"fruit_index": k, "fruit_id": int(plant.fruit_ids[k]) if k < len(plant.fruit_ids)
+             else None, "center_W": np.round(plant.fruits[k].center_W, 4).tolist(),
+             "confidence": o.get("confidence"), "why": o["implausible"]}
+            for k, o in enumerate(occ) if "implausible" in o]
 
 
 def HeldLeaf(semantic: SemanticScene, p_WT: np.ndarray, radius: float = 0.04) -> int:

@@ -338,13 +338,27 @@ def CompletePlant(semantic: SemanticScene, decoder=None, mean_latent=None,
     if any(len(g) > 1 for g in groups) or dropped:
         # the merged fragments carry the id of their largest part; the
         # dropped ones are no fruit's (-1)
+        conf = MergedConfidence(getattr(semantic, "fruit_confidence", {}), inst, groups)
         inst = inst.copy()
         for g in groups:
             inst[np.isin(inst, g)] = g[0]
         inst[np.isin(inst, dropped)] = -1
         flags = list(semantic.flags) + ([f"{DROPPED_FLAG}:{len(dropped)}"]
                                         if dropped else [])
-        out.semantic = dc.replace(semantic, fruit_instance=inst, flags=flags)
+        out.semantic = dc.replace(semantic, fruit_instance=inst, flags=flags,
+                                  fruit_confidence=conf)
+    return out
+
+
+def MergedConfidence(confidence: dict, inst: np.ndarray, groups: list[list[int]]) -> dict:
+    """The fruit confidences (``SemanticScene.fruit_confidence``) after the
+    fragments of each group are merged under its first id: their mean
+    weighted by their points (the fragments without one left out)."""
+    out = dict(confidence)
+    for g in groups:
+        have = [(confidence[i], np.count_nonzero(inst == i)) for i in g if i in confidence]
+        if len(g) > 1 and have and sum(n for _, n in have):
+            out[g[0]] = round(sum(c * n for c, n in have) / sum(n for _, n in have), 4)
     return out
 
 

@@ -168,7 +168,8 @@ class Perception(LeafSystem):
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         seg = self._segmenter.Segment(rgb, depth, label)
-        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._config, seg.flags)
+        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._config, seg.flags,
+                                   seg.instance_map, seg.confidence)
         if q is not None:
             robot_W = np.vstack([self._robot.SurfacePoints(q, h)
                                  for h in (0.0, 0.5 * GRIPPER_MAX_WIDTH)])

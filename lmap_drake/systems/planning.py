@@ -70,7 +70,8 @@ from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.continuation import HeldGrasp, PlanContinuation
 from lmap_drake.planning.result import CandidateSet, PlanResult
 from lmap_drake.planning.selection import RejectAll, SelectFromPredictions
-from lmap_drake.planning.targets import HeldLeaf, HeldLeafScene, OccluderScene
+from lmap_drake.planning.targets import (HeldLeaf, HeldLeafScene, LargestFruitSkipped,
+                                         OccluderScene)
 from lmap_drake.planning.robot_model import RobotModel
 from lmap_drake.scenario import Scenario
 from lmap_drake.shape.completion import MERGE_DISTANCE, FruitsOverlap, PointsOnFruit
@@ -134,6 +135,12 @@ class ActionCandidates(LeafSystem):
             output.set_value(CandidateSet("baseline", scene))
             return
         try:
+            # a fruit instance perception is unsure of is no target
+            # (planner.min_fruit_confidence)
+            why = LargestFruitSkipped(scene, self._scenario.planner)
+            if why:
+                output.set_value(CandidateSet("no_fruit", scene, message=why))
+                return
             # a plant of several leaves: the leaf to move is the target's
             # main occluder, every other leaf an obstacle (as PlanTarget)
             scene, why = OccluderScene(scene, self._X_WC, self._scenario.planner,
@@ -421,7 +428,8 @@ class PlantPlanning(LeafSystem):
                                         message=_StageError("plant_planning", err)))
 
     def _Plan(self, context) -> PlanResult:
-        from lmap_drake.planning.targets import FruitOrder, OccludingLeaves, PlanTarget
+        from lmap_drake.planning.targets import (FruitOrder, OccludingLeaves, PlanTarget,
+                                                 SkippedFruits)
         cfg, dcfg = self._scenario.planner, self._scenario.deformation
         if not self._plant.Eval(context).fruits:
             return PlanResult("no_fruit", cfg.method, message="no fruit seen")
@@ -444,7 +452,8 @@ class PlantPlanning(LeafSystem):
             return PlanResult("no_action_needed", cfg.method,
                               message=f"every fruit is visible or handled ({len(plant.fruits)} "
                                       f"seen, {n} handled; visible "
-                                      f"{', '.join(f'{v:.2f}' for v in visible)}){skipped}")
+                                      f"{', '.join(f'{v:.2f}' for v in visible)}){skipped}",
+                              skipped_fruits=SkippedFruits(plant, occ))
         k = order[0]
         occ_k = again.get(k, occ[k])
         t = PlanTarget(plant, k, self._X_WC, self._robot, self._q.Eval(context), cfg, dcfg,
@@ -488,7 +497,7 @@ class PlantPlanning(LeafSystem):
         else:
             plan = PlanResult("no_feasible_action", cfg.method,
                               message=f"fruit {t.fruit_id}: {t.why}")
-        plan = dc.replace(plan, target=info)
+        plan = dc.replace(plan, target=info, skipped_fruits=SkippedFruits(plant, occ))
         return plan
 
     def _calc_scene(self, context, output) -> None:

@@ -89,3 +89,16 @@ def test_background_rays_unite_only_for_an_unmoved_camera():
     moved.X_WC[0, 3] = 0.05
     np.testing.assert_allclose(FuseViews(old, moved).background_points_W,
                                new.background_points_W)
+
+
+def test_fused_fruit_instances_keep_the_higher_confidence():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 0.02, (100, 3))
+    b = a + [0.2, 0, 0]
+    old = _scene([], [], np.concatenate([a, b]), [0] * 100 + [1] * 100)
+    old.fruit_confidence = {0: 0.9, 1: 0.3}
+    # the new view: b again (its id 0 here) more surely, and a new instance
+    new = _scene([], [], np.concatenate([b + 0.001, a + [0, 0, 0.5]]), [0] * 100 + [1] * 100)
+    new.fruit_confidence = {0: 0.6, 1: 0.4}
+    f = FuseViews(old, new, voxel_size=0.0)
+    assert f.fruit_confidence == {0: 0.9, 1: 0.6, 2: 0.4}

@@ -303,3 +303,32 @@ def test_blades_lying_flush_are_split_by_size():
     # two instances are too few to know a leaf's size
     few = np.r_[np.zeros(len(flush), int), np.ones(n, int)]
     assert np.array_equal(SplitOversizedLeaves(np.vstack([flush, singles[0]]), few), few)
+
+
+def test_fruit_instances_carry_the_mean_confidence_of_their_pixels():
+    v = Render()
+    cls, inst = DecodeLabels(v.label)
+    params = PerceptionConfig()
+    bare = BuildSemanticScene(cls, v.depth, v.K, v.X_WC, params)
+    assert bare.fruit_confidence == {}                       # no confidences given
+    fruit = (cls == FRUIT) & (inst >= 0)
+    ids = sorted(set(inst[fruit].tolist()))
+    conf = {(FRUIT, i): 0.37 for i in ids}
+    conf[(LEAF, 0)] = 0.99                                   # not a fruit's: not carried
+    one = BuildSemanticScene(cls, v.depth, v.K, v.X_WC, params, instance_map=inst,
+                             confidence=conf)
+    got = set(one.fruit_instance[one.fruit_instance >= 0].tolist())
+    assert got and set(one.fruit_confidence) == got
+    assert all(c == 0.37 for c in one.fruit_confidence.values())
+    # the fruit's pixels split (a checkerboard) into two image instances of
+    # 0.2 and 0.8: each point cloud instance (a DBSCAN cluster across both)
+    # gets their pixel-weighted mean
+    split = inst.copy()
+    r, c = np.indices(inst.shape)
+    split[fruit & ((r + c) % 2 == 0)] = 50
+    two = BuildSemanticScene(cls, v.depth, v.K, v.X_WC, params, instance_map=split,
+                             confidence={(FRUIT, 50): 0.2,
+                                         **{(FRUIT, i): 0.8 for i in ids if i != 50}})
+    assert set(two.fruit_confidence) == got
+    assert all(0.4 < c < 0.6 for c in two.fruit_confidence.values())
+    assert len(two.fruit_points_W) == len(one.fruit_points_W)   # points unchanged

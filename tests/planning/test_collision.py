@@ -118,3 +118,50 @@ def test_fruit_set_sdf_keeps_clear_of_every_kept_hypothesis():
     assert np.allclose(hi, np.asarray(big.vertices).max(0))
     m = MeshSdf(big.vertices, big.faces)(np.array([c + [0.01, 0, 0]]))
     assert abs(m[0] + 0.045) < 0.001
+
+
+def test_union_sdf_below_a_bound_evaluates_only_near_each_fruit_and_keeps_the_verdict():
+    from lmap_drake.planning.collision import BELOW_SLACK, RobotCollisionReason, UnionSdf
+    centres = [np.array([0.5, 0.0, 0.3]), np.array([0.7, 0.0, 0.3])]
+    calls = []
+
+    def sphere(c):
+        def sdf(p):
+            calls.append(len(p))
+            return np.linalg.norm(p - c, axis=1) - 0.03
+        return sdf
+    boxes = [(c - 0.03, c + 0.03) for c in centres]
+    union = UnionSdf([sphere(c) for c in centres], boxes)
+    p = np.random.default_rng(0).uniform([0.4, -0.1, 0.2], [0.8, 0.1, 0.4], (4000, 3))
+    full = union(p)
+    n_full = sum(calls)
+    calls.clear()
+    for bound in (0.005, 0.015):
+        got = union.Below(p, bound)
+        near = full < bound + BELOW_SLACK
+        np.testing.assert_array_equal(got[near], full[near])          # exact near the fruits
+        assert np.all(got[~near] >= bound)                            # never a false hit
+    assert sum(calls) < n_full                                        # fewer evaluations
+    # the robot check's verdict and nearest distance are those of the full band
+    reasons = []
+    for shift in (0.0, 0.012, 0.04):
+        pts = np.array([[0.5, -0.03 - shift - 0.001, 0.3], [0.6, -0.2, 0.3]])
+        full_union = UnionSdf([sphere(c) for c in centres], boxes)
+        reasons.append(RobotCollisionReason(pts, full_union, None, 0.015))
+        assert reasons[-1] == RobotCollisionReason(pts, lambda q: full_union(q), None, 0.015)
+    assert reasons == ["robot-fruit (1.0 mm)", "robot-fruit (13.0 mm)", ""]
+
+
+def test_near_cells_keep_every_point_within_the_margin():
+    from scipy.spatial import cKDTree
+    from lmap_drake.planning.robot_checks import NearCells
+    rng = np.random.default_rng(1)
+    leaf = rng.uniform(0, 0.3, (3000, 3)) * [1, 1, 0.02]        # a thin sheet
+    q = rng.uniform(-0.05, 0.35, (20000, 3))
+    for margin in (0.005, 0.012):
+        d = cKDTree(leaf).query(q)[0]
+        maybe = NearCells(leaf, margin).Maybe(q)
+        assert np.all(maybe[d < margin])                          # none lost
+        assert maybe.mean() < 0.5                                 # most ruled out
+    # margin 0: no grid, nothing ruled out
+    assert NearCells(leaf, 0.0).Maybe(q).all()

@@ -277,3 +277,73 @@ def test_a_phantom_fruit_is_no_target():
     plant.fruits[0] = huge
     order, occ = FruitOrder(plant, X_WC, cfg)
     assert 0 not in order and "implausible" in occ[0] and 1 in order
+
+
+def _occluding_leaves_by_resplatting(fruit, plant, min_gain=0.02):
+    """``OccludingLeaves`` as it was first written: the plant's leaves but
+    one splatted again for every leaf (the reference for the fast form)."""
+    from lmap_drake.planning.context import FruitSurfaceSamples
+    from lmap_drake.planning.visibility import VisibilityModel
+    sem = plant.semantic
+    vis = VisibilityModel(X_WC, FruitSurfaceSamples(fruit), 0.003, None)
+    n_max = int(vis.max_seen.sum())
+    leaf_W, leaf_id = sem.leaf_points_W, sem.leaf_instance
+    base = vis.ZBuffer(np.vstack([sem.branch_points_W.reshape(-1, 3)]
+                                 + [f.vertices_W for f in plant.fruits if f is not fruit]))
+    known = vis.Seen(leaf_W, base)
+    out = []
+    for j in np.unique(leaf_id[leaf_id >= 0]):
+        gain = int(np.count_nonzero(vis.Seen(leaf_W[leaf_id != j], base) & ~known)) / n_max
+        if gain >= min_gain:
+            out.append({"leaf_id": int(j), "gain": float(gain)})
+    return known.sum() / n_max, sorted(out, key=lambda d: -d["gain"])
+
+
+def test_occluding_leaves_give_the_same_gains_as_splatting_every_leaf_but_one():
+    plant, leaves = _plant()
+    # many small leaves, some unassigned points, leaves behind and beside
+    rng = np.random.default_rng(3)
+    extra = [_plate(0.40 + 0.05 * i, 0.25 + 0.03 * (i % 3), 0.012, 0.012,
+                    y=-0.05 - 0.01 * (i % 4)) for i in range(9)]
+    pts = np.vstack([plant.semantic.leaf_points_W] + extra)
+    ids = np.concatenate([plant.semantic.leaf_instance]
+                         + [np.full(len(p), 3 + i) for i, p in enumerate(extra)])
+    ids[rng.random(len(ids)) < 0.02] = -1
+    import dataclasses as dc
+    plant = dc.replace(plant, semantic=dc.replace(plant.semantic, leaf_points_W=pts,
+                                                  leaf_instance=ids))
+    for fruit in plant.fruits:
+        got = OccludingLeaves(fruit, plant, X_WC, min_gain=0.0, min_points=1)
+        visible, leaves_ref = _occluding_leaves_by_resplatting(fruit, plant, min_gain=0.0)
+        assert got["visible"] == visible
+        assert got["leaves"] == leaves_ref
+        assert any(d["gain"] > 0 for d in got["leaves"])
+
+
+def _confidence_cfg(min_conf):
+    from types import SimpleNamespace
+    return SimpleNamespace(visibility_voxel=0.003, min_visibility_gain=0.02,
+                           early_stop_fraction=0.95, min_fruit_confidence=min_conf)
+
+
+def test_a_fruit_instance_below_the_confidence_bar_is_no_target_but_an_occluder():
+    import dataclasses as dc
+    from lmap_drake.planning.targets import FruitOrder, SkippedFruits
+    plant, _ = _plant()
+    sem = dc.replace(plant.semantic, fruit_confidence={4: 0.31, 7: 0.93})
+    plant = dc.replace(plant, semantic=sem)
+    order, occ = FruitOrder(plant, X_WC, _confidence_cfg(0.5))
+    assert 0 not in order and 1 in order
+    assert "segmentation confidence 0.31 below planner.min_fruit_confidence 0.5" == \
+        occ[0]["implausible"]
+    assert occ[0]["confidence"] == 0.31 and occ[1]["confidence"] == 0.93
+    skipped = SkippedFruits(plant, occ)
+    assert [(s["fruit_id"], s["confidence"]) for s in skipped] == [(4, 0.31)]
+    assert "below planner.min_fruit_confidence" in skipped[0]["why"]
+    # the skipped fruit still hides the other one: B's visibility is as before
+    _, occ_all = FruitOrder(plant, X_WC, _confidence_cfg(0.0))
+    assert occ[1]["visible"] == occ_all[1]["visible"]
+    # 0 takes every instance; no confidence given counts as a fruit
+    assert set(FruitOrder(plant, X_WC, _confidence_cfg(0.0))[0]) == {0, 1}
+    bare = dc.replace(plant, semantic=dc.replace(plant.semantic, fruit_confidence={}))
+    assert set(FruitOrder(bare, X_WC, _confidence_cfg(0.99))[0]) == {0, 1}

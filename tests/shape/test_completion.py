@@ -249,3 +249,13 @@ def test_a_small_fit_inside_another_fruit_is_not_a_second_fruit(monkeypatch):
         assert len(plant.fruits) == kept, gap
         assert np.allclose(plant.fruits[0].center_W, c0, atol=1e-6)
         assert completion.DroppedFragments(plant.semantic.flags) == (1 if kept == 1 else 0)
+
+
+def test_merged_fruit_fragments_take_their_point_weighted_confidence():
+    from lmap_drake.shape.completion import MergedConfidence
+    inst = np.array([0] * 30 + [1] * 10 + [2] * 5 + [3] * 8)
+    conf = {0: 0.9, 1: 0.5, 2: 0.2}                    # 3: the segmenter gave none
+    got = MergedConfidence(conf, inst, [[0, 1], [2], [3]])
+    assert got[0] == round((0.9 * 30 + 0.5 * 10) / 40, 4)
+    assert got[2] == 0.2 and 3 not in got and got[1] == 0.5   # the rest as it was
+    assert MergedConfidence(conf, inst, [[3, 2]])[3] == 0.2     # only those with one count

@@ -65,3 +65,32 @@ def test_rejection_reasons_count_with_numbers_masked():
                                        ("", "IK failed (3 tries)", "energy 1.5e-3 > cap",
                                         "energy 2.0 > cap", "")])
     assert RejectionReasons(plan) == {"feasible": 2, "IK failed": 1, "energy # > cap": 2}
+
+
+def test_the_planner_benchmark_record_changes_with_any_verdict_or_choice():
+    import json
+    from lmap_drake.deformation.action import Action
+    from lmap_drake.planning.result import Candidate, PlanResult
+    from lmap_drake.studies.planner_benchmark import _PlanRecord
+
+    def plan(reason="", chosen=True):
+        cands = [Candidate(Action(np.zeros(3), np.eye(3), np.array([0, 0, 0.04]), 0, 0), 1),
+                 Candidate(Action(np.zeros(3), np.eye(3), np.array([0, 0.04, 0]), 1, 2), 1,
+                           reason=reason)]
+        return PlanResult("ok", "lmap", chosen=cands[1] if chosen else cands[0],
+                          candidates=cands, target={"fruit_id": 3, "leaf_id": 7})
+
+    def same(a, b):
+        return json.dumps(_PlanRecord(a), sort_keys=True) == json.dumps(_PlanRecord(b),
+                                                                        sort_keys=True)
+    assert same(plan(), plan())
+    assert not same(plan(), plan(chosen=False))                  # another action chosen
+    assert not same(plan(), plan(reason="robot-fruit (3.0 mm)"))  # another verdict
+    assert _PlanRecord(plan())["leaf_id"] == 7
+    # the same plan from another process: energies differ in the last digits
+    from lmap_drake.studies.planner_benchmark import SamePlan
+    a, b = plan(), plan()
+    a.chosen.energy, b.chosen.energy = 5.597331689463103e-05, 5.597331689907192e-05
+    assert SamePlan(_PlanRecord(a), _PlanRecord(b))
+    b.chosen.energy = 5.6e-05
+    assert not SamePlan(_PlanRecord(a), _PlanRecord(b))

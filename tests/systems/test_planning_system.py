@@ -485,3 +485,16 @@ def test_a_plan_below_the_visibility_margin_is_not_ok_and_the_counts_cover_every
     assert rec["num_feasible"] == 0
     assert sum(rec["rejected"].values()) == rec["num_candidates"]
     assert any("not above the current" in k for k in rec["rejected"])
+
+
+def test_the_most_seen_fruit_below_the_confidence_bar_is_no_target():
+    scene = _scene()
+    n = len(scene.semantic.fruit_points_W)
+    scene.semantic.fruit_instance = np.zeros(n, np.int64)
+    scene.semantic.fruit_confidence = {0: 0.42}
+    plan = _plan(scene)
+    assert plan.status == "no_fruit" and plan.chosen is None
+    assert "fruit instance 0 (the most seen) is no target: segmentation confidence 0.42 " \
+           "below planner.min_fruit_confidence 0.5" == plan.message
+    # the bar lowered, the same scene plans
+    assert _plan(scene, planner={"min_fruit_confidence": 0.4}).status == "ok"

@@ -364,3 +364,39 @@ def test_the_surface_shown_includes_the_views_with_the_leaf_held():
                                        {"initial_estimate": first, "final_estimate": first}])
     assert len(pts) == len(here) + 1 and [0.6, 0.03, 0.3] in pts.tolist()
     assert [9.0, 9.0, 9.0] not in pts.tolist()
+
+
+def test_a_fruit_instance_perception_is_unsure_of_is_skipped_and_stays_an_obstacle():
+    import dataclasses as dc
+    from types import SimpleNamespace
+    from lmap_drake.episode.records import PlanRecord
+    s = _Scenario()
+    plant = TwoFruitPlant()
+    plant = dc.replace(plant, semantic=dc.replace(plant.semantic,
+                                                  fruit_confidence={3: 0.31, 5: 0.95}))
+    system = PlantPlanning(s)
+    ctx = system.CreateDefaultContext()
+    system.GetInputPort("plant_estimate").FixValue(ctx, plant)
+    system.GetInputPort("ur5.position").FixValue(ctx, np.asarray(s.robot.initial_q, float))
+    system.GetInputPort("status").FixValue(ctx, SimpleNamespace(targets=[]))
+    plan = system.GetOutputPort("plan").Eval(ctx)
+    assert plan.target["fruit_id"] == 5
+    [skipped] = plan.skipped_fruits
+    assert skipped["fruit_id"] == 3 and skipped["confidence"] == 0.31
+    assert "below planner.min_fruit_confidence 0.5" in skipped["why"]
+    assert PlanRecord(plan)["skipped_fruits"] == plan.skipped_fruits       # in plan.json
+    # the skipped fruit is an obstacle and occluder of the target's scene
+    scene = system.GetOutputPort("scene_estimate").Eval(ctx)
+    np.testing.assert_allclose(scene.fruit.center_W, plant.fruits[1].center_W)
+    assert len(scene.other_fruits) == 1
+    np.testing.assert_allclose(scene.other_fruits[0].center_W, plant.fruits[0].center_W)
+    # every instance below the bar: nothing to plan, and plan.json says why
+    s.planner.min_fruit_confidence = 0.99
+    system = PlantPlanning(s)
+    ctx2 = system.CreateDefaultContext()
+    system.GetInputPort("plant_estimate").FixValue(ctx2, plant)
+    system.GetInputPort("ur5.position").FixValue(ctx2, np.asarray(s.robot.initial_q, float))
+    system.GetInputPort("status").FixValue(ctx2, SimpleNamespace(targets=[]))
+    none = system.GetOutputPort("plan").Eval(ctx2)
+    assert none.status == "no_action_needed" and "is no target" in none.message
+    assert [d["fruit_id"] for d in none.skipped_fruits] == [3, 5]
