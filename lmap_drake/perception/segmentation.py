@@ -24,7 +24,8 @@ Five backends behind one interface (``Segmenter.Segment``), chosen by
 Every instance carries a confidence in [0, 1] (``Segmentation.confidence``,
 keyed by (class id, instance index)): segnet's mean softmax probability of
 the instance's class over its pixels, SAM's predicted mask IoU times its
-prompt's, 1 for the labels; color_depth has no score model and gives 0.5.
+prompt's, 1 for the labels; color_depth has no score model and gives none
+(its instances are taken as what they are called).
 
 Images: ``rgb`` HxWx3 (or x4) uint8, ``depth`` HxW float metres along the
 optical axis (NaN/inf/0 = no return), ``label`` HxW render labels.
@@ -371,7 +372,7 @@ class ColorDepthSegmenter(Segmenter):
             cls = new
             # the fill may grow from any plant pixel, including the edges
         inst = InstancesFromComponents(cls, d, max(2 * p.depth_edge, 0.02))
-        return Segmentation(cls, inst, flags, InstanceConfidence(cls, inst, 0.5))
+        return Segmentation(cls, inst, flags)      # no score model: no confidence
 
 
 def SnapFruitToDepthEdges(cls: np.ndarray, depth: np.ndarray, front: float = 0.01,
@@ -519,7 +520,10 @@ def FruitInstanceTruth(seg: Segmentation, truth: np.ndarray, min_pixels: int = 5
         if i < 0 or n < min_pixels:
             continue
         t = truth[fruit & (seg.instance_map == i)]
+        known = getattr(seg, "confidence", None) or {}
+        conf = known.get((FRUIT, int(i)), np.nan)
         out.append({"pixels": int(n), "fruit": round(float(np.mean(t == FRUIT)), 3),
+                    "confidence": None if np.isnan(conf) else round(float(conf), 4),
                     "branch": round(float(np.mean(t == BRANCH)), 3),
                     "leaf": round(float(np.mean(t == LEAF)), 3)})
     return out

@@ -331,8 +331,9 @@ class PlannerConfig:
     # [0, 1]: a fruit instance whose segmentation confidence (perception's
     # SemanticScene.fruit_confidence) is below this is no target (it stays an
     # obstacle and occluder; plan.json skipped_fruits says so); 0 = every
-    # instance is a target. See docs/explanation/dense-canopy.md.
-    min_fruit_confidence: float = 0.5
+    # instance is a target. 0.75: fruit at least three times as likely as the
+    # other classes together; why, measured: docs/explanation/dense-canopy.md.
+    min_fruit_confidence: float = 0.75
     hinge_bending_weight: float = 3.0e-7
     max_hinge_deg: float = 50.0
     max_replan_turn_deg: float = 45.0  # deg: cap on the equivalent turn after a re-plan

@@ -68,6 +68,7 @@ from lmap_drake.perception.leaf_instances import LeafInstanceScores, SummariseLe
 from lmap_drake.paths import REPO_ROOT as REPO
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording
+from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.perception.segmentation import (ClassIou, FruitInstanceTruth, MakeSegmenter,
                                                 RgbToHsv, TruthClassMap)
 from lmap_drake.viz import SavePng
@@ -146,6 +147,11 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     row["fruit_instances"] = FruitInstanceTruth(seg, truth)
     row["phantoms"] = sum(r["fruit"] < 0.5 for r in row["fruit_instances"])
     row["phantoms_no_overlap"] = sum(r["fruit"] == 0.0 for r in row["fruit_instances"])
+    # phantoms the planner could take for a target (planner.min_fruit_confidence)
+    bar = PlannerConfig().min_fruit_confidence
+    row["phantoms_confident"] = sum(r["fruit"] < 0.5 and (r["confidence"] is None
+                                                          or r["confidence"] >= bar)
+                                    for r in row["fruit_instances"])
     row["leaf_instances"] = LeafInstanceScores(
         np.where(seg.class_map == LEAF, seg.instance_map, -1), np.where(cls == LEAF, inst, -1),
         ignore=~keep)
@@ -183,6 +189,8 @@ def Summary(rows: list[dict]) -> dict:
                 for k in ("fruit_iou", "fruit_recall")} | {
                 "views": sum(c in r["fruit_colors"] for r in rows)} for c in colors},
             "phantom_fruits_per_view": round(sum(r["phantoms"] for r in rows) / n, 3),
+            "phantom_fruits_per_view_confident": round(
+                sum(r.get("phantoms_confident", 0) for r in rows) / n, 3),
             "phantom_fruits_per_view_no_overlap": round(
                 sum(r["phantoms_no_overlap"] for r in rows) / n, 3),
             "leaf_instances": SummariseLeafInstances([r["leaf_instances"] for r in rows]),
@@ -361,7 +369,8 @@ def EvalRecordings(out, recordings, backends=("segnet", "color_depth", "label"),
                                     for k, c in CLASSES}}
             row.update(ViewRow(seg, truth, v.label, rgb))
             row["instance_confidences"] = [
-                {"class": c, "instance": i, "pixels": n, "confidence": conf}
+                {"class": c, "instance": i, "pixels": n,
+                 "confidence": None if math.isnan(conf) else conf}
                 for c, i, n, conf in seg.Instances()]
             results[b]["views"][view_name] = row
             panels.append(OverlayClasses(rgb, seg.class_map, f"{b}: fruit {row['fruit_iou']} "

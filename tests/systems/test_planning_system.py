@@ -495,6 +495,6 @@ def test_the_most_seen_fruit_below_the_confidence_bar_is_no_target():
     plan = _plan(scene)
     assert plan.status == "no_fruit" and plan.chosen is None
     assert "fruit instance 0 (the most seen) is no target: segmentation confidence 0.42 " \
-           "below planner.min_fruit_confidence 0.5" == plan.message
+           "below planner.min_fruit_confidence 0.75" == plan.message
     # the bar lowered, the same scene plans
     assert _plan(scene, planner={"min_fruit_confidence": 0.4}).status == "ok"

@@ -383,7 +383,7 @@ def test_a_fruit_instance_perception_is_unsure_of_is_skipped_and_stays_an_obstac
     assert plan.target["fruit_id"] == 5
     [skipped] = plan.skipped_fruits
     assert skipped["fruit_id"] == 3 and skipped["confidence"] == 0.31
-    assert "below planner.min_fruit_confidence 0.5" in skipped["why"]
+    assert "below planner.min_fruit_confidence 0.75" in skipped["why"]
     assert PlanRecord(plan)["skipped_fruits"] == plan.skipped_fruits       # in plan.json
     # the skipped fruit is an obstacle and occluder of the target's scene
     scene = system.GetOutputPort("scene_estimate").Eval(ctx)
