@@ -347,7 +347,7 @@ class PlannerConfig:
     reveal_moved_leaf_again: bool = True
     # union | estimate: the fruit shapes the robot-fruit and leaf-fruit checks keep
     # clear of (union: each fruit's estimate and its kept shape hypotheses)
-    fruit_shapes: str = "union"
+    fruit_shapes: str = "estimate"
     # expected | estimate: visibility scored as the mean over the target's kept
     # shape hypotheses (expected) or on its estimate alone
     visibility_shapes: str = "expected"

@@ -191,6 +191,6 @@ def test_a_margin_beyond_the_exact_range_of_the_union_is_refused():
     (``FRUIT_SET_PAD``): a larger margin is refused naming its key; the
     estimate alone keeps any margin."""
     with pytest.raises(PlannerConfigError) as err:
-        ValidatePlannerConfig(PlannerConfig(robot_fruit_margin=0.04))
+        ValidatePlannerConfig(PlannerConfig(robot_fruit_margin=0.04, fruit_shapes="union"))
     assert err.value.key == "planner.robot_fruit_margin" and "'union'" in err.value.detail
     ValidatePlannerConfig(PlannerConfig(robot_fruit_margin=0.04, fruit_shapes="estimate"))
