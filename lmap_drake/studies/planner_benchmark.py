@@ -35,16 +35,22 @@ from lmap_drake.systems.planning import ImageTangents, PlantPlanning
 STAGES = ("generation_collision_s", "deformation_s", "visibility_s", "total_s")
 
 
-def BenchScene(s, shapes: str, quiet: bool = False) -> dict:
-    """Settles the scenario's plant, segments camera0, completes the scene,
-    plans; per-stage seconds and the outcome."""
+def _FirstView(s):
+    """(world, SemanticScene, segmentation seconds): the scenario's plant
+    settled 0.3 s and camera0 segmented (``perception.segmenter``)."""
     world = PlantWorldSim(s)
     world.Hold(0.3)
     im = world.Images()
     t0 = time.perf_counter()
     sem = SemanticSceneFromImages(im["rgb_image"], im["depth_image"], im["label_image"],
                                   s.cameras["camera0"], s.perception)
-    t_seg = time.perf_counter() - t0
+    return world, sem, time.perf_counter() - t0
+
+
+def BenchScene(s, shapes: str, quiet: bool = False) -> dict:
+    """Settles the scenario's plant, segments camera0, completes the scene,
+    plans; per-stage seconds and the outcome."""
+    world, sem, t_seg = _FirstView(s)
     t0 = time.perf_counter()
     if shapes == "oracle":
         scene = OracleSceneEstimate(world, sem)
@@ -99,13 +105,7 @@ def PlantPlanInputs(s) -> dict:
     completed (``CompletePlant``, SSC with the trained DeepSDF). Returns
     {"plant", "segmentation_s", "shape_completion_s", "num_leaves",
     "num_fruits"}."""
-    world = PlantWorldSim(s)
-    world.Hold(0.3)
-    im = world.Images()
-    t0 = time.perf_counter()
-    sem = SemanticSceneFromImages(im["rgb_image"], im["depth_image"], im["label_image"],
-                                  s.cameras["camera0"], s.perception)
-    t_seg = time.perf_counter() - t0
+    world, sem, t_seg = _FirstView(s)
     decoder, mean, _ = LoadDecoder(s.shape.weights_file)
     t0 = time.perf_counter()
     plant = CompletePlant(sem, decoder, mean, s.shape.ssc, "ssc", s.shape.free_space_voxel,
