@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from lmap_drake.labels import LEAF
-from lmap_drake.perception.points import (DbscanLabels, DeprojectPixels, FlyingPixelMask,
-                                          Intrinsics, SplitOversizedLeaves, SplitTouchingLeaves,
+from lmap_drake.perception.points import (AssignToParts, DbscanLabels, DeprojectPixels,
+                                          FlyingPixelMask, Intrinsics, SplitOversizedLeaves, SplitTouchingLeaves,
                                           StatisticalOutlierMask, ValidDepthMask)
 
 MATCH_IOU = 0.5        # a true leaf is matched when an instance reaches this IoU with it
@@ -237,12 +236,5 @@ def SplitLeafNecks(leaf_W: np.ndarray, leaf_instance: np.ndarray, voxel: float =
         big = np.flatnonzero(sizes >= min_points)
         if len(big) < 2:
             continue
-        anchors = np.isin(part, big)
-        owner = part[anchors][cKDTree(ab[anchors]).query(ab)[1]]
-        order = big[np.argsort(-sizes[big], kind="stable")]
-        new_of = {int(order[0]): int(j)}
-        for b in order[1:]:
-            new_of[int(b)] = next_id
-            next_id += 1
-        ids[mine] = [new_of[int(o)] for o in owner]
+        next_id = AssignToParts(ids, mine, ab, part, big, sizes, j, next_id)
     return ids

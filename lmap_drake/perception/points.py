@@ -411,15 +411,27 @@ def SplitTouchingLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray, p_WC: np.
         big = np.flatnonzero(sizes >= max(min_points, min_fraction * len(mine)))
         if len(big) < 2:
             continue
-        big = big[np.argsort(-sizes[big], kind="stable")]
-        anchors = np.isin(part, big)
-        owner = part[anchors][cKDTree(leaf_W[mine[anchors]]).query(leaf_W[mine])[1]]
-        new_of = {int(big[0]): int(j)}
-        for b in big[1:]:
-            new_of[int(b)] = next_id
-            next_id += 1
-        ids[mine] = [new_of[int(o)] for o in owner]
+        next_id = AssignToParts(ids, mine, leaf_W[mine], part, big, sizes, j, next_id)
     return ids
+
+
+def AssignToParts(ids: np.ndarray, mine: np.ndarray, points: np.ndarray, part: np.ndarray,
+                  big: np.ndarray, sizes: np.ndarray, j: int, next_id: int) -> int:
+    """Splits instance ``j`` in place: each of its points (``ids[mine]``,
+    coordinates ``points``, one row per index of ``mine``) joins the part
+    of ``big`` (part ids, ``part`` per point) of its nearest point in one;
+    the largest part (``sizes``) keeps id ``j``, the others take new ids
+    from ``next_id``. Returns the next free id."""
+    from scipy.spatial import cKDTree
+    big = big[np.argsort(-sizes[big], kind="stable")]
+    anchors = np.isin(part, big)
+    owner = part[anchors][cKDTree(points[anchors]).query(points)[1]]
+    new_of = {int(big[0]): int(j)}
+    for b in big[1:]:
+        new_of[int(b)] = next_id
+        next_id += 1
+    ids[mine] = [new_of[int(o)] for o in owner]
+    return next_id
 
 
 def SplitOversizedLeaves(leaf_W: np.ndarray, leaf_instance: np.ndarray,
