@@ -341,6 +341,10 @@ class PlannerConfig:
     max_tether_elongation: float = 0.015
     max_pull_distance: float = 0.03
     arc_lever_reference: float = 0.075
+    # m: how far the hinge estimate may be from the true petiole attachment
+    hinge_error: float = 0.03
+    # 2 sin(turn / 2) hinge_error / lever above this: the held blade may tear (0 = off)
+    max_hinge_misfit: float = 0.4
     check_leaf_branch: bool = False
     max_reveals_per_fruit: int = 2
     next_leaf_min_gain: float = 0.05
@@ -389,6 +393,8 @@ _RULES = {
     "max_tether_elongation": ">=0",
     "max_pull_distance": ">=0",
     "arc_lever_reference": ">=0",
+    "hinge_error": ">=0",
+    "max_hinge_misfit": ">=0",
     "visibility_voxel": ">0",
     "collision_margin": ">=0",
     "robot_fruit_margin": ">=0",

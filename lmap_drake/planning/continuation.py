@@ -146,7 +146,8 @@ def PlanContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformation
                                    energy_offset_per_node=held.energy_per_node,
                                    hinge_reference_W=held.p_WG0,
                                    min_gain=cfg.min_replan_gain,
-                                   twist_offset_rad=held.twist_rad)
+                                   twist_offset_rad=held.twist_rad,
+                                   rotation_reference=held.R_WG0)
     result.timings["total_s"] = sum(v for k, v in result.timings.items() if k != "total_s")
     progress(f"continuation: {result.status}" + (f" ({result.message})" if result.message else ""))
     return result

@@ -21,7 +21,7 @@ from lmap_drake.planning.energy import (ARC_REFERENCE_DEG, PULL_LEVER_REFERENCE,
                                         CompoundEnergyPerNode, EquivalentTurnDeg,
                                         HingeRotationDeg, MaxArcAngle, MaxPullDistance,
                                         PetioleBendingEnergy)
-from lmap_drake.planning.hazard import TetherElongation
+from lmap_drake.planning.hazard import MisfitReason, TetherElongation
 from lmap_drake.planning.result import Candidate, CandidateSet, PlanResult
 from lmap_drake.planning.robot_checks import ActionPathReason
 from lmap_drake.planning.visibility import CountNewlySeen
@@ -82,15 +82,16 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
                           cfg: PlannerConfig, method: str = "lmap",
                           energy_offset_per_node: float = 0.0,
                           hinge_reference_W: np.ndarray | None = None,
-                          min_gain: float = 0.0, twist_offset_rad: float = 0.0
-                          ) -> PlanResult:
+                          min_gain: float = 0.0, twist_offset_rad: float = 0.0,
+                          rotation_reference: np.ndarray | None = None) -> PlanResult:
     """Paper Sec. III-C-2/3: leaf-fruit checks, visibility with early stop
     along the distances, and the score. ``predictions`` are aligned with
     ``cset.LiveActions()`` (``PredictedDeformation``: ``energy``,
     ``leaf_points_W`` dense, the observed leaf first). A re-plan from the
     held leaf gives ``hinge_reference_W`` (the first grasp), the motions'
-    energy so far (``energy_offset_per_node``) and twist
-    (``twist_offset_rad``), and ``min_gain``."""
+    energy so far (``energy_offset_per_node``), twist
+    (``twist_offset_rad``) and first grasp orientation
+    (``rotation_reference``, 3x3), and ``min_gain``."""
     # Work on copies: ``cset`` may be a cached Drake output (never mutate it).
     cands = [dc.replace(c) for c in cset.candidates]
     result = _UnselectedResult(cset, cands, method)
@@ -113,7 +114,8 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
         _RequireGain(cands, result.seen_init, result.seen_max, min_gain)
     feasible = [c for c in cands if c.feasible]
     if feasible:
-        feasible = _ScoreAndVeto(cfg, cset.hinge_W, feasible, energy_offset_per_node)
+        feasible = _ScoreAndVeto(cfg, cset.hinge_W, feasible, energy_offset_per_node,
+                                 rotation_reference)
     if cfg.force_action:
         return _ChooseForced(result, forced, cfg.force_action)
     return _ChooseExecutable(ctx, cfg, result, feasible, cset.dropped_grasps)
@@ -280,17 +282,21 @@ def _RequireGain(cands: list[Candidate], seen_init: int, n_max: int, min_gain: f
 
 
 def _ScoreAndVeto(cfg: PlannerConfig, hinge_W: np.ndarray | None, feasible: list[Candidate],
-                  energy_offset_per_node: float) -> list[Candidate]:
+                  energy_offset_per_node: float,
+                  rotation_reference: np.ndarray | None = None) -> list[Candidate]:
     """Scores ``feasible`` (``SelectAction``), then vetoes by the lever caps
-    (``_LeverCapReason``) and the energy cap (``_EnergyCapReason``);
-    returns the candidates still feasible."""
+    (``_LeverCapReason``), the hinge misfit (``hazard.MisfitReason``, the
+    turn counted from ``rotation_reference`` when re-planning) and the
+    energy cap (``_EnergyCapReason``); returns the candidates still
+    feasible."""
     # The paper's score, normalised over every action that passed the
     # checks; the energy cap and the pull cap then filter (normalising
     # over the capped set instead would shift the lambda trade-off: a
     # veto should not re-rank what it leaves).
     SelectAction(feasible, cfg.energy_weight)
     for c in feasible:
-        why = _LeverCapReason(cfg, c, hinge_W)
+        why = _LeverCapReason(cfg, c, hinge_W) or MisfitReason(
+            c.action, hinge_W, rotation_reference, cfg.hinge_error, cfg.max_hinge_misfit)
         if why:
             c.reason = why
     feasible = [c for c in feasible if c.feasible]

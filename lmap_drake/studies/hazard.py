@@ -67,7 +67,7 @@ from lmap_drake.deformation.config import DeformationConfig
 from lmap_drake.perception.observe import SemanticSceneFromImages
 from lmap_drake.planning.candidates import DirectionsForGrasp
 from lmap_drake.planning.collision import LeafCollisionReason
-from lmap_drake.planning.hazard import HazardMeasures, TetherElongation
+from lmap_drake.planning.hazard import AttachmentMisfit, HazardMeasures, TetherElongation
 from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge
 from lmap_drake.planning.candidates import GraspActions
 from lmap_drake.planning.context import PlanningContext
@@ -279,7 +279,9 @@ def EvaluateMultiScenario(scenario, args: HazardStudyOptions, log) -> dict:
     farther than 2 cm from the hinge estimate, touching or not.
     ``tether_elongation_m`` is measured against the planner's own hinge
     estimate (``plan.hinge_W``), ``true_tether_elongation_m`` against the
-    grasped leaf's true petiole base."""
+    grasped leaf's true petiole base; ``true_misfit_m`` (``true_misfit_strain``
+    over the true lever) is how far the action moves that base in the
+    gripper's frame (``planning.hazard.AttachmentMisfit``)."""
     world = PlantWorldSim(scenario, progress=lambda m: None)
     world.Hold(0.3)
     im = world.Images()
@@ -364,7 +366,12 @@ def EvaluateMultiScenario(scenario, args: HazardStudyOptions, log) -> dict:
             r = {"family": a.family, "direction_id": a.direction_id,
                  "distance_m": round(a.distance, 4), "angle_deg": round(np.rad2deg(a.angle), 1),
                  "grasp": len(out_grasps) - 1,
-                 "true_tether_elongation_m": TetherElongation(a.p_WG, a.p_WG + a.dp_W, attach)}
+                 "true_tether_elongation_m": TetherElongation(a.p_WG, a.p_WG + a.dp_W, attach),
+                 # the true attachment's misfit in the gripper's frame, over
+                 # the true lever (see planning.hazard)
+                 "true_misfit_m": AttachmentMisfit(a, attach),
+                 "true_misfit_strain": AttachmentMisfit(a, attach) / max(
+                     float(np.linalg.norm(a.p_WG - attach)), 1e-6)}
             if ok:
                 r.update(PlannerEnergy(a, p, hinge, scenario.planner.hinge_bending_weight))
                 r.update(next(measures))
