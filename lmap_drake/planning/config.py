@@ -174,7 +174,7 @@ class PlannerConfig:
     ``max_pull_distance`` (m): the longest straight pull from a grasp 10 cm
     from the estimated attachment, scaled by (L / 10 cm)^2 for a grasp L
     from it (``planning.energy.MaxPullDistance``; 0 = no cap; arcs are capped
-    by ``arc_lever_reference``, twists are not). Like
+    by ``arc_lever_reference``, twists by ``max_hinge_misfit``). Like
     ``max_energy_per_node`` it vetoes after the scores are normalised over
     every action that passed the checks, so it does not re-rank the rest
     (removing the longer pulls first turned the single-fruit suite's 45°
@@ -202,6 +202,23 @@ class PlannerConfig:
     (16.4 and 15.8 N), none of the 8 such 30 deg arcs did (at most 12.1 N),
     and 45 deg arcs from 9 cm or more stayed under 12.2 N. At 7.5 cm a 45
     deg arc needs L >= 7.5 cm, a 30 deg one 5 cm.
+
+    ``hinge_error`` (m) and ``max_hinge_misfit``: the held blade's misfit
+    to a wrong hinge estimate. The pads hold the blade rigidly; an arc or
+    a twist about the estimated attachment moves the true one, ``hinge_error``
+    off, by up to 2 sin(turn / 2) x hinge_error in the gripper's frame, and
+    the blade and petiole between the pads and the attachment (the lever L)
+    must take it up (``planning.hazard.HingeMisfitStrain``; the turn counted
+    from the first grasp when re-planning). An action whose
+    2 sin(turn / 2) hinge_error / L is above ``max_hinge_misfit`` is vetoed
+    after scoring, like the lever caps (0 = off). It bounds twists, which
+    the lever caps leave alone: two 60 deg twists from 3.9 and 4.6 cm
+    (misfit 0.77 and 0.66) tore the held blade (95th-percentile stretch 1.12
+    and 1.10; the tear limit is 1.10) in the greenhouse suite. 3 cm is the
+    largest hinge error the hazard studies measured (0.6-3.2 cm); 0.4 lies
+    below the smallest misfit that tore a blade in the FEM study
+    (``scripts/eval_hazard_prediction.py``, 0.42) and is no tighter than the
+    arc cap for first arcs (at most 0.31 there).
 
     ``robot_fruit_margin`` (m): every part of the robot but the two fingers
     (arm, wrist, the gripper's body and coupling) keeps this far from every

@@ -313,7 +313,7 @@ def _ScoreAndVeto(cfg: PlannerConfig, hinge_W: np.ndarray | None, feasible: list
 def _LeverCapReason(cfg: PlannerConfig, c: Candidate, hinge_W: np.ndarray | None) -> str:
     """'' or why ``c`` goes too far for its grasp's lever to the
     attachment: a pull longer than ``MaxPullDistance``, an arc wider than
-    ``MaxArcAngle`` (twists are not capped)."""
+    ``MaxArcAngle`` (twists: ``hazard.MisfitReason``)."""
     if c.action.family == "pull":
         longest = MaxPullDistance(cfg, c.action.p_WG, hinge_W)
         if c.action.distance > longest + 1e-9:
