@@ -8,7 +8,7 @@ The camera pose ``X_WC`` comes from a calibration file
 format). A bag without joints gets the scenario's ``robot.initial_q`` as
 the arm's joints (the IK seed and the robot self-filter's pose); the view
 is recorded as a ``hardware`` capture (no labels, ``no_return_free_range``
-0 in the replay).
+0 in the replay unless ``scenario_text`` sets it).
 """
 from __future__ import annotations
 

@@ -16,7 +16,8 @@ from lmap_drake.limits import MAX_PLAN_JSON_BYTES, ReadBounded
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording, RecordingError
 from lmap_drake.perception.segmentation import MakeSegmenter
-from lmap_drake.scenario import DumpScenario, LoadScenario, Scenario, ScenarioWithCamera
+from lmap_drake.scenario import (DumpScenario, IsEmptyOverride, LoadScenario, RawYaml, Scenario,
+                                 ScenarioWithCamera)
 from lmap_drake.systems.view_recorder import RecordedViews
 from lmap_drake.viz import SavePng
 
@@ -42,11 +43,24 @@ def ReadRunPlan(run_dir: Path) -> dict | None:
     return chosen
 
 
+def _SetsNoReturnRange(scenario_text: str) -> bool:
+    """True when ``scenario_text`` itself sets ``perception.no_return_free_range``
+    (a hardware capture's no-return pixels then carve as it says, e.g. a bag
+    written from a simulated capture, whose no-return pixels are empty space)."""
+    if IsEmptyOverride(scenario_text):
+        return False
+    raw = RawYaml(scenario_text, "--scenario_text")
+    return isinstance(raw, dict) and isinstance(raw.get("perception"), dict) and \
+        "no_return_free_range" in raw["perception"]
+
+
 def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
               progress: Callable[[str], None] = print) -> tuple[list[str], dict]:
     """Re-runs perception, shape completion and planning on the view a run
     recorded (``run_dir/recording``), with the run's ``scenario.yaml`` and
-    ``scenario_text`` overrides. Writes ``scenario.yaml``, ``plan.json``,
+    ``scenario_text`` overrides (a hardware capture's
+    ``perception.no_return_free_range`` is 0 unless ``scenario_text`` sets
+    it). Writes ``scenario.yaml``, ``plan.json``,
     ``candidates.json``, ``replay.json`` (the run's and the replay's chosen
     action, same or not, timings), ``rgb_before_segmented.png`` and
     ``plan_on_image.png``. Returns (files, replay record)."""
@@ -62,7 +76,7 @@ def ReplayRun(run_dir: Path, out: Path, scenario_text: str = "{}",
         raise RecordingError(f"{scenario_file} not found: a replay needs the run's scenario")
     scenario = LoadScenario(filename=str(scenario_file), scenario_text=scenario_text, bare=True)
     scenario = ScenarioWithCamera(scenario, recording.camera, recording.X_WC)
-    if recording.station == "hardware":
+    if recording.station == "hardware" and not _SetsNoReturnRange(scenario_text):
         scenario.perception.no_return_free_range = 0.0
     if scenario.perception.segmenter == "label" and recording.views[0].label is None:
         raise RecordingError(f"{run_dir}: the recording has no label images (a hardware "

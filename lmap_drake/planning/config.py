@@ -367,8 +367,10 @@ class PlannerConfig:
     next_leaf_min_gain: float = 0.05
     reveal_moved_leaf_again: bool = True
     # union | estimate: the fruit shapes the robot-fruit and leaf-fruit checks keep
-    # clear of (union: each fruit's estimate and its kept shape hypotheses)
-    fruit_shapes: str = "estimate"
+    # clear of (union: each fruit's estimate and its kept shape hypotheses; the
+    # default since its run-vs-bag difference was traced to the bag's withheld
+    # free space, docs/explanation/planner-parameters.md)
+    fruit_shapes: str = "union"
     # expected | estimate: visibility scored as the mean over the target's kept
     # shape hypotheses (expected) or on its estimate alone
     visibility_shapes: str = "expected"

@@ -98,6 +98,8 @@ def test_the_converted_recording_is_the_capture(capture, bag_replays):
         source = json.loads((out / "bag.json").read_text())
         assert source["kind"] == kind
         assert source["joints"] == ("bag" if kind == "ros2" else "scenario robot.initial_q")
+        # a hardware capture: its no-return pixels carved nothing
+        assert "no_return_free_range: 0.0" in (out / "scenario.yaml").read_text()
         for name in ("scenario.yaml", "plan.json", "candidates.json", "plan_on_image.png",
                      "rgb_before_segmented.png", "recording/recording.json"):
             assert (out / name).stat().st_size > 0, name

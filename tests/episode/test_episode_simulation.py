@@ -4,6 +4,8 @@ ShapeCompletion, ActionCandidates, DeformationPrediction, ActionSelection,
 ArmController) with the simulated grasp and re-estimation. (Smaller setups
 were tried: at 320x240 the leaf has too few points for reliable grasp
 candidates, and with only 4/8 cm pulls the planner has no gentle option.)"""
+import json
+
 import numpy as np
 import pytest
 
@@ -164,7 +166,11 @@ def test_the_episode_capture_as_bags_replays_to_the_run_action(episode, tmp_path
     """Issue 60's target: the run's view 0 written as a ROS 2 bag (with the
     joints) and as a RealSense-style bag (Z16 depth, 0.25 mm unit), each
     replayed with the example calibration (the simulated camera's pose),
-    chooses the run's action."""
+    chooses the run's action. The replay is told what the simulated
+    camera's no-return pixels mean (empty space, as the run carved them; a
+    bag alone counts as a hardware capture, whose no-return pixels carve
+    nothing): from the float-depth bag it then keeps the run's very shape
+    hypotheses (the fit is deterministic on the same inputs)."""
     from lmap_drake.episode import SaveEpisode
     from lmap_drake.episode.bag_replay import LoadBagView, ReplayBag
     from lmap_drake.paths import REPO_ROOT
@@ -178,9 +184,15 @@ def test_the_episode_capture_as_bags_replays_to_the_run_action(episode, tmp_path
     calibration = str(REPO_ROOT / "diagrams" / "calibration_example.yaml")
     run_action = {k: episode.record["chosen_action"][k]
                   for k in ("grasp_id", "direction_id", "distance", "family")}
-    for bag in (WriteRos2Bag(tmp_path / "ros2", frames, rec.camera, q=view.q),
-                WriteRealSenseBag(tmp_path / "capture.bag", frames, rec.camera)):
+    simulated_no_return = ("{perception: {no_return_free_range: "
+                           f"{s.perception.no_return_free_range}}}}}")
+    ros2 = WriteRos2Bag(tmp_path / "ros2", frames, rec.camera, q=view.q)
+    for bag in (ros2, WriteRealSenseBag(tmp_path / "capture.bag", frames, rec.camera)):
         capture, X_WC = LoadBagView(bag, calibration, s)
         assert np.allclose(X_WC, rec.X_WC, atol=1e-12)
-        _, replay = ReplayBag(capture, X_WC, s, tmp_path / bag.stem, progress=print)
+        _, replay = ReplayBag(capture, X_WC, s, tmp_path / bag.stem, simulated_no_return,
+                              progress=print)
         assert {k: replay["chosen_action"][k] for k in run_action} == run_action, bag
+    assert "no_return_free_range: 2.0" in (tmp_path / ros2.stem / "scenario.yaml").read_text()
+    plan = json.loads((tmp_path / ros2.stem / "plan.json").read_text())
+    assert plan["shape_hypotheses"] == episode.record["shape_hypotheses"]["initial"]
