@@ -22,10 +22,8 @@ class PerceptionConfig:
     # checkpoint, extra .[foundation]) | grounded_sam (local GroundingDINO + SAM files)
     segmenter: str = "segnet"
     # segnet: weights (relative to the repository root; made by
-    # scripts/train_segnet.py) and torch device. The default sees the
-    # one-leaf and the greenhouse world (models/segnet/segnet_two_worlds.json);
-    # segnet.pt (the one-leaf world's) and segnet_greenhouse.pt still ship.
-    segnet_weights: str = "models/segnet/segnet_two_worlds.pt"
+    # scripts/train_segnet.py) and torch device.
+    segnet_weights: str = "models/segnet/segnet.pt"
     segnet_device: str = "cpu"  # segnet: torch device ("cpu", "cuda", ...)
     depth_cut: float = 1.5  # m: pixels deeper (camera z) are not segmented or turned into points
     dbscan_eps: float = 0.008  # m, DBSCAN neighbour radius that splits a class into instances

@@ -121,16 +121,15 @@ def test_segnet_sees_a_leaf_the_gripper_holds_turned(kind, twist, arc):
 
 
 def test_greenhouse_weights_see_a_greenhouse_plant_the_default_weights_do_not():
-    """The default weights (models/segnet/segnet_two_worlds.pt, fine-tuned
-    from the greenhouse weights on seeds 80000-80217 and 83000-83169, not on
-    the suite's plants), which the greenhouse suite uses without an
-    override, on one suite plant: the fruit and leaf come out, where the
-    one-leaf world's weights (segnet.pt) mistake shaded leaves for fruit."""
+    """The greenhouse suite's own weights (models/segnet/segnet_greenhouse.pt,
+    trained on seeds 80000-80217, not on the suite's plants) on one suite
+    plant: the fruit and leaf come out, where the default-world weights
+    mistake shaded leaves for fruit."""
     import dataclasses as dc
     from lmap_drake.plants.plant_station import RenderStill
     s = LoadScenario(filename=REPO_ROOT / "diagrams" / "greenhouse_suite.yaml",
                      scenario_name="gh_one_yellow_partial")
-    assert s.perception.segnet_weights == "models/segnet/segnet_two_worlds.pt"
+    assert s.perception.segnet_weights == "models/segnet/segnet_greenhouse.pt"
     assert (REPO_ROOT / s.perception.segnet_weights).stat().st_size < 3e6
     s.plant_scene.greenhouse.max_fem_leaves = 0      # a still: the same geometry at rest
     rgb, depth, label = RenderStill(s)
@@ -139,10 +138,10 @@ def test_greenhouse_weights_see_a_greenhouse_plant_the_default_weights_do_not():
     keep = NeighbourClassMap(label) == 0          # the next row: neither right nor wrong
     truth = TruthClassMap(label)[keep]
     iou = {}
-    for w in ("models/segnet/segnet_two_worlds.pt", "models/segnet/segnet.pt"):
+    for w in ("models/segnet/segnet_greenhouse.pt", "models/segnet/segnet.pt"):
         out = MakeSegmenter(dc.replace(s.perception, segnet_weights=w), K_cam).Segment(rgb, depth)
         iou[w] = (ClassIou(out.class_map[keep], truth, FRUIT),
                   ClassIou(out.class_map[keep], truth, LEAF))
-    fruit, leaf = iou["models/segnet/segnet_two_worlds.pt"]
+    fruit, leaf = iou["models/segnet/segnet_greenhouse.pt"]
     assert fruit > 0.7 and leaf > 0.8
     assert fruit > iou["models/segnet/segnet.pt"][0] + 0.1
