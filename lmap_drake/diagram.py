@@ -58,6 +58,7 @@ def AddPlanningStages(b: DiagramBuilder, scenario: Scenario, resources: EpisodeR
         b.Connect(views.GetOutputPort(name), perception.GetInputPort(f"camera0.{name}"))
     b.Connect(views.GetOutputPort("num_views"), perception.GetInputPort("capture"))
     b.Connect(views.GetOutputPort("ur5.position"), perception.GetInputPort("ur5.position"))
+    b.Connect(views.GetOutputPort("gripper.opening"), perception.GetInputPort("gripper.opening"))
     shape = b.AddNamedSystem("shape_completion", ShapeCompletion(
         scenario.shape, resources.decoder, resources.mean_latent, fit_memo=resources.fit_memo))
     reest = b.AddNamedSystem("shape_reestimation", ShapeCompletion(

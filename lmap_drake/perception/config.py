@@ -85,6 +85,16 @@ class PerceptionConfig:
     # collision surfaces at the view's joints are dropped (a gripper pixel
     # mislabelled leaf, fruit or branch is not plant; 0 = keep all).
     robot_filter_distance: float = 0.01
+    # Robot mask: before instances are built, the pixels the robot covers at
+    # the view's joints (its visual geometry rendered by Drake's
+    # RenderEngineVtk at the camera's intrinsics and pose; joints from the
+    # station, ur_rtde on hardware) are set to background, unless the
+    # measured depth there is nearer than the robot by more than
+    # ``robot_mask_tolerance`` (plant in front of the robot).
+    robot_mask: bool = True
+    robot_mask_tolerance: float = 0.01  # m: plant nearer than the robot by more keeps its pixels
+    # pixels the robot mask is grown by (the depth camera's edge noise at the robot's rim)
+    robot_mask_dilate_px: int = 1
 
 
 
@@ -102,6 +112,8 @@ _RULES = {
     "sam_min_prompt_pixels": ">=1",
     "fusion_match_distance": ">=0",
     "robot_filter_distance": ">=0",
+    "robot_mask_tolerance": ">=0",
+    "robot_mask_dilate_px": ">=0",
     "background_stride": ">=1",
     "no_return_free_range": ">=0",
     "no_return_margin_px": ">=0",

@@ -16,6 +16,15 @@ Input ports:
   images were taken. Connected (and a ``robot`` model given), plant points
   within ``perception.robot_filter_distance`` of the robot's collision
   surfaces (gripper open and closed) are dropped: the robot self-filter.
+- ``gripper.opening`` (vector, 1, m, optional): the gripper's opening when
+  the images were taken (NaN or unconnected: unknown).
+- With ``ur5.position`` connected, a ``robot`` model given and
+  ``perception.robot_mask``, the pixels the robot covers at those joints
+  (``perception.robot_mask.RobotDepthRenderer``: its visual geometry
+  rendered at the camera's intrinsics and pose) are set to background
+  before instances are built (``RobotPixelMask``; an unknown opening:
+  pixels the robot covers at every opening, and those whose measured
+  depth agrees with the robot at one of five openings).
 - ``capture`` (vector, 1, optional): a view counter. Whenever its value
   exceeds the number of views already fused, the current view is fused into
   the state at the start of the next simulation step (per-step
@@ -51,6 +60,7 @@ from pydrake.systems.sensors import ImageDepth32F, ImageLabel16I, ImageRgba8U
 
 from lmap_drake.perception.fusion import FuseViews
 from lmap_drake.perception.points import BuildSemanticScene, Intrinsics, RemovePointsNear
+from lmap_drake.perception.robot_mask import MaskRobotPixels, RobotDepthRenderer, RobotPixelMask
 from lmap_drake.perception.segmentation import MakeSegmenter, Segmenter, SegmenterError
 from lmap_drake.robot import GRIPPER_MAX_WIDTH
 from lmap_drake.types import SemanticScene
@@ -103,6 +113,8 @@ class Perception(LeafSystem):
         self._K = Intrinsics.FromCameraConfig(camera_config)
         self._segmenter = segmenter if segmenter is not None else MakeSegmenter(config, self._K)
         self._X_WC_default = _camera_pose(camera_config)
+        self._camera_config = camera_config
+        self._renderer = None   # RobotDepthRenderer, made at the first masked view
         self._last = None       # (input fingerprint, scene) of the last ComputeScene
         name = camera_config.name
         self._rgb = self.DeclareAbstractInputPort(
@@ -114,6 +126,7 @@ class Perception(LeafSystem):
         self._pose = self.DeclareAbstractInputPort(
             f"{name}.X_WC", AbstractValue.Make(RigidTransform()))
         self._q = self.DeclareVectorInputPort("ur5.position", 6)
+        self._opening = self.DeclareVectorInputPort("gripper.opening", 1)
         self._capture = self.DeclareVectorInputPort("capture", 1)
         self._fused_index = self.DeclareAbstractState(
             AbstractValue.Make(_Fused(SemanticScene(flags=["no_views_fused"], num_views=0))))
@@ -162,20 +175,49 @@ class Perception(LeafSystem):
             label = self._label.Eval(context).data
         X_WC = self.CameraPose(context).GetAsMatrix4()
         distance = self._config.robot_filter_distance
-        q = (self._q.Eval(context).copy() if self._robot is not None and distance > 0
+        q = (self._q.Eval(context).copy() if self._robot is not None
              and self._q.HasValue(context) else None)
-        key = _Fingerprint(rgb, depth, label, X_WC, q)
+        mask_robot = q is not None and self._config.robot_mask
+        opening = (float(self._opening.Eval(context)[0]) if mask_robot
+                   and self._opening.HasValue(context) else np.nan)
+        key = _Fingerprint(rgb, depth, label, X_WC, q, np.array([opening]))
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         seg = self._segmenter.Segment(rgb, depth, label)
-        scene = BuildSemanticScene(seg.class_map, depth, self._K, X_WC, self._config, seg.flags,
-                                   seg.instance_map, seg.confidence)
-        if q is not None:
+        class_map, instance_map = seg.class_map, seg.instance_map
+        if mask_robot:
+            class_map, instance_map = MaskRobotPixels(
+                class_map, instance_map, self.RobotMask(q, opening, X_WC, depth))
+        scene = BuildSemanticScene(class_map, depth, self._K, X_WC, self._config, seg.flags,
+                                   instance_map, seg.confidence)
+        if q is not None and distance > 0:
             robot_W = np.vstack([self._robot.SurfacePoints(q, h)
                                  for h in (0.0, 0.5 * GRIPPER_MAX_WIDTH)])
             scene, _ = RemovePointsNear(scene, robot_W, distance)
         self._last = (key, scene)
         return scene
+
+    def RobotMask(self, q: np.ndarray, opening: float, X_WC, depth: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the pixels the robot covers at joints ``q`` (rad) and
+        gripper ``opening`` (m; NaN: unknown) seen from ``X_WC`` (4x4, W),
+        against the measured ``depth`` (H, W, m); see the module docstring."""
+        if self._renderer is None:
+            base = self._robot.plant.GetFrameByName("base_link", self._robot.ur5)
+            self._renderer = RobotDepthRenderer(base.CalcPoseInWorld(self._robot.context),
+                                                self._camera_config)
+        d = np.asarray(depth, float).reshape(self._renderer.height, self._renderer.width)
+        cfg = self._config
+        if np.isfinite(opening):
+            return RobotPixelMask(self._renderer.Render(q, opening, X_WC), d,
+                                  cfg.robot_mask_tolerance, cfg.robot_mask_dilate_px)
+        # unknown opening: covered at every opening, or seen where the fingers
+        # of one of five openings (each finger 1 cm from the next) are
+        renders = [self._renderer.Render(q, w, X_WC)
+                   for w in np.linspace(0.0, GRIPPER_MAX_WIDTH, 5)]
+        tol, px = cfg.robot_mask_tolerance, cfg.robot_mask_dilate_px
+        both = np.logical_and.reduce([RobotPixelMask(r, d, tol, px) for r in renders])
+        return np.logical_or.reduce([both] + [RobotPixelMask(r, d, tol, px, in_front=False)
+                                              for r in renders])
 
     def _calc_scene(self, context: Context, output) -> None:
         output.set_value(self.ComputeScene(context))

@@ -19,6 +19,9 @@ Output ports (both systems):
   (empty 0x0 images before the first capture);
 - ``ur5.position`` (6, rad): the joints at the newest capture (before the
   first one: the measured joints, passed through; RecordedViews: view 0's);
+- ``gripper.opening`` (1, m): the gripper's opening at the newest capture
+  (NaN: unknown; before the first capture: the measured one, passed
+  through);
 - ``num_views`` (1): views held;
 - ``views`` (abstract ``ViewLog``): all captured views, oldest first.
 """
@@ -65,6 +68,8 @@ class _ViewOutputs(LeafSystem):
                 prerequisites_of_calc=deps)
         self.DeclareVectorOutputPort("ur5.position", 6, self._CalcQ,
                                      prerequisites_of_calc=self._QDeps(log_ticket))
+        self.DeclareVectorOutputPort("gripper.opening", 1, self._CalcOpening,
+                                     prerequisites_of_calc=self._QDeps(log_ticket))
         self.DeclareVectorOutputPort(
             "num_views", 1, lambda c, out: out.SetFromVector([len(self._Log(c))]),
             prerequisites_of_calc=deps)
@@ -86,6 +91,10 @@ class _ViewOutputs(LeafSystem):
     def _CalcQ(self, context, output) -> None:
         log = self._Log(context)
         output.SetFromVector(log[-1].q)
+
+    def _CalcOpening(self, context, output) -> None:
+        log = self._Log(context)
+        output.SetFromVector([log[-1].gripper[0] if log else np.nan])
 
 
 class ViewRecorder(_ViewOutputs):
@@ -110,11 +119,19 @@ class ViewRecorder(_ViewOutputs):
         return context.get_abstract_state(self._log).get_value()
 
     def _QDeps(self, log_ticket):
-        return {log_ticket, self._x.ticket()}
+        return {log_ticket, self._x.ticket(), self._g.ticket()}
 
     def _CalcQ(self, context, output) -> None:
         log = self._Log(context)
         output.SetFromVector(log[-1].q if log else self._x.Eval(context)[:6])
+
+    def _CalcOpening(self, context, output) -> None:
+        log = self._Log(context)
+        if log:
+            output.SetFromVector([log[-1].gripper[0]])
+        else:
+            output.SetFromVector([self._g.Eval(context)[0] if self._g.HasValue(context)
+                                  else np.nan])
 
     def Capture(self, context) -> CapturedView:
         """The current view (copies of the images and the joint state)."""

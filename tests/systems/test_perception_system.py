@@ -39,7 +39,7 @@ def test_ports_and_docstring():
     ins = {p.get_input_port(i).get_name() for i in range(p.num_input_ports())}
     outs = {p.get_output_port(i).get_name() for i in range(p.num_output_ports())}
     assert ins == {"camera0.rgb_image", "camera0.depth_image", "camera0.label_image",
-                   "camera0.X_WC", "ur5.position", "capture"}
+                   "camera0.X_WC", "ur5.position", "gripper.opening", "capture"}
     assert outs == {"semantic_scene", "fused_semantic_scene", "num_views_fused"}
     import lmap_drake.systems.perception as mod
     for name in ins | outs:
