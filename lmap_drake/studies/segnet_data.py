@@ -276,11 +276,12 @@ def MakeSegNetData(out, count: int = 400, seed: int = 10000, workers: int = 2,
              tuple(greenhouse_off)) for i in range(count)]
     t0 = time.time()
     counts: dict[str, int] = {}
-    if workers == 1:
+    if workers == 1 and len(jobs) <= 25:
         results = map(_work, jobs)
     else:
         # a fresh process every 25 scenes: a long-lived one grew by ~35 MB a
-        # scene (renderer and plant caches)
+        # scene (renderer and plant caches; greenhouse scenes more: one
+        # process rendering 100 of them in a row was killed at 10 GB)
         pool = mp.get_context("spawn").Pool(workers, maxtasksperchild=25)
         results = pool.imap_unordered(_work, jobs)
     for r in tqdm(results, total=len(jobs), desc="rendering", unit="scene",
