@@ -43,6 +43,7 @@ class SegNetTrainingOptions:
     threads: int = 2
     seed: int = 0
     init: str = ""                   # start from these weights (fine-tuning)
+    color_jitter: bool = True        # ColorJitter on every crop (off: the ablation's variant)
 
 
 def LoadSamples(folder: Path) -> list[dict]:
@@ -59,7 +60,8 @@ def LoadSamples(folder: Path) -> list[dict]:
     return out
 
 
-def RandomCrop(sample: dict, rng: np.random.Generator, size: int = CROP):
+def RandomCrop(sample: dict, rng: np.random.Generator, size: int = CROP,
+               jitter: bool = True):
     x, y = sample["x"], sample["y"]
     H, W = y.shape
     fruit = np.argwhere(y == 3)
@@ -81,7 +83,8 @@ def RandomCrop(sample: dict, rng: np.random.Generator, size: int = CROP):
         xc = xc[:, :, ::-1].copy()
         yc = yc[:, ::-1].copy()
         xc[5] *= -1.0
-    xc[:3] = ColorJitter(xc[:3] + 0.5, rng) - 0.5
+    if jitter:
+        xc[:3] = ColorJitter(xc[:3] + 0.5, rng) - 0.5
     return xc, yc
 
 
@@ -187,11 +190,12 @@ def TrainSegNet(args: SegNetTrainingOptions) -> dict:
     if args.init:
         net = LoadSegNet(args.init).train()
     t0 = time.time()
-    TrainSteps(net, lambda: RandomCrop(train[rng.integers(len(train))], rng), args.steps,
-               args.batch, args.lr, "training")
+    TrainSteps(net, lambda: RandomCrop(train[rng.integers(len(train))], rng,
+                                       jitter=args.color_jitter),
+               args.steps, args.batch, args.lr, "training")
     metrics = Validate(net, val)
     meta = {"init": args.init, "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
-            "batch": args.batch, "lr": args.lr, "crop": CROP,
+            "batch": args.batch, "lr": args.lr, "crop": CROP, "color_jitter": args.color_jitter,
             "multi_samples": sum(s["multi"] for s in samples),
             "held_samples": sum(s["held"] for s in samples),
             "greenhouse_samples": sum(s["greenhouse"] for s in samples), "seconds": round(time.time() - t0, 1),

@@ -215,13 +215,15 @@ def RandomRenderScenario(seed: int, arm_near_leaf: float = 0.0, multi: float = 0
 
 
 def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
-                 multi: float = 0.0, held_leaf: float = 0.0, greenhouse: float = 0.0) -> dict:
+                 multi: float = 0.0, held_leaf: float = 0.0, greenhouse: float = 0.0,
+                 greenhouse_off=()) -> dict:
     """Renders sample ``seed``; returns the arrays stored in its ``.npz``.
     With probability ``greenhouse`` (its own coin) a random greenhouse
     scene (``segnet_greenhouse``) instead; a neighbouring plant's pixels
-    are truth leaf / branch."""
+    are truth leaf / branch; ``greenhouse_off`` names the greenhouse
+    randomisations left plain (``GREENHOUSE_RANDOMISATIONS``)."""
     if np.random.default_rng([seed, 4]).random() < greenhouse:
-        s, kind, held = RandomGreenhouseRenderScenario(seed)
+        s, kind, held = RandomGreenhouseRenderScenario(seed, greenhouse_off)
     else:
         s, kind, held = RandomRenderScenario(seed, arm_near_leaf, multi, held_leaf)
     rgb, depth, label = RenderStill(s, leaf_positions=held)
@@ -239,13 +241,14 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
 
 
 def _work(args) -> str:
-    seed, out, arm_near_leaf, multi, held_leaf, greenhouse = args
+    seed, out, arm_near_leaf, multi, held_leaf, greenhouse, greenhouse_off = args
     path = Path(out) / f"{seed:06d}.npz"
     if path.exists():
         return "kept"
     try:
         sample = RenderSample(seed, arm_near_leaf=arm_near_leaf, multi=multi,
-                              held_leaf=held_leaf, greenhouse=greenhouse)
+                              held_leaf=held_leaf, greenhouse=greenhouse,
+                              greenhouse_off=greenhouse_off)
     except Exception as err:  # a generator refusal or an empty view: skip the seed
         return f"skipped {seed}: {type(err).__name__}: {err}"
     tmp = path.with_suffix(".tmp.npz")
@@ -256,7 +259,8 @@ def _work(args) -> str:
 
 def MakeSegNetData(out, count: int = 400, seed: int = 10000, workers: int = 2,
                    arm_near_leaf: float = 0.5, multi: float = 0.0,
-                   held_leaf: float = 0.0, greenhouse: float = 0.0) -> dict:
+                   held_leaf: float = 0.0, greenhouse: float = 0.0,
+                   greenhouse_off=(), progress: bool = True) -> dict:
     """Renders samples ``seed`` .. ``seed + count - 1`` into the folder
     ``out`` (existing ones are kept) with ``workers`` processes; returns the
     counts made / kept / skipped. Raises InputError for a fraction outside
@@ -268,18 +272,20 @@ def MakeSegNetData(out, count: int = 400, seed: int = 10000, workers: int = 2,
         raise InputError("--count and --workers must be >= 1")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [(seed + i, str(out), arm_near_leaf, multi, held_leaf, greenhouse)
-            for i in range(count)]
+    jobs = [(seed + i, str(out), arm_near_leaf, multi, held_leaf, greenhouse,
+             tuple(greenhouse_off)) for i in range(count)]
     t0 = time.time()
     counts: dict[str, int] = {}
-    if workers == 1:
+    if workers == 1 and len(jobs) <= 25:
         results = map(_work, jobs)
     else:
         # a fresh process every 25 scenes: a long-lived one grew by ~35 MB a
-        # scene (renderer and plant caches)
+        # scene (renderer and plant caches; greenhouse scenes more: one
+        # process rendering 100 of them in a row was killed at 10 GB)
         pool = mp.get_context("spawn").Pool(workers, maxtasksperchild=25)
         results = pool.imap_unordered(_work, jobs)
-    for r in tqdm(results, total=len(jobs), desc="rendering", unit="scene"):
+    for r in tqdm(results, total=len(jobs), desc="rendering", unit="scene",
+                  disable=not progress):
         key = r.split(" ")[0]
         counts[key] = counts.get(key, 0) + 1
         if key == "skipped":

@@ -11,6 +11,10 @@ white balance (+-3-12 % per channel) and brightness gradient drawn per
 scene. The neighbouring row's pixels are truth leaf / branch
 (``labels.NeighbourClassMap``). Hue shifts, blur and pixel noise are added
 per crop in training (``perception.training.RandomCrop``).
+
+Each randomisation group can be switched off (``off``, for the ablation of
+``studies/segnet_ablation.py``): every value is still drawn, so the same
+seed gives the same plant with only that group at its plain setting.
 """
 from __future__ import annotations
 
@@ -27,6 +31,15 @@ from lmap_drake.scenario import LoadScenario
 from lmap_drake.station.config import DefaultCameraConfig
 
 TRAIN_MAX_STEMS = 2
+
+# what ``off`` may name, and its plain setting:
+GREENHOUSE_RANDOMISATIONS = {
+    "textures": "flat colours, leaf colour variation 0.05",
+    "clutter": "no greenhouse dressing, no neighbouring row",
+    "lights": "the station's default light at the camera",
+    "photometric": "no exposure, white balance or brightness-gradient variation",
+    "camera_pose": "the default camera pose",
+}
 TRAIN_MAX_LEAVES = 45
 
 
@@ -79,32 +92,47 @@ def TrainingGreenhousePlant(rng: np.random.Generator, name: str, max_draws: int 
     raise PlantGenerationError(f"no buildable greenhouse plant in {max_draws} draws")
 
 
-def RandomGreenhouseRenderScenario(seed: int):
+def RandomGreenhouseRenderScenario(seed: int, off=()):
     """(Scenario, fruit_kind, {}) for greenhouse sample ``seed`` (see the
     module docstring); fruit_kind is ``green`` when every fruit is green or
-    immature, else ``mixed``."""
+    immature, else ``mixed``. ``off``: names of ``GREENHOUSE_RANDOMISATIONS``
+    left at their plain setting (ValueError for an unknown name)."""
+    off = set(off)
+    if off - set(GREENHOUSE_RANDOMISATIONS):
+        raise ValueError(f"unknown randomisation(s) {sorted(off - set(GREENHOUSE_RANDOMISATIONS))}"
+                         f"; known: {', '.join(GREENHOUSE_RANDOMISATIONS)}")
     rng = np.random.default_rng([seed, 5])
     cfg = TrainingGreenhousePlant(rng, f"gh_train_{seed}")
+    g = cfg.greenhouse
+    if "textures" in off:
+        g.textures, g.leaf_color_variation = False, 0.05
+    if "clutter" in off:
+        g.dressing, g.neighbour_row = False, False
     lights = GreenhouseLights(rng) if rng.random() < 0.6 else _RandomLights(rng)
     text = (f"plant_scene:\n" + "".join(f"  {line}\n" for line in
                                          GreenhouseSceneYaml(cfg).splitlines())
             + GREENHOUSE_SCENE_EXTRA
-            + yaml.safe_dump({"lights": lights}, sort_keys=False, default_flow_style=None))
+            + ("" if "lights" in off else
+               yaml.safe_dump({"lights": lights}, sort_keys=False, default_flow_style=None)))
     s = LoadScenario(scenario_text=text)
     s.random_seed = int(seed)
     cam = s.cameras["camera0"]
     X = cam.X_PB.GetDeterministicValue()
     rpy = RollPitchYaw(X.rotation()).vector() + np.radians(rng.uniform(-8, 8, 3))
-    cam.X_PB.translation = X.translation() + rng.uniform([-0.08, -0.1, -0.08], [0.08, 0.1, 0.08])
-    cam.X_PB.rotation = Rotation(RollPitchYaw(rpy))
+    p = X.translation() + rng.uniform([-0.08, -0.1, -0.08], [0.08, 0.1, 0.08])
+    if "camera_pose" not in off:
+        cam.X_PB.translation = p
+        cam.X_PB.rotation = Rotation(RollPitchYaw(rpy))
     q = np.asarray(s.robot.initial_q) + np.concatenate([rng.uniform(-0.25, 0.25, 3), np.zeros(3)])
     s.robot.initial_q = [float(x) for x in q]
     n = s.camera_noise
     n.seed_offset = int(rng.integers(1, 1_000_000))
     RandomDepthNoise(n, rng)
-    n.exposure_variation = float(rng.uniform(0.1, 0.35))
-    n.white_balance_variation = float(rng.uniform(0.03, 0.12))
-    n.illumination_gradient = float(rng.uniform(0.05, 0.2))
+    photometric = (float(rng.uniform(0.1, 0.35)), float(rng.uniform(0.03, 0.12)),
+                   float(rng.uniform(0.05, 0.2)))
+    if "photometric" in off:
+        photometric = (0.0, 0.0, 0.0)
+    n.exposure_variation, n.white_balance_variation, n.illumination_gradient = photometric
     colors = {f.color for f in cfg.greenhouse.fruits}
     kind = "green" if colors <= {"green", "immature"} else "mixed"
     return s, kind, {}

@@ -11,6 +11,8 @@ import pytest
 from lmap_drake.paths import REPO_ROOT
 
 SHELLS = {
+    "ablate_segnet": ["--out", "--variants", "--count", "--seed", "--steps", "--init",
+                      "--heldout", "--heldout_seed", "--workers"],
     "action_oracle": ["--out", "--scenario_file", "--scenario_names", "--top",
                       "--energy_weight", "--workers"],
     "bench_deformation": ["--out", "--leaf-npz", "--factorization", "--no-dense", "--method",
