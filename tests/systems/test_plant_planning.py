@@ -374,11 +374,14 @@ def test_a_fruit_instance_perception_is_unsure_of_is_skipped_and_stays_an_obstac
     plant = TwoFruitPlant()
     plant = dc.replace(plant, semantic=dc.replace(plant.semantic,
                                                   fruit_confidence={3: 0.31, 5: 0.95}))
-    system = PlantPlanning(s)
-    ctx = system.CreateDefaultContext()
-    system.GetInputPort("plant_estimate").FixValue(ctx, plant)
-    system.GetInputPort("ur5.position").FixValue(ctx, np.asarray(s.robot.initial_q, float))
-    system.GetInputPort("status").FixValue(ctx, SimpleNamespace(targets=[]))
+    def planning(s):
+        system = PlantPlanning(s)
+        ctx = system.CreateDefaultContext()
+        system.GetInputPort("plant_estimate").FixValue(ctx, plant)
+        system.GetInputPort("ur5.position").FixValue(ctx, np.asarray(s.robot.initial_q, float))
+        system.GetInputPort("status").FixValue(ctx, SimpleNamespace(targets=[]))
+        return system, ctx
+    system, ctx = planning(s)
     plan = system.GetOutputPort("plan").Eval(ctx)
     assert plan.target["fruit_id"] == 5
     [skipped] = plan.skipped_fruits
@@ -392,11 +395,7 @@ def test_a_fruit_instance_perception_is_unsure_of_is_skipped_and_stays_an_obstac
     np.testing.assert_allclose(scene.other_fruits[0].center_W, plant.fruits[0].center_W)
     # every instance below the bar: nothing to plan, and plan.json says why
     s.planner.min_fruit_confidence = 0.99
-    system = PlantPlanning(s)
-    ctx2 = system.CreateDefaultContext()
-    system.GetInputPort("plant_estimate").FixValue(ctx2, plant)
-    system.GetInputPort("ur5.position").FixValue(ctx2, np.asarray(s.robot.initial_q, float))
-    system.GetInputPort("status").FixValue(ctx2, SimpleNamespace(targets=[]))
+    system, ctx2 = planning(s)
     none = system.GetOutputPort("plan").Eval(ctx2)
     assert none.status == "no_action_needed" and "is no target" in none.message
     assert [d["fruit_id"] for d in none.skipped_fruits] == [3, 5]
