@@ -207,6 +207,13 @@ def RawYaml(text: str, where: str = "the YAML text"):
         raise ScenarioError(f"{where} is not valid YAML: {detail}") from None
 
 
+def ScenarioNames(path) -> list[str]:
+    """The scenario names of the scenario file ``path`` (its top-level keys,
+    those starting with '_' left out), in file order."""
+    return [k for k in (RawYaml(Path(path).read_text(), str(path)) or {})
+            if not str(k).startswith("_")]
+
+
 def _explain(err: Exception, raw: dict | None, root: str, where: str) -> ScenarioError:
     msg = " ".join(str(err).split())
     if raw is not None:

@@ -75,7 +75,7 @@ from lmap_drake.plants.leaf import BoundaryTriangles, TetVolumes
 from lmap_drake.plants.plant_sim import PlantWorldSim
 from lmap_drake.plants.scripted import ApproachAndGrasp, OracleSceneEstimate, Pull
 from lmap_drake.plants.plant_station import GetPlantModel
-from lmap_drake.scenario import LoadScenario, RawYaml
+from lmap_drake.scenario import LoadScenario, ScenarioNames
 
 DEFAULT_CORR = ["small_leaf_thin_branch_round_red_heavy",
                 "large_leaf_thick_branch_round_red_heavy"]
@@ -166,10 +166,6 @@ def Spearman(x, y) -> float | None:
 
 
 # --- the simulation side ----------------------------------------------------
-
-def _scenario_names(path: Path) -> list[str]:
-    return [k for k in (RawYaml(Path(path).read_text()) or {}) if not str(k).startswith("_")]
-
 
 def _unit(v) -> np.ndarray:
     v = np.asarray(v, float)
@@ -413,7 +409,7 @@ def RunDeformationVsFem(args: DeformationVsFemOptions) -> int:
     """The study on every scenario of ``args`` (see the module docstring);
     writes ``args.out`` after each. Returns 0 when every scenario was
     evaluated, else 1."""
-    names = args.scenarios or _scenario_names(args.scenario_file)
+    names = args.scenarios or ScenarioNames(args.scenario_file)
     corr = DEFAULT_CORR if args.corr_scenarios is None else args.corr_scenarios
     t_start = time.perf_counter()
 

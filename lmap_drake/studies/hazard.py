@@ -363,14 +363,15 @@ def EvaluateMultiScenario(scenario, args: HazardStudyOptions, log) -> dict:
         name = f"{scenario_name_of(scenario)} fruit {k} leaf {lid}"
         for a, p, ok in tqdm(list(zip(actions, preds, modelled)), desc=name, unit="pull",
                              file=sys.stderr):
+            misfit = AttachmentMisfit(a, attach)
             r = {"family": a.family, "direction_id": a.direction_id,
                  "distance_m": round(a.distance, 4), "angle_deg": round(np.rad2deg(a.angle), 1),
                  "grasp": len(out_grasps) - 1,
                  "true_tether_elongation_m": TetherElongation(a.p_WG, a.p_WG + a.dp_W, attach),
                  # the true attachment's misfit in the gripper's frame, over
                  # the true lever (see planning.hazard)
-                 "true_misfit_m": AttachmentMisfit(a, attach),
-                 "true_misfit_strain": AttachmentMisfit(a, attach) / max(
+                 "true_misfit_m": misfit,
+                 "true_misfit_strain": misfit / max(
                      float(np.linalg.norm(a.p_WG - attach)), 1e-6)}
             if ok:
                 r.update(PlannerEnergy(a, p, hinge, scenario.planner.hinge_bending_weight))

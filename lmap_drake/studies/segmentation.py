@@ -74,7 +74,7 @@ from lmap_drake.perception.segmentation import (ClassIou, FruitInstanceTruth, Ma
 from lmap_drake.viz import SavePng
 from lmap_drake.plants.suite import RandomSuite, SuiteYaml
 from lmap_drake.plants.plant_station import RenderStill
-from lmap_drake.scenario import LoadScenario, RawYaml
+from lmap_drake.scenario import LoadScenario, ScenarioNames
 from lmap_drake.station.camera_noise import CameraProfile
 
 CLASSES = (("fruit_iou", 3), ("leaf_iou", 2), ("branch_iou", 1))
@@ -86,10 +86,6 @@ def DefaultScenarios() -> tuple[Path, list[str]]:
     if suite.exists():
         return suite, []  # [] = every scenario in the file
     return REPO / "diagrams" / "default.yaml", ["Defaults", "OneOfEverything"]
-
-
-def _scenario_names(path: Path) -> list[str]:
-    return [k for k in (RawYaml(path.read_text()) or {}) if not str(k).startswith("_")]
 
 
 def _fruit_color(rgb: np.ndarray, truth: np.ndarray) -> str | None:
@@ -201,7 +197,7 @@ def Summary(rows: list[dict]) -> dict:
 
 def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
              scenario_text: str = "{}", settle: float = 0.0, log=print) -> dict:
-    names = names or _scenario_names(scenario_file)
+    names = names or ScenarioNames(scenario_file)
     results = {b: {"scenarios": {}} for b in backends}
     for name in tqdm(names, desc="eval_segmentation", unit="scene", file=sys.stderr):
         s = LoadScenario(filename=scenario_file, scenario_name=name, scenario_text=scenario_text)

@@ -37,7 +37,7 @@ from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.training import SegNetTrainingOptions, TrainSegNet
 from lmap_drake.plants.greenhouse_suite import GreenhouseSuiteYaml, RandomGreenhouseSuite
 from lmap_drake.plants.plant_station import RenderStill
-from lmap_drake.scenario import LoadScenario
+from lmap_drake.scenario import LoadScenario, ScenarioNames
 from lmap_drake.studies.segmentation import EvalRecordings
 from lmap_drake.studies.segnet_data import MakeSegNetData
 from lmap_drake.studies.segnet_greenhouse import GREENHOUSE_RANDOMISATIONS
@@ -89,9 +89,7 @@ def HeldOutStills(folder: Path, n: int, seed: int) -> Path:
         tmp = suite_file.with_suffix(".partial")
         tmp.write_text(text)
         tmp.replace(suite_file)
-    names = [line[:-1] for line in suite_file.read_text().splitlines()
-             if line.endswith(":") and not line.startswith((" ", "#"))]
-    for name in names:
+    for name in ScenarioNames(suite_file):
         if (folder / name / "recording" / "recording.json").is_file():
             continue
         s = LoadScenario(filename=suite_file, scenario_name=name)
