@@ -42,6 +42,7 @@ from scipy import ndimage
 
 from lmap_drake.errors import WeightsError
 from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
+from lmap_drake.perception.fruit_fragments import JoinFruitFragments
 from lmap_drake.perception.leaf_instances import SplitAtNecks
 from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
 
@@ -420,7 +421,8 @@ class SegNetSegmenter(Segmenter):
     bounding box of the returns within the depth cut; everything outside it,
     and every return beyond the cut, is background; the fruit-leaf border
     snapped to the depth edge (``SnapFruitToDepthEdges``). Instances:
-    per-class connected components cut at depth jumps."""
+    per-class connected components cut at depth jumps, fruit fragments
+    split by a thin occluder joined (``fruit_fragments.JoinFruitFragments``)."""
     name = "segnet"
 
     # Results kept for the last few images (by content): the episode's
@@ -460,7 +462,7 @@ class SegNetSegmenter(Segmenter):
         with np.errstate(invalid="ignore"):
             cls[np.isfinite(d) & (d > self.depth_cut)] = BACKGROUND
         cls = SnapFruitToDepthEdges(cls, d)
-        inst = InstancesFromComponents(cls, d, 0.02)
+        inst = JoinFruitFragments(cls, InstancesFromComponents(cls, d, 0.02), d, self.K, 0.02)
         e = np.exp(logits - logits.max(0))
         prob = np.zeros((len(e),) + d.shape)
         prob[:, box[0], box[1]] = e / e.sum(0)

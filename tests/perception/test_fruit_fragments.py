@@ -1,0 +1,83 @@
+"""JoinFruitFragments on synthetic depth images: a fruit cut by a thin
+occluder in front is one instance again; fruit pieces apart by a gap, a
+depth jump, more than one fruit's size, or specks are not joined."""
+import numpy as np
+
+from lmap_drake.labels import BRANCH, FRUIT, LEAF
+from lmap_drake.perception.fruit_fragments import JoinFruitFragments
+from lmap_drake.perception.points import Intrinsics
+from lmap_drake.perception.segmentation import InstancesFromComponents
+
+K = Intrinsics(320, 240, 228.0, 228.0, 160.0, 120.0)
+V, U = np.mgrid[0:240, 0:320]
+
+
+def Sphere(depth, cls, u0, v0, z0, r, cid=FRUIT):
+    """Paints the camera-facing half of a sphere (centre depth z0, radius r
+    m) at pixel (u0, v0) into ``depth`` / ``cls`` where it is nearer."""
+    x = (U - u0) * z0 / K.fx
+    y = (V - v0) * z0 / K.fy
+    h2 = r * r - x * x - y * y
+    z = np.where(h2 > 0, z0 - np.sqrt(np.maximum(h2, 0)), np.inf)
+    near = z < depth
+    depth[near], cls[near] = z[near], cid
+
+
+def Scene():
+    depth = np.full((240, 320), np.inf)
+    cls = np.zeros((240, 320), np.int64)
+    Sphere(depth, cls, 160, 120, 0.55, 0.035)
+    return depth, cls
+
+
+def FruitInstances(cls, depth):
+    inst = JoinFruitFragments(cls, InstancesFromComponents(cls, depth, 0.02), depth, K, 0.02)
+    return sorted(np.unique(inst[cls == FRUIT]).tolist()), inst
+
+
+def test_a_fruit_cut_by_a_stem_in_front_is_one_instance():
+    depth, cls = Scene()
+    strip = (np.abs(U - 160) <= 2) & (cls == FRUIT)
+    depth[strip], cls[strip] = 0.48, BRANCH           # a 5 px (1.2 cm) stem in front
+    assert len(np.unique(InstancesFromComponents(cls, depth, 0.02)[cls == FRUIT])) == 2
+    ids, inst = FruitInstances(cls, depth)
+    assert ids == [0]
+    before = InstancesFromComponents(cls, depth, 0.02)
+    assert np.array_equal(inst[cls != FRUIT], before[cls != FRUIT])   # other classes as they were
+    # pixels the network called leaf on the fruit's own surface: the same
+    depth, cls = Scene()
+    cls[strip] = LEAF
+    assert FruitInstances(cls, depth)[0] == [0]
+
+
+def test_pieces_apart_by_a_gap_a_jump_a_size_or_specks_stay_apart():
+    # background (no return) between the pieces: two fruits, not one
+    depth, cls = Scene()
+    strip = (np.abs(U - 160) <= 2) & (cls == FRUIT)
+    depth[strip], cls[strip] = np.inf, 0
+    assert FruitInstances(cls, depth)[0] == [0, 1]
+    # a leaf behind the pieces shows through: a gap, not an occluder
+    depth[strip], cls[strip] = 0.62, LEAF
+    assert FruitInstances(cls, depth)[0] == [0, 1]
+    # the pieces' facing borders 3 cm apart in depth: two surfaces
+    depth, cls = Scene()
+    left = (cls == FRUIT) & (U < 158)
+    depth[left] += 0.03
+    strip = (np.abs(U - 160) <= 2) & (cls == FRUIT)
+    depth[strip], cls[strip] = 0.48, BRANCH
+    assert FruitInstances(cls, depth)[0] == [0, 1]
+    # two large fruits side by side behind one stem: more than one fruit's size
+    depth = np.full((240, 320), np.inf)
+    cls = np.zeros((240, 320), np.int64)
+    Sphere(depth, cls, 125, 120, 0.55, 0.045)
+    Sphere(depth, cls, 195, 120, 0.55, 0.045)
+    stem = (np.abs(U - 160) <= 2) & (cls == FRUIT)
+    depth[stem], cls[stem] = 0.48, BRANCH
+    assert len(FruitInstances(cls, depth)[0]) == 2
+    # a speck beside the fruit behind a stem is no piece of it
+    depth, cls = Scene()
+    speck = (np.abs(U - 178) <= 1) & (np.abs(V - 120) <= 1)       # 9 px at the fruit's depth
+    depth[speck], cls[speck] = 0.55, FRUIT
+    stem = (np.abs(U - 175) <= 1) & (np.abs(V - 120) <= 6)
+    depth[stem], cls[stem] = 0.48, BRANCH
+    assert len(FruitInstances(cls, depth)[0]) == 2
