@@ -99,22 +99,29 @@ def JoinFruitFragments(class_map: np.ndarray, instance_map: np.ndarray, depth: n
         while group[i] != i:
             i = group[i]
         return i
-    masks = {int(i): fruit & (inst == i) for i in ids}
-    ids = np.array([i for i in ids if masks[int(i)].sum() >= MIN_FRAGMENT_PIXELS], np.int64)
+    lab = np.where(fruit, inst + 1, 0)
+    boxes = ndimage.find_objects(lab)
+    size = np.bincount(lab.ravel(), minlength=len(boxes) + 1)
+    ids = np.array([i for i in ids if size[i + 1] >= MIN_FRAGMENT_PIXELS], np.int64)
+    z = {int(i): _Median(d[boxes[i]], lab[boxes[i]] == i + 1) for i in ids}
     square = np.ones((3, 3), bool)
     H, W = cls.shape
     for i in ids:
+        i = int(i)
+        if not np.isfinite(z[i]):
+            continue
+        r = max(MIN_GAP_PX, int(np.ceil(max_gap * K.fx / z[i])))
         for j in ids[ids > i]:
-            i, j = int(i), int(j)
-            mi, mj = masks[i], masks[j]
-            zi = _Median(d, mi)
-            if not np.isfinite(zi):
-                break
-            r = max(MIN_GAP_PX, int(np.ceil(max_gap * K.fx / zi)))
-            ys, xs = np.nonzero(mi | mj)
-            win = (slice(max(ys.min() - r - 1, 0), min(ys.max() + r + 2, H)),
-                   slice(max(xs.min() - r - 1, 0), min(xs.max() + r + 2, W)))
-            a, b = mi[win], mj[win]
+            j = int(j)
+            bi, bj = boxes[i], boxes[j]
+            if (bj[0].start > bi[0].stop + r or bi[0].start > bj[0].stop + r
+                    or bj[1].start > bi[1].stop + r or bi[1].start > bj[1].stop + r):
+                continue                     # farther apart than the gap
+            win = (slice(max(min(bi[0].start, bj[0].start) - r - 1, 0),
+                         min(max(bi[0].stop, bj[0].stop) + r + 1, H)),
+                   slice(max(min(bi[1].start, bj[1].start) - r - 1, 0),
+                         min(max(bi[1].stop, bj[1].stop) + r + 1, W)))
+            a, b = lab[win] == i + 1, lab[win] == j + 1
             grown_a = ndimage.binary_dilation(a, square, iterations=r)
             if not (grown_a & b).any():
                 continue
@@ -131,23 +138,19 @@ def JoinFruitFragments(class_map: np.ndarray, instance_map: np.ndarray, depth: n
             ri, rj = root(i), root(j)
             if ri == rj:
                 continue
-            union = np.zeros(cls.shape, bool)
-            for k in group:
-                if root(k) in (ri, rj):
-                    union |= masks[k]
+            union = np.isin(lab, [k + 1 for k in group if root(k) in (ri, rj)])
             if _Extent(DeprojectPixels(d, union, K)) > max_extent:
                 continue
             group[max(ri, rj)] = min(ri, rj)
     roots = {k: root(k) for k in group}
     if len(set(roots.values())) == len(roots):
         return inst
-    joined = np.full(cls.shape, -1, np.int64)
+    new_of = np.arange(-1, len(boxes), dtype=np.int64)   # lab value -> joined root
     for k, r in roots.items():
-        joined[masks[k]] = r
-    rs = np.array(sorted(set(roots.values())))
-    sizes = np.array([(joined == r).sum() for r in rs])
-    order = rs[np.argsort(-sizes, kind="stable")]
-    out = inst
-    for new, r in enumerate(order):
-        out[joined == r] = new
-    return out
+        new_of[k + 1] = r
+    joined = np.where(fruit, new_of[lab], -1)
+    rs, sizes = np.unique(joined[fruit & (joined >= 0)], return_counts=True)
+    order = np.full(len(boxes) + 1, -1, np.int64)
+    order[rs[np.argsort(-sizes, kind="stable")]] = np.arange(len(rs))
+    inst[fruit] = np.where(joined[fruit] >= 0, order[np.maximum(joined[fruit], 0)], -1)
+    return inst
