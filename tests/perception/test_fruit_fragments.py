@@ -6,7 +6,9 @@ import numpy as np
 from lmap_drake.labels import BRANCH, FRUIT, LEAF
 from lmap_drake.perception.fruit_fragments import JoinFruitFragments
 from lmap_drake.perception.points import Intrinsics
-from lmap_drake.perception.segmentation import InstancesFromComponents
+from lmap_drake.perception.config import PerceptionConfig
+from lmap_drake.perception.segmentation import InstancesFromComponents, MakeSegmenter
+from perception_scenes import Render
 
 K = Intrinsics(320, 240, 228.0, 228.0, 160.0, 120.0)
 V, U = np.mgrid[0:240, 0:320]
@@ -81,3 +83,17 @@ def test_pieces_apart_by_a_gap_a_jump_a_size_or_specks_stay_apart():
     stem = (np.abs(U - 175) <= 1) & (np.abs(V - 120) <= 6)
     depth[stem], cls[stem] = 0.48, BRANCH
     assert len(FruitInstances(cls, depth)[0]) == 2
+
+
+def test_the_small_render_seen_by_the_two_worlds_weights_has_one_fruit():
+    """The view of ``perception_scenes.Render``: the stem and a leaf's rim
+    cross the fruit; ``segnet_two_worlds.pt`` calls the pixels where they
+    meet leaf or branch, which cuts the fruit's pixels in two (84 + 64)."""
+    view = Render()
+    cfg = PerceptionConfig(segnet_weights="models/segnet/segnet_two_worlds.pt")
+    seg = MakeSegmenter(cfg, view.K).Segment(view.rgb, view.depth)
+    pieces = InstancesFromComponents(seg.class_map, np.asarray(view.depth, float), 0.02)
+    fruit = seg.class_map == FRUIT
+    assert len(np.unique(pieces[fruit])) == 2
+    big = [(n, conf) for c, i, n, conf in seg.Instances() if c == FRUIT and n >= 100]
+    assert len(big) == 1 and big[0][0] == fruit.sum() and big[0][1] > 0.8
