@@ -70,6 +70,20 @@ def EstimateHinge(leaf_W: np.ndarray, branch_W: np.ndarray,
     return np.asarray(branch_W[j], float)
 
 
+def UnseenPetiole(leaf_W: np.ndarray, hinge_W: np.ndarray,
+                  dcfg: DeformationConfig | None = None) -> float:
+    """How far (m) the hinge estimate ``hinge_W`` lies from the observed
+    leaf's main part (``MainLeafComponent``): the length of petiole the
+    camera did not see, at least. Where the petiole is unseen, so is where
+    it meets the branch: about as far off as it is long (on random
+    multi-fruit plants of external peppers the estimate was 4.1 and 4.3 cm
+    off for leaves seen 4.4 cm from the branch, 0.7-1.5 cm off for leaves
+    seen 0.5-3.6 cm from it)."""
+    leaf_W = np.asarray(leaf_W, float).reshape(-1, 3)
+    leaf_W = leaf_W[MainLeafComponent(leaf_W, dcfg or DeformationConfig())]
+    return float(cKDTree(leaf_W).query(np.asarray(hinge_W, float))[0])
+
+
 def AttachLeaf(scene: SceneEstimate, dcfg: DeformationConfig) -> tuple[SceneEstimate, str]:
     """The scene with ``leaf_attachment_W`` set: if the observed leaf's
     main part (``MainLeafComponent``: the blade, not specks labelled leaf
