@@ -261,7 +261,7 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     pivot = EstimateHinge(ctx.leaf_W, ctx.branch_all_W, dcfg)
     out.hinge_W = pivot
     if pivot is not None:
-        out.unseen_petiole_m = UnseenPetiole(ctx.leaf_W, pivot, dcfg)
+        out.hinge_error_m = max(cfg.hinge_error, UnseenPetiole(ctx.leaf_W, pivot, dcfg))
     angles = np.deg2rad(np.asarray(cfg.arc_angles_deg, float))
     failed = []
     for g in grasps:

@@ -87,32 +87,21 @@ def TurnAngle(R_from: np.ndarray, R_to: np.ndarray) -> float:
 
 
 def MisfitReason(action, hinge_W: np.ndarray | None, R_WG0: np.ndarray | None,
-                 hinge_error: float, max_misfit: float, unseen_petiole: float = 0.0,
-                 max_stretch: float = 0.0) -> str:
+                 hinge_error: float, max_misfit: float) -> str:
     """'' or why ``action`` (an arc or twist; pulls pass) may stretch the
-    held blade or the petiole: its gripper's total turn theta from the
-    first grasp orientation ``R_WG0`` (None: this action's own grasp)
-    about a hinge estimate ``e`` off, e the larger of ``hinge_error`` and
-    ``unseen_petiole`` (m), gives a ``HingeMisfitStrain`` above
-    ``max_misfit`` at the grasp's lever to ``hinge_W``; or it moves the
-    attachment, ``unseen_petiole`` off, by 2 sin(theta/2) x unseen_petiole
-    (``AttachmentMisfit``'s bound) more than ``max_stretch`` (m; the
-    tether limit a pull has: the attachment pulled away by that much).
-    No hinge, or ``max_misfit`` 0: ''."""
+    held blade: its gripper's total turn from the first grasp orientation
+    ``R_WG0`` (None: this action's own grasp), about a hinge estimate
+    ``hinge_error`` (m) off, gives a ``HingeMisfitStrain`` above
+    ``max_misfit`` at the grasp's lever to ``hinge_W``. No hinge, or
+    ``max_misfit`` 0: ''."""
     if action.family == "pull" or hinge_W is None or max_misfit <= 0:
         return ""
     R0 = action.R_WG if R_WG0 is None else R_WG0
     turn = TurnAngle(R0, action.R_WG_end)
     lever = float(np.linalg.norm(np.asarray(action.p_WG, float) - np.asarray(hinge_W, float)))
-    e = max(hinge_error, unseen_petiole)
-    misfit = HingeMisfitStrain(turn, lever, e)
-    if misfit > max_misfit + 1e-9:
-        return (f"a {np.degrees(turn):.0f} deg turn from a grasp {lever * 100:.1f} cm from the "
-                f"attachment may stretch the held blade (hinge misfit {misfit:.2f} > "
-                f"max_hinge_misfit {max_misfit:g} at hinge_error {e * 100:.3g} cm)")
-    stretch = 2.0 * abs(np.sin(turn / 2.0)) * unseen_petiole
-    if max_stretch > 0 and stretch > max_stretch + 1e-9:
-        return (f"a {np.degrees(turn):.0f} deg turn about a hinge past {unseen_petiole * 100:.1f} cm "
-                f"of unseen petiole may pull its attachment {stretch * 100:.1f} cm "
-                f"(max_tether_elongation {max_stretch:g} m)")
-    return ""
+    misfit = HingeMisfitStrain(turn, lever, hinge_error)
+    if misfit <= max_misfit + 1e-9:
+        return ""
+    return (f"a {np.degrees(turn):.0f} deg turn from a grasp {lever * 100:.1f} cm from the "
+            f"attachment may stretch the held blade (hinge misfit {misfit:.2f} > "
+            f"max_hinge_misfit {max_misfit:g} at hinge_error {hinge_error * 100:g} cm)")

@@ -92,27 +92,8 @@ def test_a_leaf_seen_far_from_its_branch_assumes_its_unseen_petiole_as_the_hinge
     c = Candidate(_twist(0.084, 45.0), 0)
     c.n_vis, c.energy = 100, 1e-5
     assert _ScoreAndVeto(cfg, HINGE, [c], 0.0) == [c]
-    assert _ScoreAndVeto(cfg, HINGE, [c], 0.0, unseen_petiole_m=0.05) == []
+    assert _ScoreAndVeto(cfg, HINGE, [c], 0.0, hinge_error_m=0.05) == []
     assert "at hinge_error 5 cm" in c.reason
-
-
-def test_a_turn_about_a_hinge_past_an_unseen_petiole_is_bounded_by_the_tether_limit():
-    """A 30 deg twist from 15 cm has a small misfit strain, but about a
-    hinge past 6 cm of unseen petiole it may pull the attachment 3.1 cm,
-    twice what a pull may (``max_tether_elongation`` 1.5 cm); past 2 cm,
-    1.0 cm: it passes. A pull is not a turn."""
-    cfg = dc.replace(PlannerConfig(), hinge_error=0.03, max_hinge_misfit=0.4,
-                     max_tether_elongation=0.015, max_energy_per_node=0.0,
-                     arc_lever_reference=0.0)
-    twist = _twist(0.15, 30.0)
-    assert MisfitReason(twist, HINGE, None, 0.03, 0.4, 0.02, 0.015) == ""
-    why = MisfitReason(twist, HINGE, None, 0.03, 0.4, 0.06, 0.015)
-    assert "6.0 cm of unseen petiole" in why and "3.1 cm" in why
-    pull = Action(np.array([0.15, 0.0, 0.0]), R0, np.array([0.0, 0.0, 0.04]))
-    assert MisfitReason(pull, HINGE, None, 0.03, 0.4, 0.06, 0.015) == ""
-    c = Candidate(twist, 0)
-    c.n_vis, c.energy = 100, 1e-5
-    assert _ScoreAndVeto(cfg, HINGE, [c], 0.0, unseen_petiole_m=0.06) == []
 
 
 def test_the_unseen_petiole_is_the_hinge_to_leaf_distance():
