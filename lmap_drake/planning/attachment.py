@@ -17,17 +17,71 @@ from lmap_drake.deformation.config import DeformationConfig
 from lmap_drake.types import SceneEstimate
 
 
+# The share of the blade's length, from each end, searched for its base.
+BASE_END_FRACTION = 0.25
+# m: ends whose distances to the branch differ by less are equally near it;
+# then the upper end is the base (a leaf hangs from its petiole).
+HANGING_TIE = 0.02
+
+
+def BladeEnds(leaf_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Masks (N,) of the two ends of a blade's points (W, m): those within
+    ``BASE_END_FRACTION`` of its length from either end of its long axis
+    (the first principal direction)."""
+    leaf_W = np.asarray(leaf_W, float).reshape(-1, 3)
+    c = leaf_W.mean(axis=0)
+    _, _, vt = np.linalg.svd(leaf_W - c, full_matrices=False)
+    t = (leaf_W - c) @ vt[0]
+    lo, hi = float(t.min()), float(t.max())
+    cut = BASE_END_FRACTION * (hi - lo)
+    return t <= lo + cut, t >= hi - cut
+
+
 def EstimateHinge(leaf_W: np.ndarray, branch_W: np.ndarray,
                   dcfg: DeformationConfig | None = None) -> np.ndarray | None:
-    """The point the leaf swings about: the branch point nearest to the
-    observed leaf's main part (``MainLeafComponent``; where its petiole
-    joins the branch). None without branch or leaf points."""
+    """The point the leaf swings about (W, m): the branch point nearest to
+    the base of the observed leaf's main part (``MainLeafComponent``). The
+    base is the end of the blade (``BladeEnds``) nearer to the branch; when
+    both ends are within ``HANGING_TIE`` of the same distance (a leaf
+    hanging down along its stem), the upper one: leaves hang from their
+    petiole. None without branch or leaf points.
+
+    Why not the branch point nearest to any leaf point: for a leaf hanging
+    along the stem over a fruit, that point lay 9-14 cm below the petiole
+    (random multi-fruit plants of external peppers, seed 3131, plants 000
+    and 004), and the arcs about it loaded the real petiole with 18.8-90 N.
+    For a leaf held out from its stem the nearest point lies in the base
+    end, and the estimate is the same."""
     if len(branch_W) == 0 or len(leaf_W) == 0:
         return None
     leaf_W = np.asarray(leaf_W, float)
     leaf_W = leaf_W[MainLeafComponent(leaf_W, dcfg or DeformationConfig())]
-    d, j = cKDTree(branch_W).query(leaf_W)
-    return np.asarray(branch_W[j[int(np.argmin(d))]], float)
+    tree = cKDTree(branch_W)
+    best = []
+    for end in BladeEnds(leaf_W):
+        d, j = tree.query(leaf_W[end])
+        k = int(np.argmin(d))
+        best.append((float(d[k]), float(leaf_W[end][:, 2].mean()), int(j[k])))
+    (d1, z1, j1), (d2, z2, j2) = best
+    if abs(d1 - d2) < HANGING_TIE:
+        j = j1 if z1 >= z2 else j2
+    else:
+        j = j1 if d1 < d2 else j2
+    return np.asarray(branch_W[j], float)
+
+
+def UnseenPetiole(leaf_W: np.ndarray, hinge_W: np.ndarray,
+                  dcfg: DeformationConfig | None = None) -> float:
+    """How far (m) the hinge estimate ``hinge_W`` lies from the observed
+    leaf's main part (``MainLeafComponent``): the length of petiole the
+    camera did not see, at least. Where the petiole is unseen, so is where
+    it meets the branch: about as far off as it is long (on random
+    multi-fruit plants of external peppers the estimate was 4.1 and 4.3 cm
+    off for leaves seen 4.4 cm from the branch, 0.7-1.5 cm off for leaves
+    seen 0.5-3.6 cm from it)."""
+    leaf_W = np.asarray(leaf_W, float).reshape(-1, 3)
+    leaf_W = leaf_W[MainLeafComponent(leaf_W, dcfg or DeformationConfig())]
+    return float(cKDTree(leaf_W).query(np.asarray(hinge_W, float))[0])
 
 
 def AttachLeaf(scene: SceneEstimate, dcfg: DeformationConfig) -> tuple[SceneEstimate, str]:

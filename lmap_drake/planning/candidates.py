@@ -16,7 +16,7 @@ from scipy.spatial import ConvexHull, cKDTree
 from lmap_drake.deformation.action import (Action, AxisAngleMatrix, HingeAxes, MakeArcActions,
                                            MakeTwistActions, PullDirections)
 from lmap_drake.planning.approach import GraspApproach, IkAndRobotChecks
-from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge
+from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge, UnseenPetiole
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext, VisibilitySurfaces
 from lmap_drake.planning.energy import MaxPullDistance
@@ -260,6 +260,8 @@ def GenerateCandidates(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deformati
     all_dirs = PullDirections()[:cfg.num_directions]
     pivot = EstimateHinge(ctx.leaf_W, ctx.branch_all_W, dcfg)
     out.hinge_W = pivot
+    if pivot is not None:
+        out.hinge_error_m = max(cfg.hinge_error, UnseenPetiole(ctx.leaf_W, pivot, dcfg))
     angles = np.deg2rad(np.asarray(cfg.arc_angles_deg, float))
     failed = []
     for g in grasps:

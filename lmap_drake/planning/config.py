@@ -218,7 +218,12 @@ class PlannerConfig:
     largest hinge error the hazard studies measured (0.6-3.2 cm); 0.4 lies
     below the smallest misfit that tore a blade in the FEM study
     (``scripts/eval_hazard_prediction.py``, 0.42) and is no tighter than the
-    arc cap for first arcs (at most 0.31 there).
+    arc cap for first arcs (at most 0.31 there). ``hinge_error`` is the
+    least error assumed: a leaf seen farther from its branch than that has
+    an unseen petiole at least that long, and the estimate can be off by
+    about as much (``attachment.UnseenPetiole``; 4.1 and 4.3 cm off for
+    leaves seen 4.4 cm from the branch): its turns are bounded at that
+    distance instead.
 
     ``robot_fruit_margin`` (m): every part of the robot but the two fingers
     (arm, wrist, the gripper's body and coupling) keeps this far from every
@@ -359,6 +364,7 @@ class PlannerConfig:
     max_pull_distance: float = 0.03
     arc_lever_reference: float = 0.075
     # m: how far the hinge estimate may be from the true petiole attachment
+    # (at least; a leaf seen farther from its branch: that distance)
     hinge_error: float = 0.03
     # 2 sin(turn / 2) hinge_error / lever above this: the held blade may tear (0 = off)
     max_hinge_misfit: float = 0.4

@@ -47,6 +47,7 @@ class HeldGrasp:
     energy_per_node: float
     twist_rad: float = 0.0     # the executed twists' summed angle (rad)
     families: tuple = ()       # the executed motions' families, in order
+    hinge_error_m: float | None = None  # m: how far the true attachment may be from hinge_W
 
     @staticmethod
     def After(plans: list) -> "HeldGrasp":
@@ -62,7 +63,8 @@ class HeldGrasp:
                     if p.chosen.action.family == "twist")
         return HeldGrasp(first.p_WG, first.R_WG, last.p_WG + last.dp_W, last.R_WG_end,
                          plans[0].hinge_W, len(plans), e, twist,
-                         tuple(p.chosen.action.family for p in plans))
+                         tuple(p.chosen.action.family for p in plans),
+                         plans[0].hinge_error_m)
 
 
 def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: DeformationConfig,
@@ -83,7 +85,8 @@ def GenerateContinuation(ctx: PlanningContext, cfg: PlannerConfig, dcfg: Deforma
                                     ctx.robot.SurfacePoints(ctx.q_current)]))
     timings["visibility_s"] += time.perf_counter() - t0
     out = CandidateSet("ok", ctx.scene, visibility=vis, seen_init_mask=seen_init,
-                       timings=timings, hinge_W=held.hinge_W)
+                       timings=timings, hinge_W=held.hinge_W,
+                       hinge_error_m=held.hinge_error_m)
     n_init, n_max = vis.Count(seen_init), vis.Count(vis.max_seen)
     if n_max == 0:
         out.status, out.message = "no_fruit", "the fruit estimate is outside camera0's view"

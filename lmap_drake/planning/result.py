@@ -96,6 +96,9 @@ class PlanResult:
     timings: dict = dc.field(default_factory=dict)
     message: str = ""
     hinge_W: np.ndarray | None = None   # the arcs' pivot (estimated petiole attachment)
+    # m: how far the true attachment may be from hinge_W (``planner.hinge_error``
+    # or the unseen petiole's length, ``attachment.UnseenPetiole``)
+    hinge_error_m: float | None = None
     # Several fruits (``planner.targets: all``): which fruit this plan is for
     # and which leaf it moves, and why (JSON-able; see systems.planning.PlantPlanning).
     target: dict | None = None
@@ -112,7 +115,9 @@ class PlanResult:
                "timings": self.timings, "num_candidates": len(self.candidates),
                "num_feasible": sum(c.feasible for c in self.candidates),
                "dropped_grasps": self.dropped_grasps,
-               "hinge_W": None if self.hinge_W is None else np.round(self.hinge_W, 4).tolist()}
+               "hinge_W": None if self.hinge_W is None else np.round(self.hinge_W, 4).tolist(),
+               "hinge_error_m": (None if self.hinge_error_m is None
+                                 else round(float(self.hinge_error_m), 4))}
         if self.target is not None:
             out["target"] = self.target
         if self.fruit_shapes is not None:
@@ -143,6 +148,7 @@ class CandidateSet:
     timings: dict = dc.field(default_factory=dict)
     message: str = ""
     hinge_W: np.ndarray | None = None   # the arcs' pivot (estimated petiole attachment)
+    hinge_error_m: float | None = None  # m: how far the true attachment may be from it
 
     def LiveActions(self) -> list[Action]:
         """Actions still feasible after IK and robot checks (for deformation)."""

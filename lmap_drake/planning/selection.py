@@ -115,7 +115,7 @@ def SelectFromPredictions(ctx: PlanningContext, cset: CandidateSet, predictions:
     feasible = [c for c in cands if c.feasible]
     if feasible:
         feasible = _ScoreAndVeto(cfg, cset.hinge_W, feasible, energy_offset_per_node,
-                                 rotation_reference)
+                                 rotation_reference, cset.hinge_error_m)
     if cfg.force_action:
         return _ChooseForced(result, forced, cfg.force_action)
     return _ChooseExecutable(ctx, cfg, result, feasible, cset.dropped_grasps)
@@ -126,7 +126,8 @@ def _UnselectedResult(cset: CandidateSet, cands: list[Candidate], method: str) -
     hinge and visibility counts, with ``cands`` (copies of its candidates)."""
     result = PlanResult(cset.status, method, candidates=cands,
                         dropped_grasps=cset.dropped_grasps, timings=dict(cset.timings),
-                        message=cset.message, hinge_W=cset.hinge_W)
+                        message=cset.message, hinge_W=cset.hinge_W,
+                        hinge_error_m=cset.hinge_error_m)
     if cset.visibility is not None:
         result.seen_init = cset.visibility.Count(cset.seen_init_mask)
         result.seen_max = cset.visibility.Count(cset.visibility.max_seen)
@@ -283,10 +284,12 @@ def _RequireGain(cands: list[Candidate], seen_init: int, n_max: int, min_gain: f
 
 def _ScoreAndVeto(cfg: PlannerConfig, hinge_W: np.ndarray | None, feasible: list[Candidate],
                   energy_offset_per_node: float,
-                  rotation_reference: np.ndarray | None = None) -> list[Candidate]:
+                  rotation_reference: np.ndarray | None = None,
+                  hinge_error_m: float | None = None) -> list[Candidate]:
     """Scores ``feasible`` (``SelectAction``), then vetoes by the lever caps
     (``_LeverCapReason``), the hinge misfit (``hazard.MisfitReason``, the
-    turn counted from ``rotation_reference`` when re-planning) and the
+    turn counted from ``rotation_reference`` when re-planning, the hinge
+    ``hinge_error_m`` off; None: ``planner.hinge_error``) and the
     energy cap (``_EnergyCapReason``); returns the candidates still
     feasible."""
     # The paper's score, normalised over every action that passed the
@@ -296,7 +299,8 @@ def _ScoreAndVeto(cfg: PlannerConfig, hinge_W: np.ndarray | None, feasible: list
     SelectAction(feasible, cfg.energy_weight)
     for c in feasible:
         why = _LeverCapReason(cfg, c, hinge_W) or MisfitReason(
-            c.action, hinge_W, rotation_reference, cfg.hinge_error, cfg.max_hinge_misfit)
+            c.action, hinge_W, rotation_reference,
+            cfg.hinge_error if hinge_error_m is None else hinge_error_m, cfg.max_hinge_misfit)
         if why:
             c.reason = why
     feasible = [c for c in feasible if c.feasible]

@@ -305,6 +305,26 @@ def test_blades_lying_flush_are_split_by_size():
     assert np.array_equal(SplitOversizedLeaves(np.vstack([flush, singles[0]]), few), few)
 
 
+def test_three_flush_blades_among_four_instances_are_split_in_three():
+    """Three blades lying flush as one instance beside three single
+    leaves: the merged instance is itself the upper quartile of the four,
+    so the spread is judged on the instances that may be single leaves
+    (all of a size here) and it is cut in three, one blade each."""
+    from lmap_drake.perception.points import SplitOversizedLeaves
+    blade = lambda x, y: _Patch([x, y, 0.0], [1, 0, 0], [0, 1, 0], 0.06, 0.05)   # noqa: E731
+    flush = [blade(0.0, 0.0), blade(0.06, 0.0), blade(0.12, 0.0)]
+    singles = [blade(0.0, 0.2), blade(0.1, 0.2), blade(0.2, 0.2)]
+    pts = np.vstack(flush + singles)
+    n = len(singles[0])
+    inst = np.r_[np.zeros(3 * n, int), np.repeat([1, 2, 3], n)]
+    ids = SplitOversizedLeaves(pts, inst)
+    parts = [np.unique(ids[k * n:(k + 1) * n], return_counts=True) for k in range(3)]
+    majors = [v[np.argmax(c)] for v, c in parts]
+    assert len(set(majors)) == 3
+    assert all(c.max() >= 0.8 * n for _, c in parts)
+    assert np.array_equal(ids[3 * n:], inst[3 * n:])
+
+
 def test_fruit_instances_carry_the_mean_confidence_of_their_pixels():
     v = Render()
     cls, inst = DecodeLabels(v.label)

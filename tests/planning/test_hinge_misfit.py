@@ -81,3 +81,24 @@ def test_the_veto_rejects_with_a_grouped_reason_and_keeps_the_rest():
     counts = RejectionCounts(cands)
     assert len(counts) == 1 and list(counts.values()) == [2]
     assert next(iter(counts)).startswith("a 60 deg turn from a grasp")
+
+
+def test_a_leaf_seen_far_from_its_branch_assumes_its_unseen_petiole_as_the_hinge_error():
+    """The hinge error of the veto is the larger of ``hinge_error`` and
+    the unseen petiole: a 45 deg twist 8.4 cm from the estimate passes at
+    3 cm and is vetoed when the leaf is seen 5 cm from the branch."""
+    cfg = dc.replace(PlannerConfig(), hinge_error=0.03, max_hinge_misfit=0.4,
+                     max_energy_per_node=0.0, arc_lever_reference=0.0)
+    c = Candidate(_twist(0.084, 45.0), 0)
+    c.n_vis, c.energy = 100, 1e-5
+    assert _ScoreAndVeto(cfg, HINGE, [c], 0.0) == [c]
+    assert _ScoreAndVeto(cfg, HINGE, [c], 0.0, hinge_error_m=0.05) == []
+    assert "at hinge_error 5 cm" in c.reason
+
+
+def test_the_unseen_petiole_is_the_hinge_to_leaf_distance():
+    from lmap_drake.planning.attachment import UnseenPetiole
+    u, v = np.meshgrid(np.arange(0, 0.1, 0.003), np.arange(0, 0.05, 0.003))
+    blade = np.c_[0.04 + u.ravel(), v.ravel(), np.zeros(u.size)]
+    speck = np.array([[0.001, 0.0, 0.0]])     # a lone leaf point at the hinge
+    assert UnseenPetiole(np.vstack([blade, speck]), np.zeros(3)) == pytest.approx(0.04)

@@ -35,6 +35,7 @@ SHELLS = {
     "eval_hazard_prediction": ["--out", "--families", "--pool", "--then_twist", "--then_arc",
                                "--then_turn_band", "--repredict", "--hinge_bending_weight"],
     "eval_held_leaf": ["--runs", "--weights", "--out"],
+    "eval_hinge": ["--runs", "--scenario_text", "--out"],
     "eval_leaf_instances": ["--render", "--scenario_file", "--views", "--out", "--class_maps",
                             "--min_pixels", "--baseline"],
     "eval_segmentation": ["--out", "--recordings", "--scenario_file", "--backends", "--scenarios",
