@@ -22,10 +22,8 @@ class PerceptionConfig:
     # checkpoint, extra .[foundation]) | grounded_sam (local GroundingDINO + SAM files)
     segmenter: str = "segnet"
     # segnet: weights (relative to the repository root; made by
-    # scripts/train_segnet.py) and torch device. segnet_two_worlds.pt sees
-    # greenhouse-like plants and the one-leaf world (docs/how-to/train-segmenter.md);
-    # segnet.pt, trained on the one-leaf world alone, is kept as an option.
-    segnet_weights: str = "models/segnet/segnet_two_worlds.pt"
+    # scripts/train_segnet.py) and torch device.
+    segnet_weights: str = "models/segnet/segnet.pt"
     segnet_device: str = "cpu"  # segnet: torch device ("cpu", "cuda", ...)
     depth_cut: float = 1.5  # m: pixels deeper (camera z) are not segmented or turned into points
     dbscan_eps: float = 0.008  # m, DBSCAN neighbour radius that splits a class into instances

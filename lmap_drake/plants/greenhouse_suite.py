@@ -23,8 +23,7 @@ from lmap_drake.station.config import DefaultCameraConfig
 # Every greenhouse scene: every fruit revealed in turn, the arm in the aisle
 # (as the multi-fruit suite, plants.suite.MULTI_SCENE_EXTRA), and segnet with
 # the weights trained for the greenhouse's look (models/segnet/segnet_greenhouse.json;
-# the suite's loop figures were measured with them; the default,
-# segnet_two_worlds.pt, is their fine-tune with one-leaf renders added).
+# they lose 0.01-0.03 IoU on the one-leaf world, whose default stays segnet.pt).
 GREENHOUSE_SCENE_EXTRA = """planner: {targets: all}
 perception: {segnet_weights: models/segnet/segnet_greenhouse.pt}
 robot:

@@ -183,9 +183,9 @@ def test_hardware_recording_replays_to_the_same_action(full_run, tmp_path):
 
 def test_replay_with_other_settings_writes_its_own_plan(full_run, tmp_path):
     fake, out, *_ = full_run
-    text = "{planner: {distances: [0.02], action_families: [pull]}}"
+    text = "{planner: {distances: [0.04], action_families: [pull]}}"
     _, record = ReplayRun(out, tmp_path / "r", text, progress=print)
-    assert record["status"] == "ok" and record["chosen_action"]["distance"] == 0.02
+    assert record["status"] == "ok" and record["chosen_action"]["distance"] == 0.04
     assert record["scenario_text"] == text
 
 
