@@ -5,6 +5,7 @@ mesh (Open3D ray-casting scene, batched). Margin in metres; world frame W."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 
 class BranchDistance:
@@ -39,9 +40,12 @@ class UnionSdf:
                        for sdf, (lo, hi) in zip(sdfs, boxes)]
         self.pad = float(pad)
 
-    def __call__(self, points_W: np.ndarray, pad: float | None = None) -> np.ndarray:
+    def __call__(self, points_W: np.ndarray, pad: float | None = None,
+                 bound: float | None = None) -> np.ndarray:
         """The signed distances; ``pad`` (m, at most ``self.pad``): a
-        narrower band for this call (``Below``)."""
+        narrower band for this call (``Below``); ``bound`` (m): the parts
+        with ``LowerBelow`` give their values only where below it
+        (``LowerBelow``)."""
         pad = self.pad if pad is None else min(float(pad), self.pad)
         p = np.asarray(points_W, float).reshape(-1, 3)
         out = np.full(len(p), np.inf)
@@ -49,9 +53,17 @@ class UnionSdf:
             d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
             near = d < pad
             if near.any():
-                d[near] = np.asarray(sdf(p[near]), float).reshape(-1)
+                low = None if bound is None else getattr(sdf, "LowerBelow", None)
+                d[near] = np.asarray(sdf(p[near]) if low is None else low(p[near], bound),
+                                     float).reshape(-1)
             out = np.minimum(out, d)
         return out
+
+    def LowerBelow(self, points_W: np.ndarray, bound: float) -> np.ndarray:
+        """``self(points_W)`` where it is below ``bound`` (m), a lower bound
+        of it, at least ``bound``, elsewhere: the parts with ``LowerBelow``
+        (a ``MeshSetSdf``) skip what cannot come below it."""
+        return self(points_W, bound=bound)
 
     def Below(self, points_W: np.ndarray, bound: float) -> np.ndarray:
         """The distances where they may lie below ``bound`` (m): each SDF
@@ -62,7 +74,44 @@ class UnionSdf:
         ``__call__`` as long as no SDF beyond that band lies below
         ``bound`` (a decoder artefact: the fruit's surface is at least the
         band away there)."""
-        return self(points_W, pad=bound + BELOW_SLACK)
+        return self(points_W, pad=bound + BELOW_SLACK, bound=bound)
+
+    def NearestBelow(self, points_W: np.ndarray, bound: float) -> float:
+        """The smallest of ``Below(points_W, bound)``: exact when below
+        ``bound`` (m), else a value at least ``bound``; NaN when one of
+        those distances is not finite. Each part gets the smallest distance
+        found so far as its bound (``NearestWithin``: a ``MeshSetSdf``
+        computes exact distances only where they may come below it)."""
+        return self._Nearest(points_W, float(bound), float(bound) + BELOW_SLACK)
+
+    def NearestWithin(self, points_W: np.ndarray, bound: float) -> float:
+        """``NearestBelow`` of ``self(points_W)`` (this union's own band)."""
+        return self._Nearest(points_W, float(bound), self.pad)
+
+    def _Nearest(self, points_W: np.ndarray, bound: float, pad: float) -> float:
+        pad = min(float(pad), self.pad)
+        p = np.asarray(points_W, float).reshape(-1, 3)
+        best = np.inf
+        for sdf, lo, hi in self._parts:
+            d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+            near = d < pad
+            if not near.all():
+                best = min(best, float(d[~near].min()))
+            if not near.any():
+                continue
+            nearest = getattr(sdf, "NearestWithin", None)
+            if nearest is not None:
+                v = float(nearest(p[near], min(bound, best)))
+            else:
+                vals = np.asarray(sdf(p[near]), float).reshape(-1)
+                if np.any(vals == np.inf):      # (another part may be finite there)
+                    full = self(p, pad=pad)
+                    return float(full.min()) if np.all(np.isfinite(full)) else np.nan
+                v = float(vals.min()) if np.all(np.isfinite(vals)) else np.nan
+            if np.isnan(v):
+                return np.nan
+            best = min(best, v)
+        return best
 
 
 # m: how far beyond a check's margin ``UnionSdf.Below`` still evaluates the
@@ -113,6 +162,18 @@ class MeshSetSdf:
             one = o3d.t.geometry.RaycastingScene()
             one.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
             self._each.append(one)
+        # for ``LowerBelow``: every vertex, and the longest edge (a surface
+        # point lies within it of each vertex of its triangle)
+        V = [v.astype(float) for v, _ in meshes]
+        self._vertices = cKDTree(np.vstack(V)) if V else None
+        self._edge = max((float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).max())
+                          for v, f in zip(V, (f for _, f in meshes))), default=0.0)
+
+    def _Inside(self, q) -> np.ndarray:
+        inside = np.zeros(q.shape[0], bool)
+        for one in self._each:
+            inside |= one.compute_occupancy(q).numpy() > 0.5
+        return inside
 
     def __call__(self, points_W: np.ndarray) -> np.ndarray:
         import open3d as o3d
@@ -121,10 +182,66 @@ class MeshSetSdf:
             return np.full(len(p), np.inf)
         q = o3d.core.Tensor(p)
         d = self._all.compute_distance(q).numpy().astype(float)
-        inside = np.zeros(len(p), bool)
-        for one in self._each:
-            inside |= one.compute_occupancy(q).numpy() > 0.5
+        return np.where(self._Inside(q), -d, d)
+
+    def LowerBelow(self, points_W: np.ndarray, bound: float) -> np.ndarray:
+        """``self(points_W)`` where it is below ``bound`` (m); elsewhere a
+        lower bound of it, at least ``bound``: the distance to the nearest
+        vertex less the longest edge (``MESH_BOUND_GUARD`` kept for the
+        float32 distances), so the exact distance (Open3D's, the costly
+        part) is computed only inside a mesh or where that bound is below
+        ``bound``. The same verdict and nearest distance for a check
+        against ``bound``."""
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if len(p) == 0 or not self._each:
+            return np.full(len(p), np.inf)
+        inside = self._Inside(o3d.core.Tensor(p))
+        cap = float(bound) + self._edge + MESH_BOUND_GUARD
+        d = np.minimum(self._vertices.query(p.astype(float), distance_upper_bound=cap)[0],
+                       cap) - self._edge
+        exact = inside | (d < float(bound) + MESH_BOUND_GUARD)
+        if exact.any():
+            d[exact] = self._all.compute_distance(o3d.core.Tensor(p[exact])).numpy()
         return np.where(inside, -d, d)
+
+
+    def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 256) -> float:
+        """The smallest of ``self(points_W)``: exact when below ``bound``
+        (m), else a value at least ``bound``. Inside a mesh the exact
+        distances; outside, the exact ones only where the vertex bound
+        (``LowerBelow``) is below ``bound`` and the smallest found so far,
+        the lowest bounds first, ``chunk`` points at a time."""
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if len(p) == 0 or not self._each:
+            return np.inf
+        inside = self._Inside(o3d.core.Tensor(p))
+        best = np.inf
+        if inside.any():
+            best = -float(self._all.compute_distance(o3d.core.Tensor(p[inside])).numpy().max())
+        rest = np.flatnonzero(~inside)
+        b = min(float(bound), best)
+        if len(rest) and b + MESH_BOUND_GUARD > 0.0:
+            cap = b + self._edge + MESH_BOUND_GUARD
+            lb = np.minimum(self._vertices.query(p[rest].astype(float),
+                                                 distance_upper_bound=cap)[0], cap) - self._edge
+            keep = lb < b + MESH_BOUND_GUARD
+            order = np.argsort(lb[keep], kind="stable")
+            rest, lb = rest[keep][order], lb[keep][order]
+            while len(rest):
+                d = self._all.compute_distance(o3d.core.Tensor(p[rest[:chunk]])).numpy()
+                best = min(best, float(d.min()))
+                b = min(float(bound), best)
+                rest, lb = rest[chunk:], lb[chunk:]
+                n = int(np.searchsorted(lb, b + MESH_BOUND_GUARD, side="left"))
+                rest, lb = rest[:n], lb[:n]
+        return best if best < bound else float(bound)
+
+
+# m: ``MeshSetSdf.LowerBelow`` computes the exact distance wherever its bound
+# is below the check's bound plus this (Open3D's distances are float32).
+MESH_BOUND_GUARD = 1e-5
 
 
 def FruitSetSdf(fruit, pad: float = 0.05):
@@ -198,7 +315,16 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
             lo, hi = box if box is not None else (np.full(3, -np.inf), np.full(3, np.inf))
             pts = NearBox(robot_points_W, lo - m, hi + m, geoms)
         if len(pts):
-            below = getattr(distance, "Below", None)       # a plant's fruits: one band
+            nearest = getattr(distance, "NearestBelow", None)   # a plant's fruits: one band
+            if nearest is not None and np.isfinite(m):
+                # the nearest of ``Below``'s distances (exact below ``m``)
+                d_min = float(nearest(pts, m))
+                if not np.isfinite(d_min):
+                    return f"robot-{name} (non-finite {name} distance)"
+                if d_min < m:
+                    return f"robot-{what} ({d_min * 1000:.1f} mm)"
+                continue
+            below = getattr(distance, "Below", None)
             d = np.asarray(distance(pts) if below is None else below(pts, m), float)
             if np.isfinite(m) and not np.all(np.isfinite(d)):
                 # NaN passes every comparison: a non-finite distance rejects.
@@ -232,7 +358,11 @@ def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
         sel = np.all((deformed_W >= lo) & (deformed_W <= hi), axis=1)
         if not sel.any():
             return ""
-    d1 = np.asarray(distance(deformed_W[sel]), float)
+    # exact where below the margin, a lower bound at least the margin
+    # elsewhere (``LowerBelow``): the same verdict and nearest distance
+    low = getattr(distance, "LowerBelow", None)
+    d1 = np.asarray(distance(deformed_W[sel]) if low is None else low(deformed_W[sel], margin),
+                    float)
     d0 = (np.asarray(rest_distance, float)[sel] if rest_distance is not None
           else np.asarray(distance(np.asarray(rest_W)[sel]), float))
     if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):

@@ -261,7 +261,8 @@ def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
     if tree is not None:
         near = NearBox(pts, box[0] - margin, box[1] + margin)
         if len(near):
-            d, i = tree.query(near)
+            # (the search stops at ``margin``: farther samples come back inf)
+            d, i = tree.query(near, distance_upper_bound=margin)
             k = int(np.argmin(d))
             if d[k] < margin:
                 return ("robot-leaf" if i[k] < n_held

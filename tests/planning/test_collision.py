@@ -165,3 +165,59 @@ def test_near_cells_keep_every_point_within_the_margin():
         assert maybe.mean() < 0.5                                 # most ruled out
     # margin 0: no grid, nothing ruled out
     assert NearCells(leaf, 0.0).Maybe(q).all()
+
+
+def _MeshSet(rng):
+    import trimesh
+    from lmap_drake.planning.collision import MeshSetSdf
+    meshes = []
+    for c, r in (([0.5, 0.0, 0.3], 0.035), ([0.52, 0.01, 0.31], 0.04)):
+        m = trimesh.creation.icosphere(3, radius=r)
+        m.apply_translation(c)
+        meshes.append((np.asarray(m.vertices), np.asarray(m.faces)))
+    return MeshSetSdf(meshes), meshes
+
+
+def test_mesh_set_lower_below_is_exact_below_the_bound_and_a_bound_above():
+    rng = np.random.default_rng(3)
+    sdf, _ = _MeshSet(rng)
+    p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (5000, 3))
+    full = sdf(p)
+    for bound in (0.005, 0.015):
+        got = sdf.LowerBelow(p, bound)
+        near = full < bound
+        assert near.any() and (~near).any() and (full < 0).any()
+        np.testing.assert_array_equal(got[near], full[near])        # exact (inside too)
+        assert np.all(got[~near] >= bound) and np.all(got[~near] <= full[~near] + 1e-6)
+        assert np.count_nonzero(got != full) > 0.3 * len(p)          # most were not computed
+
+
+def test_nearest_below_is_the_smallest_below_distance_exactly_or_at_least_the_bound():
+    from lmap_drake.planning.collision import UnionSdf
+    rng = np.random.default_rng(4)
+    mesh_set, meshes = _MeshSet(rng)
+    c = np.array([0.5, 0.0, 0.3])
+
+    def estimate(q):
+        return np.linalg.norm(q - c, axis=1) - 0.03
+    V = np.vstack([v for v, _ in meshes])
+    inner = UnionSdf([estimate, mesh_set], [(c - 0.03, c + 0.03), (V.min(0), V.max(0))], 0.03)
+    other_c = np.array([0.62, 0.0, 0.3])
+    outer = UnionSdf([inner, lambda q: np.linalg.norm(q - other_c, axis=1) - 0.02],
+                     [(V.min(0), V.max(0)), (other_c - 0.02, other_c + 0.02)], 0.03)
+    hits = 0
+    for sdf in (inner, outer):
+        for k in range(40):
+            centre = rng.uniform([0.42, -0.08, 0.22], [0.68, 0.08, 0.4])
+            pts = centre + rng.normal(0.0, 0.01, (300, 3))
+            for bound in (0.005, 0.015):
+                ref = float(sdf.Below(pts, bound).min())
+                got = sdf.NearestBelow(pts, bound)
+                if ref < bound:
+                    assert got == ref
+                    hits += 1
+                else:
+                    assert got >= bound
+    assert 10 < hits < 150                           # both cases were met
+    nan = UnionSdf([lambda q: np.full(len(q), np.nan)], [(c - 0.03, c + 0.03)])
+    assert np.isnan(nan.NearestBelow(c[None], 0.005))
