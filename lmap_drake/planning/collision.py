@@ -49,20 +49,22 @@ class UnionSdf:
         pad = self.pad if pad is None else min(float(pad), self.pad)
         p = np.asarray(points_W, float).reshape(-1, 3)
         out = np.full(len(p), np.inf)
+        bound = None if bound is None else np.broadcast_to(np.asarray(bound, float), (len(p),))
         for sdf, lo, hi in self._parts:
             d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
             near = d < pad
             if near.any():
                 low = None if bound is None else getattr(sdf, "LowerBelow", None)
-                d[near] = np.asarray(sdf(p[near]) if low is None else low(p[near], bound),
+                d[near] = np.asarray(sdf(p[near]) if low is None else low(p[near], bound[near]),
                                      float).reshape(-1)
             out = np.minimum(out, d)
         return out
 
-    def LowerBelow(self, points_W: np.ndarray, bound: float) -> np.ndarray:
-        """``self(points_W)`` where it is below ``bound`` (m), a lower bound
-        of it, at least ``bound``, elsewhere: the parts with ``LowerBelow``
-        (a ``MeshSetSdf``) skip what cannot come below it."""
+    def LowerBelow(self, points_W: np.ndarray, bound) -> np.ndarray:
+        """``self(points_W)`` where it is below ``bound`` (m; one value or
+        one per point), a lower bound of it, at least ``bound``, elsewhere:
+        the parts with ``LowerBelow`` (a ``MeshSetSdf``) skip what cannot
+        come below it."""
         return self(points_W, bound=bound)
 
     def Below(self, points_W: np.ndarray, bound: float) -> np.ndarray:
@@ -184,9 +186,10 @@ class MeshSetSdf:
         d = self._all.compute_distance(q).numpy().astype(float)
         return np.where(self._Inside(q), -d, d)
 
-    def LowerBelow(self, points_W: np.ndarray, bound: float) -> np.ndarray:
-        """``self(points_W)`` where it is below ``bound`` (m); elsewhere a
-        lower bound of it, at least ``bound``: the distance to the nearest
+    def LowerBelow(self, points_W: np.ndarray, bound) -> np.ndarray:
+        """``self(points_W)`` where it is below ``bound`` (m; one value or
+        one per point); elsewhere a lower bound of it, at least ``bound``:
+        the distance to the nearest
         vertex less the longest edge (``MESH_BOUND_GUARD`` kept for the
         float32 distances), so the exact distance (Open3D's, the costly
         part) is computed only inside a mesh or where that bound is below
@@ -197,10 +200,12 @@ class MeshSetSdf:
         if len(p) == 0 or not self._each:
             return np.full(len(p), np.inf)
         inside = self._Inside(o3d.core.Tensor(p))
-        cap = float(bound) + self._edge + MESH_BOUND_GUARD
-        d = np.minimum(self._vertices.query(p.astype(float), distance_upper_bound=cap)[0],
+        bound = np.broadcast_to(np.asarray(bound, float), (len(p),))
+        cap = bound + self._edge + MESH_BOUND_GUARD
+        d = np.minimum(self._vertices.query(p.astype(float),
+                                            distance_upper_bound=max(float(cap.max()), 0.0))[0],
                        cap) - self._edge
-        exact = inside | (d < float(bound) + MESH_BOUND_GUARD)
+        exact = inside | (d < bound + MESH_BOUND_GUARD)
         if exact.any():
             d[exact] = self._all.compute_distance(o3d.core.Tensor(p[exact])).numpy()
         return np.where(inside, -d, d)
@@ -219,7 +224,20 @@ class MeshSetSdf:
         inside = self._Inside(o3d.core.Tensor(p))
         best = np.inf
         if inside.any():
-            best = -float(self._all.compute_distance(o3d.core.Tensor(p[inside])).numpy().max())
+            # the deepest: a vertex is on the surface, so the distance there
+            # is at most the nearest vertex's, the largest first
+            ins = np.flatnonzero(inside)
+            up = self._vertices.query(p[ins].astype(float))[0]
+            order = np.argsort(-up, kind="stable")
+            ins, up = ins[order], up[order]
+            deepest = -np.inf
+            while len(ins):
+                d = self._all.compute_distance(o3d.core.Tensor(p[ins[:chunk]])).numpy()
+                deepest = max(deepest, float(d.max()))
+                ins, up = ins[chunk:], up[chunk:]
+                ins = ins[up > deepest - MESH_BOUND_GUARD]
+                up = up[up > deepest - MESH_BOUND_GUARD]
+            best = -deepest
         rest = np.flatnonzero(~inside)
         b = min(float(bound), best)
         if len(rest) and b + MESH_BOUND_GUARD > 0.0:
@@ -360,11 +378,12 @@ def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
             return ""
     # exact where below the margin, a lower bound at least the margin
     # elsewhere (``LowerBelow``): the same verdict and nearest distance
-    low = getattr(distance, "LowerBelow", None)
-    d1 = np.asarray(distance(deformed_W[sel]) if low is None else low(deformed_W[sel], margin),
-                    float)
     d0 = (np.asarray(rest_distance, float)[sel] if rest_distance is not None
           else np.asarray(distance(np.asarray(rest_W)[sel]), float))
+    low = getattr(distance, "LowerBelow", None)
+    d1 = np.asarray(distance(deformed_W[sel]) if low is None else
+                    low(deformed_W[sel], np.minimum(margin, np.nan_to_num(d0, nan=margin)
+                                                    - 1e-3)), float)
     if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):
         return f"leaf-{what} (non-finite {what} distance)"
     bad = (d1 < margin) & (d1 < d0 - 1e-3)

@@ -221,3 +221,35 @@ def test_nearest_below_is_the_smallest_below_distance_exactly_or_at_least_the_bo
     assert 10 < hits < 150                           # both cases were met
     nan = UnionSdf([lambda q: np.full(len(q), np.nan)], [(c - 0.03, c + 0.03)])
     assert np.isnan(nan.NearestBelow(c[None], 0.005))
+
+
+def test_mesh_set_lower_below_takes_a_bound_per_point():
+    rng = np.random.default_rng(5)
+    sdf, _ = _MeshSet(rng)
+    p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (3000, 3))
+    full = sdf(p)
+    bound = rng.uniform(-0.01, 0.02, len(p))
+    got = sdf.LowerBelow(p, bound)
+    near = full < bound
+    assert near.any() and (~near).any()
+    np.testing.assert_array_equal(got[near], full[near])
+    assert np.all(got[~near] >= bound[~near])
+
+
+def test_leaf_collision_reason_is_the_same_with_the_mesh_set_bounded():
+    """The leaf-fruit check on a fruit set with hypothesis meshes gives the
+    same reason (verdict and distance) as on the plain per-point SDF."""
+    from lmap_drake.planning.collision import LeafCollisionReason
+    rng = np.random.default_rng(6)
+    mesh_set, meshes = _MeshSet(rng)
+    V = np.vstack([v for v, _ in meshes])
+    union = UnionSdf([mesh_set], [(V.min(0), V.max(0))], 0.03)
+    rest = np.array([0.5, -0.07, 0.3]) + rng.normal(0, 0.01, (400, 3)) * [1, 0.1, 1]
+    reasons = []
+    for shift in np.linspace(0.0, 0.04, 9):
+        moved = rest + [0.0, shift, 0.0]
+        got = LeafCollisionReason(rest, moved, union, 0.005, (V.min(0), V.max(0)))
+        reasons.append(got)
+        assert got == LeafCollisionReason(rest, moved, lambda q: union(q), 0.005,
+                                          (V.min(0), V.max(0)))
+    assert "" in reasons and any(r.startswith("leaf-fruit (") for r in reasons)
