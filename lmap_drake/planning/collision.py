@@ -211,12 +211,13 @@ class MeshSetSdf:
         return np.where(inside, -d, d)
 
 
-    def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 256) -> float:
+    def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 16) -> float:
         """The smallest of ``self(points_W)``: exact when below ``bound``
         (m), else a value at least ``bound``. Inside a mesh the exact
         distances; outside, the exact ones only where the vertex bound
         (``LowerBelow``) is below ``bound`` and the smallest found so far,
-        the lowest bounds first, ``chunk`` points at a time."""
+        the lowest bounds first, ``chunk`` points, then four times more
+        each round."""
         import open3d as o3d
         p = np.asarray(points_W, np.float32).reshape(-1, 3)
         if len(p) == 0 or not self._each:
@@ -230,11 +231,11 @@ class MeshSetSdf:
             up = self._vertices.query(p[ins].astype(float))[0]
             order = np.argsort(-up, kind="stable")
             ins, up = ins[order], up[order]
-            deepest = -np.inf
+            deepest, n = -np.inf, chunk
             while len(ins):
-                d = self._all.compute_distance(o3d.core.Tensor(p[ins[:chunk]])).numpy()
+                d = self._all.compute_distance(o3d.core.Tensor(p[ins[:n]])).numpy()
                 deepest = max(deepest, float(d.max()))
-                ins, up = ins[chunk:], up[chunk:]
+                ins, up, n = ins[n:], up[n:], 4 * n
                 ins = ins[up > deepest - MESH_BOUND_GUARD]
                 up = up[up > deepest - MESH_BOUND_GUARD]
             best = -deepest
@@ -246,12 +247,12 @@ class MeshSetSdf:
                                                  distance_upper_bound=cap)[0], cap) - self._edge
             keep = lb < b + MESH_BOUND_GUARD
             order = np.argsort(lb[keep], kind="stable")
-            rest, lb = rest[keep][order], lb[keep][order]
+            rest, lb, n = rest[keep][order], lb[keep][order], chunk
             while len(rest):
-                d = self._all.compute_distance(o3d.core.Tensor(p[rest[:chunk]])).numpy()
+                d = self._all.compute_distance(o3d.core.Tensor(p[rest[:n]])).numpy()
                 best = min(best, float(d.min()))
                 b = min(float(bound), best)
-                rest, lb = rest[chunk:], lb[chunk:]
+                rest, lb, n = rest[n:], lb[n:], 4 * n
                 n = int(np.searchsorted(lb, b + MESH_BOUND_GUARD, side="left"))
                 rest, lb = rest[:n], lb[:n]
         return best if best < bound else float(bound)
