@@ -164,12 +164,42 @@ class MeshSetSdf:
             one = o3d.t.geometry.RaycastingScene()
             one.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
             self._each.append(one)
-        # for ``LowerBelow``: every vertex, and the longest edge (a surface
-        # point lies within it of each vertex of its triangle)
-        V = [v.astype(float) for v, _ in meshes]
-        self._vertices = cKDTree(np.vstack(V)) if V else None
-        self._edge = max((float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).max())
-                          for v, f in zip(V, (f for _, f in meshes))), default=0.0)
+        # for ``LowerBelow``: the vertices of a triangle (on the surface,
+        # ``_surface``), each with its longest edge (a point of a triangle
+        # lies within that of each of its vertices), in two groups (most,
+        # and the few with long edges), each with its longest such edge
+        V, R = [], []
+        for v, f in meshes:
+            v, f = v.astype(float), f.astype(np.int64)
+            e = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1)
+            r = np.zeros(len(v))
+            for k in range(3):          # edge k joins corners k and k - 1
+                np.maximum.at(r, f[:, k], e[:, k])
+                np.maximum.at(r, f[:, k - 1], e[:, k])
+            used = np.unique(f)
+            V.append(v[used])
+            R.append(r[used])
+        self._surface, self._groups = None, []
+        if V:
+            V, R = np.vstack(V), np.concatenate(R)
+            self._surface = cKDTree(V)
+            cut = 1.5 * float(np.median(R))
+            self._groups = [(cKDTree(V[m]), float(R[m].max())) for m in (R <= cut, R > cut)
+                            if m.any()]
+
+    def _LowerBound(self, p: np.ndarray, bound: np.ndarray) -> np.ndarray:
+        """A lower bound (m) of the distance from ``p`` (N, 3) to the
+        meshes' surfaces: over each vertex group, the distance to its
+        nearest vertex less the group's longest edge (the nearest surface
+        point's triangle has a vertex in a group); where that exceeds
+        ``bound`` (one per point) + ``MESH_BOUND_GUARD`` it may stand at
+        that."""
+        out = np.full(len(p), np.inf)
+        for tree, r in self._groups:
+            cap = bound + r + MESH_BOUND_GUARD
+            d = tree.query(p, distance_upper_bound=max(float(cap.max()), 0.0))[0]
+            out = np.minimum(out, np.minimum(d, cap) - r)
+        return out
 
     def _Inside(self, q) -> np.ndarray:
         inside = np.zeros(q.shape[0], bool)
@@ -189,10 +219,9 @@ class MeshSetSdf:
     def LowerBelow(self, points_W: np.ndarray, bound) -> np.ndarray:
         """``self(points_W)`` where it is below ``bound`` (m; one value or
         one per point); elsewhere a lower bound of it, at least ``bound``:
-        the distance to the nearest
-        vertex less the longest edge (``MESH_BOUND_GUARD`` kept for the
-        float32 distances), so the exact distance (Open3D's, the costly
-        part) is computed only inside a mesh or where that bound is below
+        ``_LowerBound`` (``MESH_BOUND_GUARD`` kept for the float32
+        distances), so the exact distance (Open3D's, the costly part) is
+        computed only inside a mesh or where that bound is below
         ``bound``. The same verdict and nearest distance for a check
         against ``bound``."""
         import open3d as o3d
@@ -201,10 +230,7 @@ class MeshSetSdf:
             return np.full(len(p), np.inf)
         inside = self._Inside(o3d.core.Tensor(p))
         bound = np.broadcast_to(np.asarray(bound, float), (len(p),))
-        cap = bound + self._edge + MESH_BOUND_GUARD
-        d = np.minimum(self._vertices.query(p.astype(float),
-                                            distance_upper_bound=max(float(cap.max()), 0.0))[0],
-                       cap) - self._edge
+        d = self._LowerBound(p.astype(float), bound)
         exact = inside | (d < bound + MESH_BOUND_GUARD)
         if exact.any():
             d[exact] = self._all.compute_distance(o3d.core.Tensor(p[exact])).numpy()
@@ -214,8 +240,8 @@ class MeshSetSdf:
     def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 16) -> float:
         """The smallest of ``self(points_W)``: exact when below ``bound``
         (m), else a value at least ``bound``. Inside a mesh the exact
-        distances; outside, the exact ones only where the vertex bound
-        (``LowerBelow``) is below ``bound`` and the smallest found so far,
+        distances (the deepest: at most the nearest vertex's distance);
+        outside, the exact ones only where ``_LowerBound`` is below ``bound`` and the smallest found so far,
         the lowest bounds first, ``chunk`` points, then four times more
         each round."""
         import open3d as o3d
@@ -228,7 +254,7 @@ class MeshSetSdf:
             # the deepest: a vertex is on the surface, so the distance there
             # is at most the nearest vertex's, the largest first
             ins = np.flatnonzero(inside)
-            up = self._vertices.query(p[ins].astype(float))[0]
+            up = self._surface.query(p[ins].astype(float))[0]
             order = np.argsort(-up, kind="stable")
             ins, up = ins[order], up[order]
             deepest, n = -np.inf, chunk
@@ -242,9 +268,7 @@ class MeshSetSdf:
         rest = np.flatnonzero(~inside)
         b = min(float(bound), best)
         if len(rest) and b + MESH_BOUND_GUARD > 0.0:
-            cap = b + self._edge + MESH_BOUND_GUARD
-            lb = np.minimum(self._vertices.query(p[rest].astype(float),
-                                                 distance_upper_bound=cap)[0], cap) - self._edge
+            lb = self._LowerBound(p[rest].astype(float), np.full(len(rest), b))
             keep = lb < b + MESH_BOUND_GUARD
             order = np.argsort(lb[keep], kind="stable")
             rest, lb, n = rest[keep][order], lb[keep][order], chunk

@@ -253,3 +253,22 @@ def test_leaf_collision_reason_is_the_same_with_the_mesh_set_bounded():
         assert got == LeafCollisionReason(rest, moved, lambda q: union(q), 0.005,
                                           (V.min(0), V.max(0)))
     assert "" in reasons and any(r.startswith("leaf-fruit (") for r in reasons)
+
+
+def test_mesh_set_lower_bound_never_exceeds_the_distance_with_long_and_short_edges():
+    import trimesh
+    from lmap_drake.planning.collision import MeshSetSdf
+    ball = trimesh.creation.icosphere(3, radius=0.03)
+    ball.apply_translation([0.5, 0.0, 0.3])
+    box = trimesh.creation.box([0.05, 0.04, 0.06])          # 12 long-edged triangles
+    box.apply_translation([0.56, 0.0, 0.3])
+    sdf = MeshSetSdf([(ball.vertices, ball.faces), (box.vertices, box.faces)])
+    p = np.random.default_rng(7).uniform([0.44, -0.06, 0.24], [0.62, 0.06, 0.36], (4000, 3))
+    full = sdf(p)
+    lb = sdf._LowerBound(p, np.full(len(p), 1.0))
+    assert np.all(lb <= np.abs(full) + 1e-6)
+    # with short edges only, the bound is within an edge (5 mm) of the distance
+    ball_only = MeshSetSdf([(ball.vertices, ball.faces)])
+    lb = ball_only._LowerBound(p, np.full(len(p), 1.0))
+    full = np.abs(ball_only(p))
+    assert np.all(lb <= full + 1e-6) and np.max(full - lb) < 0.006
