@@ -326,7 +326,8 @@ def _FirstApproach(ctx: PlanningContext, cfg: PlannerConfig, g, actions: list[Ac
     approach passes, or None when none does."""
     for R, label in zip(rotations, labels):
         turned = Grasp(g.p_WG, R, g.grasp_id)
-        approach = GraspApproach(ctx, turned, cfg)
+        # (a failed orientation's reason is not kept: its verdict suffices)
+        approach = GraspApproach(ctx, turned, cfg, verdict_only=True)
         if approach[0] is None:
             continue            # (the actions are turned only for an approach that passes)
         cands = IkAndRobotChecks(ctx, turned, cfg, [dc.replace(a, R_WG=R) for a in actions],

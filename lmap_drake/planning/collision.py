@@ -78,23 +78,31 @@ class UnionSdf:
         band away there)."""
         return self(points_W, pad=bound + BELOW_SLACK, bound=bound)
 
-    def NearestBelow(self, points_W: np.ndarray, bound: float) -> float:
+    def NearestBelow(self, points_W: np.ndarray, bound: float, first_hit: bool = False
+                     ) -> float:
         """The smallest of ``Below(points_W, bound)``: exact when below
         ``bound`` (m), else a value at least ``bound``; NaN when one of
         those distances is not finite. Each part gets the smallest distance
         found so far as its bound (``NearestWithin``: a ``MeshSetSdf``
-        computes exact distances only where they may come below it)."""
-        return self._Nearest(points_W, float(bound), float(bound) + BELOW_SLACK)
+        computes exact distances only where they may come below it). With
+        ``first_hit``, only whether it is below ``bound``: the parts with
+        ``NearestWithin`` first, and the first value below ``bound`` (not
+        the smallest) is returned (a NaN behind it goes unseen)."""
+        return self._Nearest(points_W, float(bound), float(bound) + BELOW_SLACK, first_hit)
 
-    def NearestWithin(self, points_W: np.ndarray, bound: float) -> float:
+    def NearestWithin(self, points_W: np.ndarray, bound: float, first_hit: bool = False
+                      ) -> float:
         """``NearestBelow`` of ``self(points_W)`` (this union's own band)."""
-        return self._Nearest(points_W, float(bound), self.pad)
+        return self._Nearest(points_W, float(bound), self.pad, first_hit)
 
-    def _Nearest(self, points_W: np.ndarray, bound: float, pad: float) -> float:
+    def _Nearest(self, points_W: np.ndarray, bound: float, pad: float,
+                 first_hit: bool = False) -> float:
         pad = min(float(pad), self.pad)
         p = np.asarray(points_W, float).reshape(-1, 3)
         best = np.inf
-        for sdf, lo, hi in self._parts:
+        parts = (sorted(self._parts, key=lambda part: not hasattr(part[0], "NearestWithin"))
+                 if first_hit else self._parts)
+        for sdf, lo, hi in parts:
             d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
             near = d < pad
             if not near.all():
@@ -103,7 +111,7 @@ class UnionSdf:
                 continue
             nearest = getattr(sdf, "NearestWithin", None)
             if nearest is not None:
-                v = float(nearest(p[near], min(bound, best)))
+                v = float(nearest(p[near], min(bound, best), first_hit=first_hit))
             else:
                 vals = np.asarray(sdf(p[near]), float).reshape(-1)
                 if np.any(vals == np.inf):      # (another part may be finite there)
@@ -113,6 +121,8 @@ class UnionSdf:
             if np.isnan(v):
                 return np.nan
             best = min(best, v)
+            if first_hit and best < bound:
+                return best
         return best
 
 
@@ -237,19 +247,23 @@ class MeshSetSdf:
         return np.where(inside, -d, d)
 
 
-    def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 16) -> float:
+    def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 16,
+                      first_hit: bool = False) -> float:
         """The smallest of ``self(points_W)``: exact when below ``bound``
         (m), else a value at least ``bound``. Inside a mesh the exact
         distances (the deepest: at most the nearest vertex's distance);
         outside, the exact ones only where ``_LowerBound`` is below ``bound`` and the smallest found so far,
         the lowest bounds first, ``chunk`` points, then four times more
-        each round."""
+        each round. ``first_hit``: a value below ``bound`` as soon as one
+        is found (a point inside: -0.0)."""
         import open3d as o3d
         p = np.asarray(points_W, np.float32).reshape(-1, 3)
         if len(p) == 0 or not self._each:
             return np.inf
         inside = self._Inside(o3d.core.Tensor(p))
         best = np.inf
+        if first_hit and inside.any() and bound > 0.0:
+            return -0.0
         if inside.any():
             # the deepest: a vertex is on the surface, so the distance there
             # is at most the nearest vertex's, the largest first
@@ -275,6 +289,8 @@ class MeshSetSdf:
             while len(rest):
                 d = self._all.compute_distance(o3d.core.Tensor(p[rest[:n]])).numpy()
                 best = min(best, float(d.min()))
+                if first_hit and best < bound:
+                    return best
                 b = min(float(bound), best)
                 rest, lb, n = rest[n:], lb[n:], 4 * n
                 n = int(np.searchsorted(lb, b + MESH_BOUND_GUARD, side="left"))
@@ -334,14 +350,18 @@ def AllPoints(points_W) -> np.ndarray:
 
 def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
                          margin: float, fruit_box=None, branch_box=None,
-                         body_fruit_margin: float | None = None) -> str:
+                         body_fruit_margin: float | None = None,
+                         verdict_only: bool = False) -> str:
     """'' if the robot samples keep ``margin`` from the fruit (SDF) and the
     branch mesh, else the reason. ``robot_points_W``: (N, 3) world points or
     a ``SurfaceSamples`` (per geometry, see ``NearBox``). ``*_box`` = (lo,
     hi) bounds of each object; only samples within ``margin`` of those
     bounds are queried. ``body_fruit_margin`` (m, with ``SurfaceSamples``):
     the geometries not on the fingers keep this from the fruit instead
-    (when larger than ``margin``; the reason then reads 'robot-body-fruit')."""
+    (when larger than ``margin``; the reason then reads 'robot-body-fruit').
+    ``verdict_only``: the same verdict and reason up to its parenthesis
+    (a plant's fruits (``UnionSdf``): the first distance below the
+    margin found, not the nearest: ``NearestBelow``'s ``first_hit``)."""
     checks = [("fruit", "fruit", fruit_sdf, fruit_box, margin, None)]
     fingers = getattr(robot_points_W, "fingers", None)
     if (body_fruit_margin is not None and fingers is not None and np.isfinite(margin)
@@ -361,11 +381,12 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
             nearest = getattr(distance, "NearestBelow", None)   # a plant's fruits: one band
             if nearest is not None and np.isfinite(m):
                 # the nearest of ``Below``'s distances (exact below ``m``)
-                d_min = float(nearest(pts, m))
+                d_min = float(nearest(pts, m, first_hit=verdict_only))
                 if not np.isfinite(d_min):
                     return f"robot-{name} (non-finite {name} distance)"
                 if d_min < m:
-                    return f"robot-{what} ({d_min * 1000:.1f} mm)"
+                    return (f"robot-{what} (verdict only)" if verdict_only
+                            else f"robot-{what} ({d_min * 1000:.1f} mm)")
                 continue
             below = getattr(distance, "Below", None)
             d = np.asarray(distance(pts) if below is None else below(pts, m), float)

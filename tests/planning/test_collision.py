@@ -272,3 +272,29 @@ def test_mesh_set_lower_bound_never_exceeds_the_distance_with_long_and_short_edg
     lb = ball_only._LowerBound(p, np.full(len(p), 1.0))
     full = np.abs(ball_only(p))
     assert np.all(lb <= full + 1e-6) and np.max(full - lb) < 0.006
+
+
+def test_verdict_only_robot_check_gives_the_same_verdict_without_the_nearest_distance():
+    rng = np.random.default_rng(8)
+    mesh_set, meshes = _MeshSet(rng)
+    c = np.array([0.5, 0.0, 0.3])
+    V = np.vstack([v for v, _ in meshes])
+    calls = []
+
+    def estimate(q):
+        calls.append(len(q))
+        return np.linalg.norm(q - c, axis=1) - 0.03
+    fruit = UnionSdf([estimate, mesh_set], [(c - 0.03, c + 0.03), (V.min(0), V.max(0))], 0.03)
+    box = (V.min(0), V.max(0))
+    verdicts = []
+    for k in range(60):
+        pts = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4]) + rng.normal(0, 0.005, (200, 3))
+        full = RobotCollisionReason(pts, fruit, None, 0.005, box)
+        n = len(calls)
+        fast = RobotCollisionReason(pts, fruit, None, 0.005, box, verdict_only=True)
+        assert full.split(" (")[0] == fast.split(" (")[0]
+        assert fast in ("", "robot-fruit (verdict only)")
+        verdicts.append(fast)
+        if fast and len(calls) == n:
+            verdicts.append("decoder skipped")
+    assert "" in verdicts and "decoder skipped" in verdicts
