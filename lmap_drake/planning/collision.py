@@ -44,8 +44,8 @@ class UnionSdf:
                  bound: float | None = None) -> np.ndarray:
         """The signed distances; ``pad`` (m, at most ``self.pad``): a
         narrower band for this call (``Below``); ``bound`` (m): the parts
-        with ``LowerBelow`` give their values only where below it
-        (``LowerBelow``)."""
+        with ``LowerBelow`` give their values only where below it and the
+        parts before them (``LowerBelow``)."""
         pad = self.pad if pad is None else min(float(pad), self.pad)
         p = np.asarray(points_W, float).reshape(-1, 3)
         out = np.full(len(p), np.inf)
@@ -55,7 +55,9 @@ class UnionSdf:
             near = d < pad
             if near.any():
                 low = None if bound is None else getattr(sdf, "LowerBelow", None)
-                d[near] = np.asarray(sdf(p[near]) if low is None else low(p[near], bound[near]),
+                # (below the parts before, at a point, it must come to matter)
+                d[near] = np.asarray(sdf(p[near]) if low is None else
+                                     low(p[near], np.minimum(bound[near], out[near])),
                                      float).reshape(-1)
             out = np.minimum(out, d)
         return out

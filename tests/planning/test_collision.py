@@ -298,3 +298,20 @@ def test_verdict_only_robot_check_gives_the_same_verdict_without_the_nearest_dis
         if fast and len(calls) == n:
             verdicts.append("decoder skipped")
     assert "" in verdicts and "decoder skipped" in verdicts
+
+
+def test_union_lower_below_is_exact_below_the_bound_with_an_estimate_and_meshes():
+    rng = np.random.default_rng(9)
+    mesh_set, meshes = _MeshSet(rng)
+    c = np.array([0.5, 0.0, 0.3])
+    V = np.vstack([v for v, _ in meshes])
+    fruit = UnionSdf([_Sphere(c, 0.037), mesh_set], [(c - 0.037, c + 0.037),
+                                                     (V.min(0), V.max(0))], 0.03)
+    p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (4000, 3))
+    full = fruit(p)
+    bound = rng.uniform(-0.01, 0.015, len(p))
+    got = fruit.LowerBelow(p, bound)
+    below = full < bound
+    assert below.any() and (~below).any()
+    np.testing.assert_array_equal(got[below], full[below])
+    assert np.all(got[~below] >= bound[~below])
