@@ -248,13 +248,13 @@ class MeshSetSdf:
             d[exact] = self._all.compute_distance(o3d.core.Tensor(p[exact])).numpy()
         return np.where(inside, -d, d)
 
-
     def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 16,
                       first_hit: bool = False) -> float:
         """The smallest of ``self(points_W)``: exact when below ``bound``
         (m), else a value at least ``bound``. Inside a mesh the exact
-        distances (the deepest: at most the nearest vertex's distance);
-        outside, the exact ones only where ``_LowerBound`` is below ``bound`` and the smallest found so far,
+        distances (for the deepest: a point's distance is at most its
+        nearest vertex's); outside, the exact ones only where
+        ``_LowerBound`` is below ``bound`` and the smallest found so far,
         the lowest bounds first, ``chunk`` points, then four times more
         each round. ``first_hit``: a value below ``bound`` as soon as one
         is found (a point inside: -0.0)."""
@@ -295,8 +295,8 @@ class MeshSetSdf:
                     return best
                 b = min(float(bound), best)
                 rest, lb, n = rest[n:], lb[n:], 4 * n
-                n = int(np.searchsorted(lb, b + MESH_BOUND_GUARD, side="left"))
-                rest, lb = rest[:n], lb[:n]
+                left = int(np.searchsorted(lb, b + MESH_BOUND_GUARD, side="left"))
+                rest, lb = rest[:left], lb[:left]
         return best if best < bound else float(bound)
 
 
