@@ -18,7 +18,7 @@ from lmap_drake.deformation.action import (Action, AxisAngleMatrix, HingeAxes, M
 from lmap_drake.planning.approach import GraspApproach, IkAndRobotChecks
 from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge
 from lmap_drake.planning.config import PlannerConfig
-from lmap_drake.planning.context import PlanningContext, VisibilitySurfaces
+from lmap_drake.planning.context import PlanningContext, SurfacesOf
 from lmap_drake.planning.energy import MaxPullDistance
 from lmap_drake.planning.result import Candidate, CandidateSet
 from lmap_drake.planning.visibility import VisibilityModel
@@ -225,7 +225,7 @@ def _InitialVisibility(ctx: PlanningContext, cfg: PlannerConfig) -> CandidateSet
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
                             message="the fruit estimate is empty or not finite")
     t0 = time.perf_counter()
-    vis = VisibilityModel(ctx.X_WC, VisibilitySurfaces(ctx.scene.fruit, cfg.visibility_shapes),
+    vis = VisibilityModel(ctx.X_WC, SurfacesOf(ctx, cfg.visibility_shapes),
                           cfg.visibility_voxel, ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W]))
     if ctx.seen_before_W is not None:
