@@ -68,27 +68,29 @@ class PlanningContext:
         self.p_WC = np.asarray(self.X_WC, float)[:3, 3]
 
 
-def TargetShared(scene: SceneEstimate, fruit_shapes: str, visibility_shapes: str) -> dict:
+def TargetShared(scene: SceneEstimate, fruit_shapes: str) -> dict:
     """What every leaf's plan for ``scene``'s fruit shares (the scenes of
     ``targets.TargetScene`` differ in their leaves only), for
     ``PlanningContext.shared``: the fruits' obstacle (``FruitObstacle``)
-    and the target's ``VisibilitySurfaces`` (deterministic: the same as
-    computed per plan)."""
+    and the target's ``VisibilitySurfaces`` per shapes key, filled when
+    first needed (``SurfacesOf``; deterministic: the same as computed per
+    plan)."""
     fruit = scene.fruit
     others = [f for f in getattr(scene, "other_fruits", []) if f is not None]
     return {"fruit_obstacle": FruitObstacle(([fruit] if fruit is not None else []) + others,
                                             fruit_shapes),
-            "visibility_surfaces": (visibility_shapes, None if fruit is None else
-                                    VisibilitySurfaces(fruit, visibility_shapes))}
+            "visibility_surfaces": {}}
 
 
 def SurfacesOf(ctx: PlanningContext, shapes: str):
-    """``VisibilitySurfaces(ctx.scene.fruit, shapes)``, from ``ctx.shared``
-    when it holds them."""
-    got = (ctx.shared or {}).get("visibility_surfaces")
-    if got is not None and got[0] == shapes and got[1] is not None:
-        return got[1]
-    return VisibilitySurfaces(ctx.scene.fruit, shapes)
+    """``VisibilitySurfaces(ctx.scene.fruit, shapes)``, kept in
+    ``ctx.shared`` (when given) for the target's other leaves."""
+    if not ctx.shared:
+        return VisibilitySurfaces(ctx.scene.fruit, shapes)
+    kept = ctx.shared.setdefault("visibility_surfaces", {})
+    if shapes not in kept:
+        kept[shapes] = VisibilitySurfaces(ctx.scene.fruit, shapes)
+    return kept[shapes]
 
 
 def FruitObstacle(fruits: list, shapes: str = "union") -> tuple:

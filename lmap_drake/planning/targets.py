@@ -241,7 +241,7 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
     shared = None          # the leaves' plans share the fruits' obstacle and surfaces
     for d in occ["leaves"][:max_leaves]:
         scene = TargetScene(plant, k, d["leaf_id"])
-        shared = shared or TargetShared(scene, cfg.fruit_shapes, cfg.visibility_shapes)
+        shared = shared or TargetShared(scene, cfg.fruit_shapes)
         ctx = PlanningContext(scene, X_WC, robot, np.asarray(q_current, float), image_tan,
                               seen_before_W=occ.get("seen_before_W"),
                               fruit_shapes=cfg.fruit_shapes, shared=shared)

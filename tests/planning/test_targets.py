@@ -75,7 +75,8 @@ def test_target_scene_keeps_the_rest_as_obstacles():
 def test_a_target_s_leaves_share_the_fruits_obstacle_and_surfaces_unchanged():
     from lmap_drake.planning.context import SurfacesOf, TargetShared, VisibilitySurfaces
     plant, _ = _plant()
-    shared = TargetShared(TargetScene(plant, 0, 0), "union", "expected")
+    shared = TargetShared(TargetScene(plant, 0, 0), "union")
+    assert shared["visibility_surfaces"] == {}               # filled when first needed
     q = np.random.default_rng(0).uniform([0.35, -0.1, 0.2], [0.7, 0.1, 0.4], (500, 3))
     for leaf in (0, 1):
         own = PlanningContext(TargetScene(plant, 0, leaf), X_WC, robot=None,
@@ -87,8 +88,9 @@ def test_a_target_s_leaves_share_the_fruits_obstacle_and_surfaces_unchanged():
         np.testing.assert_array_equal(ctx.fruit_box, own.fruit_box)
         np.testing.assert_array_equal(SurfacesOf(ctx, "expected"),
                                       VisibilitySurfaces(plant.fruits[0], "expected"))
-        assert SurfacesOf(ctx, "expected") is shared["visibility_surfaces"][1]
-        assert SurfacesOf(ctx, "estimate") is not shared["visibility_surfaces"][1]
+        assert SurfacesOf(ctx, "expected") is shared["visibility_surfaces"]["expected"]
+        assert SurfacesOf(ctx, "estimate") is not shared["visibility_surfaces"]["expected"]
+    assert set(shared["visibility_surfaces"]) == {"expected", "estimate"}
 
 
 def test_order_and_leaf_choice():
