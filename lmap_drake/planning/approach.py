@@ -31,12 +31,15 @@ class _ApproachChecks:
     others lie on the way to the pre-grasp; ``FreeMove`` samples the joint
     move from the current joints to the via point. Results are kept by
     joint vector and opening in ``memo`` (a ready pose closer to the
-    pre-grasp repeats the approach's first poses)."""
+    pre-grasp repeats the approach's first poses). ``verdict_only``: a
+    failed check's reason only up to its parenthesis
+    (``RobotCollisionReason``)."""
 
     def __init__(self, ctx: PlanningContext, cfg: PlannerConfig, half_open: float,
-                 memo: dict | None = None):
+                 memo: dict | None = None, verdict_only: bool = False):
         self.ctx, self.cfg, self.half_open = ctx, cfg, float(half_open)
         self.memo = {} if memo is None else memo
+        self.verdict_only = verdict_only
         self.brush = 0.0
 
     def _Reason(self, q: np.ndarray) -> str:
@@ -46,7 +49,8 @@ class _ApproachChecks:
         if key not in self.memo:
             robot, cfg = self.ctx.robot, self.cfg
             pts = robot.SurfacePointsByBody(q, self.half_open)
-            why = RobotPoseReason(robot, q, self.half_open, pts, self.ctx, cfg, SELF_MARGIN)
+            why = RobotPoseReason(robot, q, self.half_open, pts, self.ctx, cfg, SELF_MARGIN,
+                                  self.verdict_only)
             self.memo[key] = (why, 0.0) if why else LeafContact(self.ctx, cfg, pts)
         why, push = self.memo[key]
         if not why:
@@ -111,20 +115,22 @@ def NarrowOpening(leaf_W: np.ndarray, grasp, cfg: PlannerConfig) -> float:
 
 
 def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
-              memo: dict | None = None):
+              memo: dict | None = None, verdict_only: bool = False):
     """The approach to ``grasp`` with its ready pose ``ready`` (m) behind the
     pre-grasp (an ``ApproachPlan``), or why there is none: the configured
     opening first; if the open pads hit the fruit close behind the leaf (or
     the leaf), the narrowest opening that still lets the observed leaf pass
     between them. ``memo`` (a dict, one per grasp orientation) keeps IK
-    solutions and pose checks for the next ready distance."""
+    solutions and pose checks for the next ready distance; ``verdict_only``:
+    see ``GraspApproach``."""
     why = ""
     memo = memo if memo is not None else {}
     for opening in dict.fromkeys([cfg.pregrasp_opening,
                                   NarrowOpening(ctx.leaf_W, grasp, cfg)]):
         # each pose is checked as soon as it is solved, from the grasp
         # outward: a blocked approach stops before the rest of its IK
-        checks = (_ApproachChecks(ctx, cfg, 0.5 * opening, memo.setdefault("checks", {}))
+        checks = (_ApproachChecks(ctx, cfg, 0.5 * opening, memo.setdefault("checks", {}),
+                                  verdict_only)
                   if np.isfinite(cfg.collision_margin) else None)
         try:
             approach = PlanApproach(ctx.robot,
@@ -147,12 +153,15 @@ def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
     return why
 
 
-def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig
+def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only: bool = False
                   ) -> tuple[ApproachPlan | None, str]:
     """The approach to ``grasp`` (IK chain via, ready, pre-grasp, grasp; see
     ``planning.motion.PlanApproach``) with robot checks along it: (the
     plan, "") or (None, why there is none). It does not depend on the
-    actions from the grasp."""
+    actions from the grasp. ``verdict_only`` (where only whether it
+    passes is kept, e.g. another orientation of a grasp): a robot-fruit
+    check stops at its first distance below the margin, so the reason
+    gives no distance (the same plan, or none, either way)."""
     # If the arm cannot reach the ready pose or hits something on the way
     # to the pre-grasp, a ready pose closer to the pre-grasp
     # (``ready_distances``): on the far side of a plant the default one
@@ -160,7 +169,7 @@ def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig
     why = ""
     memo: dict = {}
     for ready in cfg.ready_distances:
-        got = _Approach(ctx, cfg, grasp, ready, memo)
+        got = _Approach(ctx, cfg, grasp, ready, memo, verdict_only)
         if isinstance(got, ApproachPlan):
             return got, ""
         why = got

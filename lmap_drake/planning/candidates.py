@@ -18,7 +18,7 @@ from lmap_drake.deformation.action import (Action, AxisAngleMatrix, HingeAxes, M
 from lmap_drake.planning.approach import GraspApproach, IkAndRobotChecks
 from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge, UnseenPetiole
 from lmap_drake.planning.config import PlannerConfig
-from lmap_drake.planning.context import PlanningContext, VisibilitySurfaces
+from lmap_drake.planning.context import PlanningContext, SurfacesOf
 from lmap_drake.planning.energy import MaxPullDistance
 from lmap_drake.planning.result import Candidate, CandidateSet
 from lmap_drake.planning.visibility import VisibilityModel
@@ -120,14 +120,17 @@ def _LocalNormal(points: np.ndarray, p: np.ndarray, toward: np.ndarray,
 
 def DirectionsForGrasp(p_WG: np.ndarray, branch_points_W: np.ndarray,
                        max_angle_deg: float = 120.0,
-                       directions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       directions: np.ndarray | None = None, tree=None
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """The pull directions (and their indices into ``PullDirections()``) whose
     angle to the line from the grasp point to the nearest branch point is
-    below ``max_angle_deg``: the leaf is not pulled away from its branch."""
+    below ``max_angle_deg``: the leaf is not pulled away from its branch.
+    ``tree``: a ``cKDTree`` of ``branch_points_W``, when already built."""
     D = PullDirections() if directions is None else np.asarray(directions, float)
     if len(branch_points_W) == 0:
         return D, np.arange(len(D))
-    nearest = branch_points_W[cKDTree(branch_points_W).query(p_WG)[1]]
+    tree = cKDTree(branch_points_W) if tree is None else tree
+    nearest = branch_points_W[tree.query(p_WG)[1]]
     to_branch = nearest - p_WG
     to_branch /= max(np.linalg.norm(to_branch), 1e-12)
     keep = np.flatnonzero(D @ to_branch > np.cos(np.deg2rad(max_angle_deg)))
@@ -189,8 +192,11 @@ def GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all
     """Every configured motion (pulls, arcs, twists) from grasp ``g``."""
     actions = []
     if "pull" in cfg.action_families:
+        if getattr(ctx, "_branch_tree", None) is None and len(ctx.branch_all_W):
+            ctx._branch_tree = cKDTree(ctx.branch_all_W)     # once per planning context
         dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
-                                           cfg.max_branch_angle_deg, all_dirs)
+                                           cfg.max_branch_angle_deg, all_dirs,
+                                           getattr(ctx, "_branch_tree", None))
         actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
                     for u, j in zip(dirs, dir_ids) for s in PullDistances(cfg, g.p_WG, pivot)]
     if pivot is not None and np.linalg.norm(g.p_WG - pivot) > 0.02:
@@ -219,7 +225,7 @@ def _InitialVisibility(ctx: PlanningContext, cfg: PlannerConfig) -> CandidateSet
         return CandidateSet("no_fruit", ctx.scene, timings=timings,
                             message="the fruit estimate is empty or not finite")
     t0 = time.perf_counter()
-    vis = VisibilityModel(ctx.X_WC, VisibilitySurfaces(ctx.scene.fruit, cfg.visibility_shapes),
+    vis = VisibilityModel(ctx.X_WC, SurfacesOf(ctx, cfg.visibility_shapes),
                           cfg.visibility_voxel, ctx.image_tan)
     seen_init = vis.Seen(np.vstack([ctx.leaf_W, ctx.occluders_W]))
     if ctx.seen_before_W is not None:
@@ -322,7 +328,8 @@ def _FirstApproach(ctx: PlanningContext, cfg: PlannerConfig, g, actions: list[Ac
     approach passes, or None when none does."""
     for R, label in zip(rotations, labels):
         turned = Grasp(g.p_WG, R, g.grasp_id)
-        approach = GraspApproach(ctx, turned, cfg)
+        # (a failed orientation's reason is not kept: its verdict suffices)
+        approach = GraspApproach(ctx, turned, cfg, verdict_only=True)
         if approach[0] is None:
             continue            # (the actions are turned only for an approach that passes)
         cands = IkAndRobotChecks(ctx, turned, cfg, [dc.replace(a, R_WG=R) for a in actions],

@@ -5,6 +5,7 @@ mesh (Open3D ray-casting scene, batched). Margin in metres; world frame W."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 
 class BranchDistance:
@@ -39,19 +40,34 @@ class UnionSdf:
                        for sdf, (lo, hi) in zip(sdfs, boxes)]
         self.pad = float(pad)
 
-    def __call__(self, points_W: np.ndarray, pad: float | None = None) -> np.ndarray:
+    def __call__(self, points_W: np.ndarray, pad: float | None = None,
+                 bound: float | None = None) -> np.ndarray:
         """The signed distances; ``pad`` (m, at most ``self.pad``): a
-        narrower band for this call (``Below``)."""
+        narrower band for this call (``Below``); ``bound`` (m): the parts
+        with ``LowerBelow`` give their values only where below it and the
+        parts before them (``LowerBelow``)."""
         pad = self.pad if pad is None else min(float(pad), self.pad)
         p = np.asarray(points_W, float).reshape(-1, 3)
         out = np.full(len(p), np.inf)
+        bound = None if bound is None else np.broadcast_to(np.asarray(bound, float), (len(p),))
         for sdf, lo, hi in self._parts:
             d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
             near = d < pad
             if near.any():
-                d[near] = np.asarray(sdf(p[near]), float).reshape(-1)
+                low = None if bound is None else getattr(sdf, "LowerBelow", None)
+                # (below the parts before, at a point, it must come to matter)
+                d[near] = np.asarray(sdf(p[near]) if low is None else
+                                     low(p[near], np.minimum(bound[near], out[near])),
+                                     float).reshape(-1)
             out = np.minimum(out, d)
         return out
+
+    def LowerBelow(self, points_W: np.ndarray, bound) -> np.ndarray:
+        """``self(points_W)`` where it is below ``bound`` (m; one value or
+        one per point), a lower bound of it, at least ``bound``, elsewhere:
+        the parts with ``LowerBelow`` (a ``MeshSetSdf``) skip what cannot
+        come below it."""
+        return self(points_W, bound=bound)
 
     def Below(self, points_W: np.ndarray, bound: float) -> np.ndarray:
         """The distances where they may lie below ``bound`` (m): each SDF
@@ -62,7 +78,54 @@ class UnionSdf:
         ``__call__`` as long as no SDF beyond that band lies below
         ``bound`` (a decoder artefact: the fruit's surface is at least the
         band away there)."""
-        return self(points_W, pad=bound + BELOW_SLACK)
+        return self(points_W, pad=bound + BELOW_SLACK, bound=bound)
+
+    def NearestBelow(self, points_W: np.ndarray, bound: float, first_hit: bool = False
+                     ) -> float:
+        """The smallest of ``Below(points_W, bound)``: exact when below
+        ``bound`` (m), else a value at least ``bound``; NaN when one of
+        those distances is not finite. Each part gets the smallest distance
+        found so far as its bound (``NearestWithin``: a ``MeshSetSdf``
+        computes exact distances only where they may come below it). With
+        ``first_hit``, only whether it is below ``bound``: the parts with
+        ``NearestWithin`` first, and the first value below ``bound`` (not
+        the smallest) is returned (a NaN behind it goes unseen)."""
+        return self._Nearest(points_W, float(bound), float(bound) + BELOW_SLACK, first_hit)
+
+    def NearestWithin(self, points_W: np.ndarray, bound: float, first_hit: bool = False
+                      ) -> float:
+        """``NearestBelow`` of ``self(points_W)`` (this union's own band)."""
+        return self._Nearest(points_W, float(bound), self.pad, first_hit)
+
+    def _Nearest(self, points_W: np.ndarray, bound: float, pad: float,
+                 first_hit: bool = False) -> float:
+        pad = min(float(pad), self.pad)
+        p = np.asarray(points_W, float).reshape(-1, 3)
+        best = np.inf
+        parts = (sorted(self._parts, key=lambda part: not hasattr(part[0], "NearestWithin"))
+                 if first_hit else self._parts)
+        for sdf, lo, hi in parts:
+            d = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+            near = d < pad
+            if not near.all():
+                best = min(best, float(d[~near].min()))
+            if not near.any():
+                continue
+            nearest = getattr(sdf, "NearestWithin", None)
+            if nearest is not None:
+                v = float(nearest(p[near], min(bound, best), first_hit=first_hit))
+            else:
+                vals = np.asarray(sdf(p[near]), float).reshape(-1)
+                if np.any(vals == np.inf):      # (another part may be finite there)
+                    full = self(p, pad=pad)
+                    return float(full.min()) if np.all(np.isfinite(full)) else np.nan
+                v = float(vals.min()) if np.all(np.isfinite(vals)) else np.nan
+            if np.isnan(v):
+                return np.nan
+            best = min(best, v)
+            if first_hit and best < bound:
+                return best
+        return best
 
 
 # m: how far beyond a check's margin ``UnionSdf.Below`` still evaluates the
@@ -113,6 +176,48 @@ class MeshSetSdf:
             one = o3d.t.geometry.RaycastingScene()
             one.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
             self._each.append(one)
+        # for ``LowerBelow``: the vertices of a triangle (on the surface,
+        # ``_surface``), each with its longest edge (a point of a triangle
+        # lies within that of each of its vertices), in two groups (most,
+        # and the few with long edges), each with its longest such edge
+        V, R = [], []
+        for v, f in meshes:
+            v, f = v.astype(float), f.astype(np.int64)
+            e = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1)
+            r = np.zeros(len(v))
+            for k in range(3):          # edge k joins corners k and k - 1
+                np.maximum.at(r, f[:, k], e[:, k])
+                np.maximum.at(r, f[:, k - 1], e[:, k])
+            used = np.unique(f)
+            V.append(v[used])
+            R.append(r[used])
+        self._surface, self._groups = None, []
+        if V:
+            V, R = np.vstack(V), np.concatenate(R)
+            self._surface = cKDTree(V)
+            cut = 1.5 * float(np.median(R))
+            self._groups = [(cKDTree(V[m]), float(R[m].max())) for m in (R <= cut, R > cut)
+                            if m.any()]
+
+    def _LowerBound(self, p: np.ndarray, bound: np.ndarray) -> np.ndarray:
+        """A lower bound (m) of the distance from ``p`` (N, 3) to the
+        meshes' surfaces: over each vertex group, the distance to its
+        nearest vertex less the group's longest edge (the nearest surface
+        point's triangle has a vertex in a group); where that exceeds
+        ``bound`` (one per point) + ``MESH_BOUND_GUARD`` it may stand at
+        that."""
+        out = np.full(len(p), np.inf)
+        for tree, r in self._groups:
+            cap = bound + r + MESH_BOUND_GUARD
+            d = tree.query(p, distance_upper_bound=max(float(cap.max()), 0.0))[0]
+            out = np.minimum(out, np.minimum(d, cap) - r)
+        return out
+
+    def _Inside(self, q) -> np.ndarray:
+        inside = np.zeros(q.shape[0], bool)
+        for one in self._each:
+            inside |= one.compute_occupancy(q).numpy() > 0.5
+        return inside
 
     def __call__(self, points_W: np.ndarray) -> np.ndarray:
         import open3d as o3d
@@ -121,10 +226,83 @@ class MeshSetSdf:
             return np.full(len(p), np.inf)
         q = o3d.core.Tensor(p)
         d = self._all.compute_distance(q).numpy().astype(float)
-        inside = np.zeros(len(p), bool)
-        for one in self._each:
-            inside |= one.compute_occupancy(q).numpy() > 0.5
+        return np.where(self._Inside(q), -d, d)
+
+    def LowerBelow(self, points_W: np.ndarray, bound) -> np.ndarray:
+        """``self(points_W)`` where it is below ``bound`` (m; one value or
+        one per point); elsewhere a lower bound of it, at least ``bound``:
+        ``_LowerBound`` (``MESH_BOUND_GUARD`` kept for the float32
+        distances), so the exact distance (Open3D's, the costly part) is
+        computed only inside a mesh or where that bound is below
+        ``bound``. The same verdict and nearest distance for a check
+        against ``bound``."""
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if len(p) == 0 or not self._each:
+            return np.full(len(p), np.inf)
+        inside = self._Inside(o3d.core.Tensor(p))
+        bound = np.broadcast_to(np.asarray(bound, float), (len(p),))
+        d = self._LowerBound(p.astype(float), bound)
+        exact = inside | (d < bound + MESH_BOUND_GUARD)
+        if exact.any():
+            d[exact] = self._all.compute_distance(o3d.core.Tensor(p[exact])).numpy()
         return np.where(inside, -d, d)
+
+    def NearestWithin(self, points_W: np.ndarray, bound: float, chunk: int = 16,
+                      first_hit: bool = False) -> float:
+        """The smallest of ``self(points_W)``: exact when below ``bound``
+        (m), else a value at least ``bound``. Inside a mesh the exact
+        distances (for the deepest: a point's distance is at most its
+        nearest vertex's); outside, the exact ones only where
+        ``_LowerBound`` is below ``bound`` and the smallest found so far,
+        the lowest bounds first, ``chunk`` points, then four times more
+        each round. ``first_hit``: a value below ``bound`` as soon as one
+        is found (a point inside: -0.0)."""
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if len(p) == 0 or not self._each:
+            return np.inf
+        inside = self._Inside(o3d.core.Tensor(p))
+        best = np.inf
+        if first_hit and inside.any() and bound > 0.0:
+            return -0.0
+        if inside.any():
+            # the deepest: a vertex is on the surface, so the distance there
+            # is at most the nearest vertex's, the largest first
+            ins = np.flatnonzero(inside)
+            up = self._surface.query(p[ins].astype(float))[0]
+            order = np.argsort(-up, kind="stable")
+            ins, up = ins[order], up[order]
+            deepest, n = -np.inf, chunk
+            while len(ins):
+                d = self._all.compute_distance(o3d.core.Tensor(p[ins[:n]])).numpy()
+                deepest = max(deepest, float(d.max()))
+                ins, up, n = ins[n:], up[n:], 4 * n
+                ins = ins[up > deepest - MESH_BOUND_GUARD]
+                up = up[up > deepest - MESH_BOUND_GUARD]
+            best = -deepest
+        rest = np.flatnonzero(~inside)
+        b = min(float(bound), best)
+        if len(rest) and b + MESH_BOUND_GUARD > 0.0:
+            lb = self._LowerBound(p[rest].astype(float), np.full(len(rest), b))
+            keep = lb < b + MESH_BOUND_GUARD
+            order = np.argsort(lb[keep], kind="stable")
+            rest, lb, n = rest[keep][order], lb[keep][order], chunk
+            while len(rest):
+                d = self._all.compute_distance(o3d.core.Tensor(p[rest[:n]])).numpy()
+                best = min(best, float(d.min()))
+                if first_hit and best < bound:
+                    return best
+                b = min(float(bound), best)
+                rest, lb, n = rest[n:], lb[n:], 4 * n
+                left = int(np.searchsorted(lb, b + MESH_BOUND_GUARD, side="left"))
+                rest, lb = rest[:left], lb[:left]
+        return best if best < bound else float(bound)
+
+
+# m: ``MeshSetSdf.LowerBelow`` computes the exact distance wherever its bound
+# is below the check's bound plus this (Open3D's distances are float32).
+MESH_BOUND_GUARD = 1e-5
 
 
 def FruitSetSdf(fruit, pad: float = 0.05):
@@ -174,14 +352,18 @@ def AllPoints(points_W) -> np.ndarray:
 
 def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
                          margin: float, fruit_box=None, branch_box=None,
-                         body_fruit_margin: float | None = None) -> str:
+                         body_fruit_margin: float | None = None,
+                         verdict_only: bool = False) -> str:
     """'' if the robot samples keep ``margin`` from the fruit (SDF) and the
     branch mesh, else the reason. ``robot_points_W``: (N, 3) world points or
     a ``SurfaceSamples`` (per geometry, see ``NearBox``). ``*_box`` = (lo,
     hi) bounds of each object; only samples within ``margin`` of those
     bounds are queried. ``body_fruit_margin`` (m, with ``SurfaceSamples``):
     the geometries not on the fingers keep this from the fruit instead
-    (when larger than ``margin``; the reason then reads 'robot-body-fruit')."""
+    (when larger than ``margin``; the reason then reads 'robot-body-fruit').
+    ``verdict_only``: the same verdict and reason up to its parenthesis
+    (a plant's fruits (``UnionSdf``): the first distance below the
+    margin found, not the nearest: ``NearestBelow``'s ``first_hit``)."""
     checks = [("fruit", "fruit", fruit_sdf, fruit_box, margin, None)]
     fingers = getattr(robot_points_W, "fingers", None)
     if (body_fruit_margin is not None and fingers is not None and np.isfinite(margin)
@@ -198,7 +380,17 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
             lo, hi = box if box is not None else (np.full(3, -np.inf), np.full(3, np.inf))
             pts = NearBox(robot_points_W, lo - m, hi + m, geoms)
         if len(pts):
-            below = getattr(distance, "Below", None)       # a plant's fruits: one band
+            nearest = getattr(distance, "NearestBelow", None)   # a plant's fruits: one band
+            if nearest is not None and np.isfinite(m):
+                # the nearest of ``Below``'s distances (exact below ``m``)
+                d_min = float(nearest(pts, m, first_hit=verdict_only))
+                if not np.isfinite(d_min):
+                    return f"robot-{name} (non-finite {name} distance)"
+                if d_min < m:
+                    return (f"robot-{what} (verdict only)" if verdict_only
+                            else f"robot-{what} ({d_min * 1000:.1f} mm)")
+                continue
+            below = getattr(distance, "Below", None)
             d = np.asarray(distance(pts) if below is None else below(pts, m), float)
             if np.isfinite(m) and not np.all(np.isfinite(d)):
                 # NaN passes every comparison: a non-finite distance rejects.
@@ -232,9 +424,14 @@ def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
         sel = np.all((deformed_W >= lo) & (deformed_W <= hi), axis=1)
         if not sel.any():
             return ""
-    d1 = np.asarray(distance(deformed_W[sel]), float)
+    # exact where below the margin, a lower bound at least the margin
+    # elsewhere (``LowerBelow``): the same verdict and nearest distance
     d0 = (np.asarray(rest_distance, float)[sel] if rest_distance is not None
           else np.asarray(distance(np.asarray(rest_W)[sel]), float))
+    low = getattr(distance, "LowerBelow", None)
+    d1 = np.asarray(distance(deformed_W[sel]) if low is None else
+                    low(deformed_W[sel], np.minimum(margin, np.nan_to_num(d0, nan=margin)
+                                                    - 1e-3)), float)
     if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):
         return f"leaf-{what} (non-finite {what} distance)"
     bad = (d1 < margin) & (d1 < d0 - 1e-3)

@@ -35,6 +35,10 @@ class PlanningContext:
     # kept shape hypotheses (``collision.FruitSetSdf``), 'estimate' = the
     # estimates alone
     fruit_shapes: str = "union"
+    # what the plans of one target's leaves share, computed once
+    # (``TargetShared``: the fruits' obstacle, the target's visibility
+    # surfaces); None: computed here
+    shared: dict | None = None
 
     def __post_init__(self):
         sem = self.scene.semantic
@@ -50,8 +54,9 @@ class PlanningContext:
         # Several fruits: the robot and the moved leaf keep clear of every
         # one (the union's SDF is the minimum); only the target is revealed.
         # Each fruit's obstacle is built once here, for every check of the plan.
-        self.fruit_sdf, self.fruit_box = FruitObstacle(
-            ([fruit] if fruit is not None else []) + others, self.fruit_shapes)
+        self.fruit_sdf, self.fruit_box = (
+            self.shared["fruit_obstacle"] if self.shared else
+            FruitObstacle(([fruit] if fruit is not None else []) + others, self.fruit_shapes))
         self.other_leaves_W = np.asarray(getattr(self.scene, "other_leaves_W", np.zeros((0, 3))),
                                          float).reshape(-1, 3)
         # What hides the target besides the leaf being moved (and the robot):
@@ -61,6 +66,31 @@ class PlanningContext:
         self.branch_box = ((branch.vertices_W.min(0), branch.vertices_W.max(0))
                            if branch is not None and len(branch.vertices_W) else None)
         self.p_WC = np.asarray(self.X_WC, float)[:3, 3]
+
+
+def TargetShared(scene: SceneEstimate, fruit_shapes: str) -> dict:
+    """What every leaf's plan for ``scene``'s fruit shares (the scenes of
+    ``targets.TargetScene`` differ in their leaves only), for
+    ``PlanningContext.shared``: the fruits' obstacle (``FruitObstacle``)
+    and the target's ``VisibilitySurfaces`` per shapes key, filled when
+    first needed (``SurfacesOf``; deterministic: the same as computed per
+    plan)."""
+    fruit = scene.fruit
+    others = [f for f in getattr(scene, "other_fruits", []) if f is not None]
+    return {"fruit_obstacle": FruitObstacle(([fruit] if fruit is not None else []) + others,
+                                            fruit_shapes),
+            "visibility_surfaces": {}}
+
+
+def SurfacesOf(ctx: PlanningContext, shapes: str):
+    """``VisibilitySurfaces(ctx.scene.fruit, shapes)``, kept in
+    ``ctx.shared`` (when given) for the target's other leaves."""
+    if not ctx.shared:
+        return VisibilitySurfaces(ctx.scene.fruit, shapes)
+    kept = ctx.shared.setdefault("visibility_surfaces", {})
+    if shapes not in kept:
+        kept[shapes] = VisibilitySurfaces(ctx.scene.fruit, shapes)
+    return kept[shapes]
 
 
 def FruitObstacle(fruits: list, shapes: str = "union") -> tuple:

@@ -134,15 +134,16 @@ def IkPath(robot, poses: list[RigidTransform], seed: np.ndarray, half_opening: f
     ``check(k, q) -> str`` runs on each solution as it comes (an inserted
     one between poses k - 1 and k as ``check(k - 1, q)``); a non-empty
     reason stops the path (``ApproachBlocked``). ``memo`` (a dict) keeps
-    the solutions by pose and seed: the same request is solved once. With
+    the solutions by pose and seed: the same request is solved once, for
+    any ``half_opening`` (the ``tcp`` frame sits on the gripper's base, not
+    on a finger: the IK and the path's deviation do not depend on it). With
     ``groups``, one list per pose: the waypoints inserted before it, then
     its own."""
     out = []
     q_prev = None
     for k, X in enumerate(poses):
         key = None if memo is None else (X.GetAsMatrix4().tobytes(),
-                                         np.asarray(seed, float).tobytes(),
-                                         float(half_opening), k == 0)
+                                         np.asarray(seed, float).tobytes(), k == 0)
         got = None if key is None else memo.get(key)
         if got is None:
             r = robot.Ik(X, seed, half_opening, multistart=(k == 0))

@@ -21,18 +21,19 @@ from lmap_drake.planning.result import Candidate
 
 
 def RobotPoseReason(robot, q: np.ndarray, half_open: float, points_W: np.ndarray,
-                    ctx: PlanningContext, cfg: PlannerConfig, self_margin: float = 0.0
-                    ) -> str:
+                    ctx: PlanningContext, cfg: PlannerConfig, self_margin: float = 0.0,
+                    verdict_only: bool = False) -> str:
     """'' if the robot at ``q`` (surface samples ``points_W``, an array or
     per geometry) is clear of itself (arm against gripper or arm; distant
     links by ``self_margin``) and keeps the margin from the fruit and the
-    branch, else the reason."""
+    branch, else the reason (``verdict_only``: see
+    ``RobotCollisionReason``)."""
     pair = robot.SelfCollision(q, half_open, self_margin)
     if pair:
         return f"robot self-collision ({pair})"
     return RobotCollisionReason(points_W, ctx.fruit_sdf, ctx.branch_distance,
                                 cfg.collision_margin, ctx.fruit_box, ctx.branch_box,
-                                cfg.robot_fruit_margin)
+                                cfg.robot_fruit_margin, verdict_only)
 
 
 def _LeafObstacles(ctx: PlanningContext, held: bool = True) -> tuple:
@@ -261,7 +262,8 @@ def LeafContact(ctx: PlanningContext, cfg: PlannerConfig, pts,
     if tree is not None:
         near = NearBox(pts, box[0] - margin, box[1] + margin)
         if len(near):
-            d, i = tree.query(near)
+            # (the search stops at ``margin``: farther samples come back inf)
+            d, i = tree.query(near, distance_upper_bound=margin)
             k = int(np.argmin(d))
             if d[k] < margin:
                 return ("robot-leaf" if i[k] < n_held

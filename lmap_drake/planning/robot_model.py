@@ -137,23 +137,34 @@ class SurfaceSamples:
         out = np.full(len(p), np.inf)
         if not len(p):
             return out
-        p_lo, p_hi = p.min(axis=0), p.max(axis=0)
-        for i, (kind, dims, X_BG) in enumerate(self._shapes):
-            lo, hi = self.boxes[i] + np.array([[-reach], [reach]])
-            if np.any(p_lo > hi) or np.any(p_hi < lo):
-                continue
-            X_WG = self._X[i] @ X_BG
-            if tree is not None:     # balls along the shape's long axis
-                axis, half, r = _LongAxis(kind, dims)
+        # the points' box (a tree of them holds it) against every geometry's
+        # box grown by ``reach``, at once
+        p_lo, p_hi = ((tree.mins, tree.maxes) if tree is not None and tree.n == len(p)
+                      else (p.min(axis=0), p.max(axis=0)))
+        lo, hi = self.boxes[:, 0] - reach, self.boxes[:, 1] + reach
+        meets = np.flatnonzero(~np.any(p_lo > hi, axis=1) & ~np.any(p_hi < lo, axis=1))
+        X_WG = {int(i): self._X[i] @ self._shapes[i][2] for i in meets}
+        found = {}
+        if tree is not None and len(meets):     # balls along each shape's long axis, one query
+            centres, radii, spans = [], [], {}
+            for i in X_WG:
+                axis, half, r = _LongAxis(*self._shapes[i][:2])
                 k = max(1, int(np.ceil(2 * half / max(r, 1e-3))))
-                c = np.outer((np.arange(k) + 0.5) / k * 2 * half - half, X_WG[:3, axis])
-                found = tree.query_ball_point(c + X_WG[:3, 3], np.hypot(r, half / k) + reach)
-                near = np.unique(np.concatenate([np.asarray(f, int) for f in found]))
-            else:
-                near = np.flatnonzero(np.all((p >= lo) & (p <= hi), axis=1))
+                c = np.outer((np.arange(k) + 0.5) / k * 2 * half - half, X_WG[i][:3, axis])
+                spans[i] = (sum(len(b) for b in centres), k)
+                centres.append(c + X_WG[i][:3, 3])
+                radii.append(np.full(k, np.hypot(r, half / k) + reach))
+            balls = tree.query_ball_point(np.vstack(centres), np.concatenate(radii))
+            for i, (start, k) in spans.items():
+                found[i] = np.unique(np.concatenate([np.asarray(f, int)
+                                                     for f in balls[start:start + k]]))
+        for i in X_WG:
+            kind, dims, _ = self._shapes[i]
+            near = (found[i] if tree is not None else
+                    np.flatnonzero(np.all((p >= lo[i]) & (p <= hi[i]), axis=1)))
             if not len(near):
                 continue
-            p_G = (p[near] - X_WG[:3, 3]) @ X_WG[:3, :3]
+            p_G = (p[near] - X_WG[i][:3, 3]) @ X_WG[i][:3, :3]
             out[near] = np.minimum(out[near], ShapeSignedDistance(kind, dims, p_G))
         return out
 

@@ -14,7 +14,7 @@ import itertools
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lmap_drake.planning.context import FruitSurfaceSamples, PlanningContext
+from lmap_drake.planning.context import FruitSurfaceSamples, PlanningContext, TargetShared
 from lmap_drake.planning.lmap import PlanLmap
 from lmap_drake.planning.visibility import VisibilityModel
 from lmap_drake.types import FruitEstimate, PlantEstimate, SceneEstimate, SemanticScene
@@ -238,11 +238,13 @@ def PlanTarget(plant: PlantEstimate, k: int, X_WC: np.ndarray, robot, q_current:
     if not occ["leaves"]:
         out.why = "no leaf hides it (it is hidden by the branch or another fruit)"
         return out
+    shared = None          # the leaves' plans share the fruits' obstacle and surfaces
     for d in occ["leaves"][:max_leaves]:
-        ctx = PlanningContext(TargetScene(plant, k, d["leaf_id"]), X_WC, robot,
-                              np.asarray(q_current, float), image_tan,
+        scene = TargetScene(plant, k, d["leaf_id"])
+        shared = shared or TargetShared(scene, cfg.fruit_shapes)
+        ctx = PlanningContext(scene, X_WC, robot, np.asarray(q_current, float), image_tan,
                               seen_before_W=occ.get("seen_before_W"),
-                              fruit_shapes=cfg.fruit_shapes)
+                              fruit_shapes=cfg.fruit_shapes, shared=shared)
         out.options.append((d["leaf_id"], PlanLmap(ctx, cfg, dcfg, progress)))
     out.leaf_id, out.plan, out.why = ChooseLeafPlan(out.options)
     return out

@@ -55,6 +55,13 @@ def test_branch_angle_rule():
     assert np.all(np.degrees(np.arccos(np.clip(dirs @ to_branch, -1, 1))) < 120.0)
     assert 0 < len(dirs) < 14 and not np.any(np.all(dirs == [1.0, 0, 0], axis=1))
     np.testing.assert_array_equal(PullDirections()[ids], dirs)
+    # a tree built once gives the same directions; it is the one queried
+    from scipy.spatial import cKDTree
+    branch2 = np.array([[0.45, -0.1, 0.3], [0.55, -0.1, 0.45]])
+    same, same_ids = DirectionsForGrasp(p, branch2, 120.0, tree=cKDTree(branch2))
+    np.testing.assert_array_equal(same_ids, DirectionsForGrasp(p, branch2, 120.0)[1])
+    other, _ = DirectionsForGrasp(p, branch2, 120.0, tree=cKDTree(branch2[::-1]))
+    assert not np.array_equal(other, same)
 
 
 def test_too_few_leaf_points():

@@ -165,3 +165,153 @@ def test_near_cells_keep_every_point_within_the_margin():
         assert maybe.mean() < 0.5                                 # most ruled out
     # margin 0: no grid, nothing ruled out
     assert NearCells(leaf, 0.0).Maybe(q).all()
+
+
+def _MeshSet(rng):
+    import trimesh
+    from lmap_drake.planning.collision import MeshSetSdf
+    meshes = []
+    for c, r in (([0.5, 0.0, 0.3], 0.035), ([0.52, 0.01, 0.31], 0.04)):
+        m = trimesh.creation.icosphere(3, radius=r)
+        m.apply_translation(c)
+        meshes.append((np.asarray(m.vertices), np.asarray(m.faces)))
+    return MeshSetSdf(meshes), meshes
+
+
+def test_mesh_set_lower_below_is_exact_below_the_bound_and_a_bound_above():
+    rng = np.random.default_rng(3)
+    sdf, _ = _MeshSet(rng)
+    p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (5000, 3))
+    full = sdf(p)
+    for bound in (0.005, 0.015):
+        got = sdf.LowerBelow(p, bound)
+        near = full < bound
+        assert near.any() and (~near).any() and (full < 0).any()
+        np.testing.assert_array_equal(got[near], full[near])        # exact (inside too)
+        assert np.all(got[~near] >= bound) and np.all(got[~near] <= full[~near] + 1e-6)
+        assert np.count_nonzero(got != full) > 0.3 * len(p)          # most were not computed
+
+
+def test_nearest_below_is_the_smallest_below_distance_exactly_or_at_least_the_bound():
+    from lmap_drake.planning.collision import UnionSdf
+    rng = np.random.default_rng(4)
+    mesh_set, meshes = _MeshSet(rng)
+    c = np.array([0.5, 0.0, 0.3])
+
+    def estimate(q):
+        return np.linalg.norm(q - c, axis=1) - 0.03
+    V = np.vstack([v for v, _ in meshes])
+    inner = UnionSdf([estimate, mesh_set], [(c - 0.03, c + 0.03), (V.min(0), V.max(0))], 0.03)
+    other_c = np.array([0.62, 0.0, 0.3])
+    outer = UnionSdf([inner, lambda q: np.linalg.norm(q - other_c, axis=1) - 0.02],
+                     [(V.min(0), V.max(0)), (other_c - 0.02, other_c + 0.02)], 0.03)
+    hits = 0
+    for sdf in (inner, outer):
+        for k in range(40):
+            centre = rng.uniform([0.42, -0.08, 0.22], [0.68, 0.08, 0.4])
+            pts = centre + rng.normal(0.0, 0.01, (300, 3))
+            for bound in (0.005, 0.015):
+                ref = float(sdf.Below(pts, bound).min())
+                got = sdf.NearestBelow(pts, bound)
+                if ref < bound:
+                    assert got == ref
+                    hits += 1
+                else:
+                    assert got >= bound
+    assert 10 < hits < 150                           # both cases were met
+    nan = UnionSdf([lambda q: np.full(len(q), np.nan)], [(c - 0.03, c + 0.03)])
+    assert np.isnan(nan.NearestBelow(c[None], 0.005))
+
+
+def test_mesh_set_lower_below_takes_a_bound_per_point():
+    rng = np.random.default_rng(5)
+    sdf, _ = _MeshSet(rng)
+    p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (3000, 3))
+    full = sdf(p)
+    bound = rng.uniform(-0.01, 0.02, len(p))
+    got = sdf.LowerBelow(p, bound)
+    near = full < bound
+    assert near.any() and (~near).any()
+    np.testing.assert_array_equal(got[near], full[near])
+    assert np.all(got[~near] >= bound[~near])
+
+
+def test_leaf_collision_reason_is_the_same_with_the_mesh_set_bounded():
+    """The leaf-fruit check on a fruit set with hypothesis meshes gives the
+    same reason (verdict and distance) as on the plain per-point SDF."""
+    from lmap_drake.planning.collision import LeafCollisionReason
+    rng = np.random.default_rng(6)
+    mesh_set, meshes = _MeshSet(rng)
+    V = np.vstack([v for v, _ in meshes])
+    union = UnionSdf([mesh_set], [(V.min(0), V.max(0))], 0.03)
+    rest = np.array([0.5, -0.07, 0.3]) + rng.normal(0, 0.01, (400, 3)) * [1, 0.1, 1]
+    reasons = []
+    for shift in np.linspace(0.0, 0.04, 9):
+        moved = rest + [0.0, shift, 0.0]
+        got = LeafCollisionReason(rest, moved, union, 0.005, (V.min(0), V.max(0)))
+        reasons.append(got)
+        assert got == LeafCollisionReason(rest, moved, lambda q: union(q), 0.005,
+                                          (V.min(0), V.max(0)))
+    assert "" in reasons and any(r.startswith("leaf-fruit (") for r in reasons)
+
+
+def test_mesh_set_lower_bound_never_exceeds_the_distance_with_long_and_short_edges():
+    import trimesh
+    from lmap_drake.planning.collision import MeshSetSdf
+    ball = trimesh.creation.icosphere(3, radius=0.03)
+    ball.apply_translation([0.5, 0.0, 0.3])
+    box = trimesh.creation.box([0.05, 0.04, 0.06])          # 12 long-edged triangles
+    box.apply_translation([0.56, 0.0, 0.3])
+    sdf = MeshSetSdf([(ball.vertices, ball.faces), (box.vertices, box.faces)])
+    p = np.random.default_rng(7).uniform([0.44, -0.06, 0.24], [0.62, 0.06, 0.36], (4000, 3))
+    full = sdf(p)
+    lb = sdf._LowerBound(p, np.full(len(p), 1.0))
+    assert np.all(lb <= np.abs(full) + 1e-6)
+    # with short edges only, the bound is within an edge (5 mm) of the distance
+    ball_only = MeshSetSdf([(ball.vertices, ball.faces)])
+    lb = ball_only._LowerBound(p, np.full(len(p), 1.0))
+    full = np.abs(ball_only(p))
+    assert np.all(lb <= full + 1e-6) and np.max(full - lb) < 0.006
+
+
+def test_verdict_only_robot_check_gives_the_same_verdict_without_the_nearest_distance():
+    rng = np.random.default_rng(8)
+    mesh_set, meshes = _MeshSet(rng)
+    c = np.array([0.5, 0.0, 0.3])
+    V = np.vstack([v for v, _ in meshes])
+    calls = []
+
+    def estimate(q):
+        calls.append(len(q))
+        return np.linalg.norm(q - c, axis=1) - 0.03
+    fruit = UnionSdf([estimate, mesh_set], [(c - 0.03, c + 0.03), (V.min(0), V.max(0))], 0.03)
+    box = (V.min(0), V.max(0))
+    verdicts = []
+    for k in range(60):
+        pts = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4]) + rng.normal(0, 0.005, (200, 3))
+        full = RobotCollisionReason(pts, fruit, None, 0.005, box)
+        n = len(calls)
+        fast = RobotCollisionReason(pts, fruit, None, 0.005, box, verdict_only=True)
+        assert full.split(" (")[0] == fast.split(" (")[0]
+        assert fast in ("", "robot-fruit (verdict only)")
+        verdicts.append(fast)
+        if fast and len(calls) == n:
+            verdicts.append("decoder skipped")
+    assert "" in verdicts and "decoder skipped" in verdicts
+
+
+def test_union_lower_below_is_exact_below_the_bound_with_an_estimate_and_meshes():
+    rng = np.random.default_rng(9)
+    mesh_set, meshes = _MeshSet(rng)
+    c = np.array([0.5, 0.0, 0.3])
+    V = np.vstack([v for v, _ in meshes])
+    fruit = UnionSdf([_Sphere(c, 0.037), mesh_set], [(c - 0.037, c + 0.037),
+                                                     (V.min(0), V.max(0))], 0.03)
+    p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (4000, 3))
+    full = fruit(p)
+    bound = rng.uniform(-0.01, 0.015, len(p))
+    got = fruit.LowerBelow(p, bound)
+    below = full < bound
+    assert below.any() and (~below).any()
+    np.testing.assert_array_equal(got[below], full[below])
+    assert np.all(got[~below] >= bound[~below])

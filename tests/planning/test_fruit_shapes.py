@@ -194,3 +194,29 @@ def test_a_margin_beyond_the_exact_range_of_the_union_is_refused():
         ValidatePlannerConfig(PlannerConfig(robot_fruit_margin=0.04, fruit_shapes="union"))
     assert err.value.key == "planner.robot_fruit_margin" and "'union'" in err.value.detail
     ValidatePlannerConfig(PlannerConfig(robot_fruit_margin=0.04, fruit_shapes="estimate"))
+
+
+def test_an_approach_checked_for_its_verdict_only_passes_or_fails_as_the_full_one():
+    """``GraspApproach(..., verdict_only=True)`` (another orientation of a
+    grasp, whose reason is not kept): the same approach (joints) where the
+    full check passes, a failure with the same reason up to its
+    parenthesis where it fails, under ``union`` (hypothesis meshes)."""
+    from lmap_drake.planning.approach import GraspApproach
+    from lmap_drake.planning.candidates import Grasp
+    ctx = _Context("union")
+    cfg = PlannerConfig()
+    R = np.c_[[-1.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0]]       # approach along +y
+    outcomes = []
+    for k, dp in enumerate([[0, -0.07, 0.05], [0, -0.05, 0.0], [0, -0.035, 0.0],
+                            [0.02, -0.04, 0.02], [0, -0.10, 0.08]]):
+        g = Grasp(C + np.asarray(dp), R, k)
+        full, why = GraspApproach(ctx, g, cfg)
+        fast, why_fast = GraspApproach(ctx, g, cfg, verdict_only=True)
+        assert (full is None) == (fast is None)
+        assert why.split(" (")[0] == why_fast.split(" (")[0]
+        if full is not None:
+            for seg in ("to_ready", "to_pregrasp", "to_grasp"):
+                assert all(np.array_equal(a, b) for a, b in zip(getattr(full, seg),
+                                                                getattr(fast, seg)))
+        outcomes.append(why.split(" (")[0])
+    assert "" in outcomes and any(o.startswith("robot-fruit") for o in outcomes), outcomes

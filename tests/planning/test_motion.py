@@ -65,6 +65,18 @@ def test_an_approach_is_checked_from_the_grasp_outward_and_stops_at_the_first_bl
                           ready_extra=0.02)
     assert len(calls) < 2 * solved                         # the grasp side is shared
     assert all(np.array_equal(p, q) for p, q in zip(closer.to_grasp, a.to_grasp))
+    # a narrower opening reuses the solutions: the same joints as solved afresh
+    calls[:] = []
+    narrow = PlanApproach(robot, X_grasp, q0, np.array([0.0, -1.0, 0.0]), memo=memo,
+                          pregrasp_opening=0.011)
+    assert calls == []
+    fresh = PlanApproach(robot, X_grasp, q0, np.array([0.0, -1.0, 0.0]),
+                         pregrasp_opening=0.011)
+    assert len(calls) >= n - 1 and narrow.opening == fresh.opening == 0.011
+    for seg in ("to_ready", "to_pregrasp", "to_grasp"):
+        assert all(np.array_equal(p, q) for p, q in zip(getattr(narrow, seg),
+                                                           getattr(fresh, seg)))
+    assert np.array_equal(narrow.via, fresh.via)
 
 
 def test_an_approach_near_a_wrist_singularity_keeps_the_tcp_on_its_line_as_executed():

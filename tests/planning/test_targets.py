@@ -72,6 +72,27 @@ def test_target_scene_keeps_the_rest_as_obstacles():
     assert len(ctx.occluders_W) == len(t.other_leaves_W) + len(plant.fruits[1].vertices_W)
 
 
+def test_a_target_s_leaves_share_the_fruits_obstacle_and_surfaces_unchanged():
+    from lmap_drake.planning.context import SurfacesOf, TargetShared, VisibilitySurfaces
+    plant, _ = _plant()
+    shared = TargetShared(TargetScene(plant, 0, 0), "union")
+    assert shared["visibility_surfaces"] == {}               # filled when first needed
+    q = np.random.default_rng(0).uniform([0.35, -0.1, 0.2], [0.7, 0.1, 0.4], (500, 3))
+    for leaf in (0, 1):
+        own = PlanningContext(TargetScene(plant, 0, leaf), X_WC, robot=None,
+                              q_current=np.zeros(6))
+        ctx = PlanningContext(TargetScene(plant, 0, leaf), X_WC, robot=None,
+                              q_current=np.zeros(6), shared=shared)
+        assert ctx.fruit_sdf is shared["fruit_obstacle"][0]
+        np.testing.assert_array_equal(ctx.fruit_sdf(q), own.fruit_sdf(q))
+        np.testing.assert_array_equal(ctx.fruit_box, own.fruit_box)
+        np.testing.assert_array_equal(SurfacesOf(ctx, "expected"),
+                                      VisibilitySurfaces(plant.fruits[0], "expected"))
+        assert SurfacesOf(ctx, "expected") is shared["visibility_surfaces"]["expected"]
+        assert SurfacesOf(ctx, "estimate") is not shared["visibility_surfaces"]["expected"]
+    assert set(shared["visibility_surfaces"]) == {"expected", "estimate"}
+
+
 def test_order_and_leaf_choice():
     assert OrderTargets([0.5, 0.1, 0.97, 0.1]) == [1, 3, 0]
 
