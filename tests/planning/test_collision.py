@@ -223,17 +223,22 @@ def test_nearest_below_is_the_smallest_below_distance_exactly_or_at_least_the_bo
     assert np.isnan(nan.NearestBelow(c[None], 0.005))
 
 
+def _AssertExactBelow(full, got, bound):
+    """``got`` equals the full distances where they are below the per-point
+    ``bound`` and is at least the bound elsewhere; both cases occur."""
+    below = full < bound
+    assert below.any() and (~below).any()
+    np.testing.assert_array_equal(got[below], full[below])
+    assert np.all(got[~below] >= bound[~below])
+
+
 def test_mesh_set_lower_below_takes_a_bound_per_point():
     rng = np.random.default_rng(5)
     sdf, _ = _MeshSet(rng)
     p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (3000, 3))
     full = sdf(p)
     bound = rng.uniform(-0.01, 0.02, len(p))
-    got = sdf.LowerBelow(p, bound)
-    near = full < bound
-    assert near.any() and (~near).any()
-    np.testing.assert_array_equal(got[near], full[near])
-    assert np.all(got[~near] >= bound[~near])
+    _AssertExactBelow(full, sdf.LowerBelow(p, bound), bound)
 
 
 def test_leaf_collision_reason_is_the_same_with_the_mesh_set_bounded():
@@ -310,8 +315,4 @@ def test_union_lower_below_is_exact_below_the_bound_with_an_estimate_and_meshes(
     p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (4000, 3))
     full = fruit(p)
     bound = rng.uniform(-0.01, 0.015, len(p))
-    got = fruit.LowerBelow(p, bound)
-    below = full < bound
-    assert below.any() and (~below).any()
-    np.testing.assert_array_equal(got[below], full[below])
-    assert np.all(got[~below] >= bound[~below])
+    _AssertExactBelow(full, fruit.LowerBelow(p, bound), bound)
