@@ -192,11 +192,8 @@ def GraspActions(ctx: PlanningContext, cfg: PlannerConfig, g, pivot, angles, all
     """Every configured motion (pulls, arcs, twists) from grasp ``g``."""
     actions = []
     if "pull" in cfg.action_families:
-        if getattr(ctx, "_branch_tree", None) is None and len(ctx.branch_all_W):
-            ctx._branch_tree = cKDTree(ctx.branch_all_W)     # once per planning context
         dirs, dir_ids = DirectionsForGrasp(g.p_WG, ctx.branch_all_W,
-                                           cfg.max_branch_angle_deg, all_dirs,
-                                           getattr(ctx, "_branch_tree", None))
+                                           cfg.max_branch_angle_deg, all_dirs, ctx.branch_tree)
         actions += [Action(g.p_WG, g.R_WG, s * u, grasp_id=g.grasp_id, direction_id=int(j))
                     for u, j in zip(dirs, dir_ids) for s in PullDistances(cfg, g.p_WG, pivot)]
     if pivot is not None and np.linalg.norm(g.p_WG - pivot) > 0.02:

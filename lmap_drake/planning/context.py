@@ -5,9 +5,11 @@ metres."""
 from __future__ import annotations
 
 import dataclasses as dc
+from functools import cached_property
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from lmap_drake.planning.collision import BranchDistance, FruitSetSdf, UnionSdf
 from lmap_drake.planning.config import FRUIT_SET_PAD
@@ -66,6 +68,12 @@ class PlanningContext:
         self.branch_box = ((branch.vertices_W.min(0), branch.vertices_W.max(0))
                            if branch is not None and len(branch.vertices_W) else None)
         self.p_WC = np.asarray(self.X_WC, float)[:3, 3]
+
+    @cached_property
+    def branch_tree(self) -> cKDTree | None:
+        """A KD-tree of ``branch_all_W`` (built when first needed, once per
+        context); None without branch points."""
+        return cKDTree(self.branch_all_W) if len(self.branch_all_W) else None
 
 
 def TargetShared(scene: SceneEstimate, fruit_shapes: str) -> dict:
