@@ -267,7 +267,9 @@ class GreenhouseConfig:
     the placed ``fruits`` and ``num_random_fruits`` more (not targets) at
     random nodes. FEM: the leaves hiding a target fruit from camera0, then
     those hiding the other fruits, then those within ``fem_radius`` (m) of
-    a target, at most ``max_fem_leaves`` (each
+    a target, at most ``max_fem_leaves``; with ``fem_occluders`` that
+    budget is raised to every leaf hiding a fruit (up to 8: in a real plant
+    every leaf a planner may grasp moves) (each
     about ``fem_target_tets`` tetrahedra, material from ``plant_scene.leaf``);
     every other leaf is static (welded, visual; with collision geometry if
     ``static_leaf_collision``; off: a welded leaf would stop the arm like a
@@ -295,6 +297,7 @@ class GreenhouseConfig:
     num_random_fruits: int = 2
     fem_radius: float = 0.06
     max_fem_leaves: int = 3
+    fem_occluders: bool = True
     fem_target_tets: int = 500
     static_leaf_collision: bool = False
     leaf_color_variation: float = 0.2

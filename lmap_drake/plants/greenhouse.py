@@ -34,6 +34,9 @@ from lmap_drake.plants.multi_geometry import BranchClearance, SurfaceDistance
 SHOOT_RADIUS = 0.0035       # m, a fruit's side shoot
 STRING_HEIGHT = 0.5         # m, the string runs this far above the stem top
 LEAF_TRIES = 6
+# the most FEM leaves a plant gets (greenhouse.fem_occluders); the budget's
+# validated range ends there too
+MAX_FEM_LEAVES = 8
 
 
 def GenerateGreenhousePlant(cfg, p_WC) -> GreenhousePlantModel:
@@ -300,11 +303,17 @@ def _ChooseFem(g, targets, occluders, fruits, surfs, blocked) -> list[int]:
     targets in turn), then the other fruits' occluders (a planner revealing
     every fruit moves those too: a static leaf cannot be grasped), then the
     leaves within ``fem_radius`` of a target fruit's surface (nearest
-    first); at most ``max_fem_leaves``; never a blocked leaf."""
+    first); at most ``max_fem_leaves``, raised with ``fem_occluders`` to
+    the number of leaves hiding a fruit (at most ``MAX_FEM_LEAVES``); never
+    a blocked leaf."""
     chosen: list[int] = []
+    budget = g.max_fem_leaves
+    if g.fem_occluders:
+        hiding = {int(j) for o in occluders for j in o if j not in blocked}
+        budget = max(budget, min(len(hiding), MAX_FEM_LEAVES))
 
     def take(j):
-        if j not in chosen and j not in blocked and len(chosen) < g.max_fem_leaves:
+        if j not in chosen and j not in blocked and len(chosen) < budget:
             chosen.append(int(j))
     others = [i for i in range(len(fruits)) if i not in targets]
     for group in (targets, others):

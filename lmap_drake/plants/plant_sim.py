@@ -533,7 +533,7 @@ class PlantWorldSim:
             static = self._StaticLeafBetweenPads(X_WG, X_GT, pad)
             why = "" if static is None else (
                 f"; the pads hold leaf {static}, which this simulated plant models as static "
-                f"(welded, not FEM: plant_scene.greenhouse.max_fem_leaves)")
+                f"(welded, not FEM: plant_scene.greenhouse.max_fem_leaves, fem_occluders)")
             raise RuntimeError(f"grasp failed: {len(inside)} leaf vertices between the pads "
                                f"(opening {width * 1000:.1f} mm){why}")
         T = _Kabsch(self.leaf_refs[leaf].rest_W[inside], V[inside])

@@ -13,7 +13,7 @@ from pydrake.systems.framework import DiagramBuilder
 from lmap_drake.scenario import ScenarioError
 from lmap_drake.paths import DIAGRAMS_DIR
 from lmap_drake.plants.config import GreenhouseFruitConfig, PlantSceneConfig
-from lmap_drake.plants.greenhouse import GenerateGreenhousePlant
+from lmap_drake.plants.greenhouse import MAX_FEM_LEAVES, GenerateGreenhousePlant
 from lmap_drake.plants.greenhouse_model import GreenhouseConfigError
 from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant
 from lmap_drake.plants.greenhouse_suite import GreenhouseSuite, RandomGreenhouseSuite
@@ -35,7 +35,7 @@ def _cfg(**g):
 
 @pytest.fixture(scope="module")
 def two_targets():
-    cfg = _cfg(seed=7, num_leaves=30, max_fem_leaves=3, fruits=[
+    cfg = _cfg(seed=7, num_leaves=30, max_fem_leaves=3, fem_occluders=False, fruits=[
         GreenhouseFruitConfig(stem=0, color="red", occlusion=0.7, height=0.3),
         GreenhouseFruitConfig(stem=1, color="green", azimuth_deg=70.0, occlusion=0.5,
                               height=0.5)])
@@ -77,6 +77,22 @@ def test_fem_leaves_are_only_those_near_the_targets(two_targets):
         assert j in target_occluders or near <= g.fem_radius + 1e-9, (j, near)
     # every other leaf is static, and none of those is near a target if there was room
     assert len(model.static_leaves) == g.num_leaves - len(model.leaves)
+
+
+def test_every_leaf_hiding_a_fruit_is_fem_with_fem_occluders(two_targets):
+    cfg, model = two_targets
+    hiding = {j for f in model.fruits for j in f.occluders}
+    assert len(hiding) > cfg.greenhouse.max_fem_leaves     # the budget alone leaves some static
+    assert not hiding <= set(range(len(model.leaves)))
+    cfg2 = dc.replace(cfg, greenhouse=dc.replace(cfg.greenhouse, fem_occluders=True))
+    model2 = GenerateGreenhousePlant(cfg2, P_WC)
+    hiding2 = {j for f in model2.fruits for j in f.occluders}
+    assert len(hiding2) == len(hiding) and len(hiding2) <= MAX_FEM_LEAVES
+    assert hiding2 <= set(range(len(model2.leaves)))      # FEM leaves come first
+    assert len(model2.leaves) == max(cfg.greenhouse.max_fem_leaves, len(hiding2))
+    # the same plant: only which leaves are FEM changes
+    assert sorted(len(s.vertices) for s in model2.AllLeafSurfaces()) == sorted(
+        len(s.vertices) for s in model.AllLeafSurfaces())
 
 
 def test_ground_truth_consistent(two_targets):
