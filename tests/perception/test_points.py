@@ -325,6 +325,24 @@ def test_three_flush_blades_among_four_instances_are_split_in_three():
     assert np.array_equal(ids[3 * n:], inst[3 * n:])
 
 
+def test_whole_leaves_among_many_pieces_are_not_cut():
+    """A dense view: 20 pieces of partly seen leaves (1.5 x 1.2 cm, all
+    of a size) and 8 whole leaves of 3 to 4.5 times their size. The pieces
+    look uniform among themselves, but with this many instances the size
+    premise is judged on all of them, which spread too much to say what a
+    leaf's size is: nothing is cut (``gh_lanceolate_leaves``: 1 of 21
+    leaves matched when it was judged on the pieces)."""
+    from lmap_drake.perception.points import FEW_INSTANCES, SplitOversizedLeaves
+    piece = lambda x: _Patch([x, 0.5, 0.0], [1, 0, 0], [0, 1, 0], 0.015, 0.012)   # noqa: E731
+    leaf = lambda x, w: _Patch([x, 0.0, 0.0], [1, 0, 0], [0, 1, 0], w, 0.02)       # noqa: E731
+    parts = [piece(0.05 * k) for k in range(20)]
+    parts += [leaf(0.1 * k, 0.03 + 0.005 * (k % 4)) for k in range(8)]
+    assert len(parts) >= FEW_INSTANCES
+    pts = np.vstack(parts)
+    inst = np.concatenate([np.full(len(p), k) for k, p in enumerate(parts)])
+    assert np.array_equal(SplitOversizedLeaves(pts, inst), inst)
+
+
 def test_fruit_instances_carry_the_mean_confidence_of_their_pixels():
     v = Render()
     cls, inst = DecodeLabels(v.label)
