@@ -176,6 +176,11 @@ def FitHypotheses(decoder, mean_latent, fruit_points_W, camera_W,
         zr = zz[:, None, :].expand(K, n, zz.shape[1]).reshape(K * n, -1)
         return s[:, None] * DecoderSdf(decoder, zr, xO.reshape(K * n, 3)).reshape(K, n)
 
+    def RowSdf(x, k, s, R, t, zz):
+        """s D(p_O, z) (m) of points x (N, 3), row i in hypothesis k[i]."""
+        xO = torch.einsum("ni,nij->nj", x - t[k], R[k]) / s[k, None]
+        return s[k] * DecoderSdf(decoder, zz[k], xO)
+
     act_x = torch.zeros((K, 0, 3))
     act_w = torch.zeros((K, 0))
     for it in range(P.hypothesis_iterations):
@@ -191,10 +196,18 @@ def FitHypotheses(decoder, mean_latent, fruit_points_W, camera_W,
                 xs[k, :len(a)], ws[k, :len(a)] = cand_x.numpy()[a], cand_w[a]
             act_x, act_w = torch.as_tensor(xs), torch.as_tensor(ws)
         s, R, _ = pose()
-        q = torch.cat([sur[None].expand(K, -1, 3), act_x], 1)
-        d = sdf(q, s, R, z) / u
-        l_sur = (d[:, :len(sur)] ** 2).mean(1)
-        l_neg = (act_w * torch.relu(-d[:, len(sur):])).sum(1) / act_w.sum(1).clamp(min=1e-9)
+        d = sdf(sur[None].expand(K, -1, 3), s, R, z) / u
+        l_sur = (d ** 2).mean(1)
+        l_neg = torch.zeros(K)
+        if act_x.shape[1]:
+            # Only the negatives inside a hypothesis (d < 0) have a gradient:
+            # found without one, they alone go through the backward pass.
+            with torch.no_grad():
+                kk, mm = torch.nonzero(sdf(act_x, s, R, z) < 0, as_tuple=True)
+            if len(kk):
+                dv = RowSdf(act_x[kk, mm], kk, s, R, t, z) / u
+                l_neg = torch.zeros(K).index_add(0, kk, act_w[kk, mm] * torch.relu(-dv))
+            l_neg = l_neg / act_w.sum(1).clamp(min=1e-9)
         l_reg = (z ** 2).sum(1)
         loss = (P.w_sur * l_sur + P.w_neg * l_neg + P.w_reg * l_reg).sum()
         opt.zero_grad()
@@ -238,7 +251,7 @@ def _HypothesisMesh(decoder, z: torch.Tensor, s: float, R: np.ndarray, t: np.nda
         return DecoderSdf(decoder, z, torch.as_tensor(x, dtype=torch.float32)).numpy()
 
     h = spacing / s
-    vO, faces = ExtractIsoSurface(sdf_O, lo, hi, h, band=4 * h)
+    vO, faces = ExtractIsoSurface(sdf_O, lo, hi, h, band=2 * h)
     return s * vO @ R.T + t, faces
 
 
