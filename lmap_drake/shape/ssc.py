@@ -205,7 +205,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from lmap_drake.shape.config import SscConfig
-from lmap_drake.shape.deepsdf import CUBE_RADIUS, DeepSDFDecoder
+from lmap_drake.shape.deepsdf import CUBE_RADIUS, DecoderSdf, DeepSDFDecoder
 from lmap_drake.shape.marching import ExtractIsoSurface, MarchingTetrahedra
 from lmap_drake.shape.metrics import MeshCentroid
 from lmap_drake.types import FruitEstimate
@@ -252,31 +252,6 @@ def Sim3Matrix(s: float, R: np.ndarray, t: np.ndarray) -> np.ndarray:
     X[:3, :3] = s * np.asarray(R)
     X[:3, 3] = t
     return X
-
-
-def _box_sdf(x: torch.Tensor, r: float) -> torch.Tensor:
-    q = x.abs() - r
-    outside = torch.clamp(q, min=0).norm(dim=1)
-    inside = torch.clamp(q.max(dim=1).values, max=0)
-    return outside + inside
-
-
-def DecoderSdf(decoder: DeepSDFDecoder, z: torch.Tensor, x_O: torch.Tensor) -> torch.Tensor:
-    """Decoder SDF in O (m), bounded below by the training cube's SDF."""
-    return torch.maximum(decoder(z, x_O), _box_sdf(x_O, CUBE_RADIUS))
-
-
-@torch.no_grad()
-def ActiveNegatives(decoder: DeepSDFDecoder, z: torch.Tensor, x_O: torch.Tensor, s,
-                    margin: float) -> np.ndarray:
-    """Indices of the points ``x_O`` (O, m) whose world-frame SDF ``s
-    DecoderSdf`` is below ``margin`` (m). Points whose training-cube bound
-    alone reaches the margin are not sent through the decoder (``DecoderSdf``
-    is at least that bound): the same answer for less work."""
-    box = s * _box_sdf(x_O, CUBE_RADIUS)
-    maybe = torch.nonzero(box < margin).flatten()
-    d = s * DecoderSdf(decoder, z, x_O[maybe])
-    return maybe[d < margin].numpy()
 
 
 @torch.no_grad()
@@ -515,8 +490,8 @@ def OptimizeShape(decoder: DeepSDFDecoder, mean_latent: np.ndarray, fruit_points
                             btree = cKDTree(ped_B) if len(ped_B) else None
                 if len(neg_all):
                     cand = _subsample(np.arange(len(neg_all)), P.max_negative_candidates, rng)
-                    act = cand[ActiveNegatives(decoder, z, to_O(neg_all[cand], s, R), s,
-                                               P.negative_margin)]
+                    d = s * DecoderSdf(decoder, z, to_O(neg_all[cand], s, R))
+                    act = cand[np.flatnonzero(d.numpy() < P.negative_margin)]
                     act = _subsample(act, P.max_negative_points, rng)
                     act_x, act_w = neg_all[act], torch.as_tensor(neg_w[act], dtype=torch.float32)
         s, R, tt = pose()
