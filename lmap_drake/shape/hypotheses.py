@@ -202,8 +202,10 @@ def FitHypotheses(decoder, mean_latent, fruit_points_W, camera_W,
         if act_x.shape[1]:
             # Only the negatives inside a hypothesis (d < 0) have a gradient:
             # found without one, they alone go through the backward pass.
-            with torch.no_grad():
-                kk, mm = torch.nonzero(sdf(act_x, s, R, z) < 0, as_tuple=True)
+            with torch.no_grad():     # the real rows only, not the zero padding
+                kk, mm = torch.nonzero(act_w > 0, as_tuple=True)
+                inside = RowSdf(act_x[kk, mm], kk, s, R, t, z) < 0
+                kk, mm = kk[inside], mm[inside]
             if len(kk):
                 dv = RowSdf(act_x[kk, mm], kk, s, R, t, z) / u
                 l_neg = torch.zeros(K).index_add(0, kk, act_w[kk, mm] * torch.relu(-dv))
