@@ -30,7 +30,6 @@ import torch
 # (measured: SSC 29 s -> 1.1 s). Override with LMAP_TORCH_THREADS.
 torch.set_num_threads(int(__import__("os").environ.get("LMAP_TORCH_THREADS", "1")))
 from torch import nn
-from torch.nn import functional as F
 
 from lmap_drake.errors import WeightsError
 from lmap_drake.paths import REPO_ROOT
@@ -80,7 +79,7 @@ class DeepSDFDecoder(nn.Module):
         for l, lin in enumerate(self.layers):
             if l in self.latent_in:
                 h = torch.cat([h, inp], 1)
-            h = F.linear(h, lin.weight, lin.bias)    # not lin(h): no module-call overhead
+            h = lin(h)
             if l < self.depth:
                 h = torch.relu(h)
         return torch.tanh(h[:, 0]) * self.output_scale
@@ -90,39 +89,22 @@ class DeepSDFDecoder(nn.Module):
         latent's share of the layers that take it (the first and
         ``latent_in``) is one matrix-vector product instead of one per point
         (the same sums; at 8 x 128 about 7 % fewer flops, and no (N, C)
-        copy of z). The weights' latent and point parts are split once
-        (``_SplitWeights``), not at every call: a fit makes several hundred
-        calls on a few hundred points, where the calls' overhead counts."""
+        copy of z)."""
+        C = self.latent_size
         xs = x * self.input_scale
-        split = self._SplitWeights()
         for l, lin in enumerate(self.layers):
-            if l in split:
-                b, Wz, Wt = split[l]
-                h = torch.addmm(torch.addmv(b, Wz, z), xs if l == 0 else torch.cat([h, xs], 1), Wt)
+            W, b = lin.weight, lin.bias
+            if l == 0:                       # input [z, xs]
+                h = torch.addmm(b + W[:, :C] @ z, xs, W[:, C:].t())
+            elif l in self.latent_in:        # input [h, z, xs]
+                n = h.shape[1]
+                h = torch.addmm(b + W[:, n:n + C] @ z, torch.cat([h, xs], 1),
+                                torch.cat([W[:, :n], W[:, n + C:]], 1).t())
             else:
-                h = F.linear(h, lin.weight, lin.bias)
+                h = lin(h)
             if l < self.depth:
                 h = torch.relu(h)
         return torch.tanh(h[:, 0]) * self.output_scale
-
-    def _SplitWeights(self) -> dict:
-        """{layer: (bias, latent columns, the other columns transposed)} of
-        the first layer and the ``latent_in`` ones (inputs [z, xs] and [h,
-        z, xs]), kept until a weight changes (``_version``); recomputed at
-        every call while the weights take gradients (training)."""
-        lins = [self.layers[l] for l in (0, *self.latent_in)]
-        key = tuple((m.weight._version, m.bias._version, m.weight.data_ptr()) for m in lins)
-        cached = self.__dict__.get("_split")
-        if cached is not None and cached[0] == key and not lins[0].weight.requires_grad:
-            return cached[1]
-        C, out = self.latent_size, {}
-        for l in (0, *self.latent_in):
-            W, b = self.layers[l].weight, self.layers[l].bias
-            n = W.shape[1] - C - 3                   # columns of h before [z, xs]
-            out[l] = (b, W[:, n:n + C].contiguous(),
-                      torch.cat([W[:, :n], W[:, n + C:]], 1).t().contiguous())
-        self.__dict__["_split"] = (key, out)
-        return out
 
     @torch.no_grad()
     def sdf_numpy(self, z, x: np.ndarray, batch: int = 65536) -> np.ndarray:
