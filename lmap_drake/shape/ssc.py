@@ -50,7 +50,11 @@ family (1 thread, loaded machine, branch and free space included) 1.25 ->
 the fit at a refresh when the mean loss of the last ``refresh_every``
 steps fell by less than that fraction, after ``min_iterations``: at 0.01
 / 150 it saved 30 % of the steps but the angle went 7.3 -> 7.8 deg, so it
-is off.
+is off. Only the surface points and the active negatives inside the
+surface go through the backward pass (the others are checked without a
+gradient; ``relu(-d)`` gives them none): the same loss and gradient. The
+time per fit and what was tried to cut it: ``lmap_drake/shape/hypotheses.py``
+(*Speed*).
 
 Start (``InitialPose``): by default (the
 paper's) s = 1 and t = the centroid of the fruit points pushed
