@@ -117,6 +117,18 @@ class DeepSDFDecoder(nn.Module):
         return np.concatenate(out) if out else np.zeros(0)
 
 
+def _box_sdf(x: torch.Tensor, r: float) -> torch.Tensor:
+    q = x.abs() - r
+    outside = torch.clamp(q, min=0).norm(dim=1)
+    inside = torch.clamp(q.max(dim=1).values, max=0)
+    return outside + inside
+
+
+def DecoderSdf(decoder: DeepSDFDecoder, z: torch.Tensor, x_O: torch.Tensor) -> torch.Tensor:
+    """Decoder SDF in O (m), bounded below by the training cube's SDF."""
+    return torch.maximum(decoder(z, x_O), _box_sdf(x_O, CUBE_RADIUS))
+
+
 def ResolveWeightsPath(weights_file: str | Path) -> Path:
     """Relative paths are relative to the repository root."""
     p = Path(weights_file)

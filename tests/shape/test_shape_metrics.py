@@ -1,6 +1,9 @@
 import numpy as np
+import torch
 import trimesh
 
+from lmap_drake.shape.config import ShapeConfig
+from lmap_drake.shape.deepsdf import DecoderSdf, LoadDecoder
 from lmap_drake.shape.marching import ExtractIsoSurface
 from lmap_drake.shape.metrics import (AngleErrorDeg, CenterErrorCm, ChamferCm, MeshCentroid,
                                       MeshVolume, ShapeMetrics)
@@ -82,3 +85,31 @@ def test_narrow_band_extraction_gives_the_same_mesh_from_fewer_samples():
     np.testing.assert_array_equal(f, f_full)
     np.testing.assert_array_equal(v, v_full)
     assert sum(calls) < 0.6 * n_full, (sum(calls), n_full)
+
+
+def test_the_two_cell_band_gives_the_full_grids_mesh_of_the_template():
+    """The fruit and hypothesis meshes are refined within 2 cells of the
+    surface (``band=2 * h``): on the shipped template (the mean shape and a
+    training latent, at the fit's 3 mm and the hypotheses' 5 mm in W at
+    scales 1 and 1.4) the mesh is the full grid's, from fewer samples."""
+    torch.set_num_threads(1)
+    dec, mean, extra = LoadDecoder(ShapeConfig().weights_file)
+    for z in (mean, extra["train_latents"].numpy()[2]):
+        zt = torch.as_tensor(np.asarray(z, np.float32))
+        calls = []
+
+        def sdf(p):
+            calls.append(len(p))
+            with torch.no_grad():
+                return DecoderSdf(dec, zt, torch.as_tensor(p, dtype=torch.float32)).numpy()
+        lo, hi = np.full(3, -0.06), np.full(3, 0.06)
+        for spacing, s in ((0.003, 1.0), (0.005, 1.4)):
+            h = spacing / s
+            calls.clear()
+            v_full, f_full = ExtractIsoSurface(sdf, lo, hi, h)
+            n_full = sum(calls)
+            calls.clear()
+            v, f = ExtractIsoSurface(sdf, lo, hi, h, band=2 * h)
+            np.testing.assert_array_equal(f, f_full)
+            np.testing.assert_array_equal(v, v_full)
+            assert sum(calls) < 0.6 * n_full, (sum(calls), n_full)

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from lmap_drake.shape.config import ReestimateConfig, ShapeConfig, SscConfig
 from lmap_drake.shape.baselines import FitHoma, FitSuperellipsoid
-from lmap_drake.shape.deepsdf import LoadDecoder
+from lmap_drake.shape.deepsdf import DecoderSdf, LoadDecoder
 from lmap_drake.shape.free_space import FreeSpacePoints
 from lmap_drake.shape.metrics import CenterErrorCm, MeshCentroid, MeshChamferCm
 from lmap_drake.shape.ssc import Adam, MakeFruitEstimate, OptimizeShape
@@ -306,3 +306,26 @@ def test_rotation_prior_keeps_the_axis_near_the_start(template):
         turn[w_rot] = np.degrees(np.arccos(np.clip(est.peduncle_axis_W[2], -1, 1)))
     assert turn[3.0] < turn[0.0], turn
     assert turn[3.0] < 8.0, turn
+
+
+def test_only_the_negatives_inside_carry_a_gradient(template):
+    """The fit sends only the active negatives inside the surface through
+    the backward pass: over a pose and latent off the template, the
+    negative term of all of them and of those inside alone give the same
+    gradient in the latent and the points (no coupling across rows)."""
+    dec, mean, lat = template
+    g = torch.Generator().manual_seed(3)
+    z0 = torch.as_tensor(lat[1], dtype=torch.float32)
+    x0 = (torch.rand(300, 3, generator=g) - 0.5) * 0.12
+    with torch.no_grad():
+        inside = DecoderSdf(dec, z0, x0) < 0
+    assert 10 < int(inside.sum()) < 290          # both kinds among them
+    grads = []
+    for rows in (torch.ones(300, dtype=torch.bool), inside):
+        z = z0.clone().requires_grad_(True)
+        x = x0.clone().requires_grad_(True)
+        torch.relu(-DecoderSdf(dec, z, x[rows])).sum().backward()
+        grads.append((z.grad, x.grad))
+    torch.testing.assert_close(grads[1][0], grads[0][0], rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(grads[1][1], grads[0][1], rtol=1e-5, atol=1e-7)
+    assert float(grads[0][1][~inside].abs().max()) == 0.0
