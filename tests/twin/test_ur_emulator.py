@@ -200,8 +200,12 @@ def test_connects_and_reports_a_running_normal_robot(robot):
     assert receive.getRobotMode() == 7  # RUNNING
     assert receive.getSafetyMode() == 1  # NORMAL
     assert not receive.isProtectiveStopped() and not receive.isEmergencyStopped()
-    assert receive.getRobotStatus() == ROBOT_STATUS_POWER_ON | ROBOT_STATUS_PROGRAM_RUNNING
-    assert receive.getRuntimeState() == 2  # PLAYING
+    # the receive stream is asynchronous: on a loaded machine its latest
+    # packet can predate the control script's start by a few cycles
+    assert _Wait(lambda: receive.getRobotStatus()
+                 == ROBOT_STATUS_POWER_ON | ROBOT_STATUS_PROGRAM_RUNNING, 1.0), \
+        receive.getRobotStatus()
+    assert _Wait(lambda: receive.getRuntimeState() == 2, 1.0)  # PLAYING
     assert control.isProgramRunning() and control.isConnected() and receive.isConnected()
     state = emu.State()
     assert state["script_running"] and state["programs"] == 1
