@@ -391,3 +391,19 @@ def test_distance_anchors_give_the_same_leaf_fruit_reason_with_fewer_exact_dista
     # the anchor bound never exceeds the distance
     moved = rest + rng.normal(0, 0.01, rest.shape)
     assert np.all(anchors.Bound(mesh_set, moved) <= np.abs(mesh_set(moved)) + 1e-7)
+
+
+def test_mesh_set_first_hit_has_the_verdict_of_the_nearest_distance():
+    rng = np.random.default_rng(12)
+    sdf, _ = _MeshSet(rng)
+    verdicts = set()
+    for k in range(80):
+        pts = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4]) + rng.normal(0, 0.004, (150, 3))
+        for bound in (0.005, 0.015):
+            full = sdf.NearestWithin(pts, bound)
+            fast = sdf.NearestWithin(pts, bound, first_hit=True)
+            assert (fast < bound) == (full < bound)
+            if fast >= bound:
+                assert fast == full == bound
+            verdicts.add((full < bound, bool(np.any(sdf(pts) < 0))))
+    assert {(True, True), (True, False), (False, False)} <= verdicts   # inside, near, clear
