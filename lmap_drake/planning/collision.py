@@ -340,6 +340,28 @@ class MeshSetSdf:
         return out.astype(float)
 
 
+    def AnyNearer(self, points_W: np.ndarray, bound: float, chunk: int = 16) -> bool:
+        """Whether a point of ``points_W`` lies nearer than ``bound`` (m) to
+        a mesh's surface (Open3D's unsigned distance; inside or out): the
+        points near the meshes' box, the lowest ``_LowerBound`` first, in
+        growing chunks, until one is found."""
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if not self._each or bound <= 0.0:
+            return False
+        p = p[np.all((p >= self._lo - bound) & (p <= self._hi + bound), axis=1)]
+        if not len(p):
+            return False
+        lb = self._LowerBound(p.astype(float), np.full(len(p), bound))
+        cand = np.flatnonzero(lb < bound + MESH_BOUND_GUARD)
+        cand, n = cand[np.argsort(lb[cand], kind="stable")], chunk
+        while len(cand):
+            if self._all.compute_distance(o3d.core.Tensor(p[cand[:n]])).numpy().min() < bound:
+                return True
+            cand, n = cand[n:], 4 * n
+        return False
+
+
 class DistanceAnchors:
     """Where points were (``points_W`` (N, 3), e.g. a leaf at rest) and,
     for each ``MeshSetSdf`` inside a fruit SDF (``UnionSdf`` parts), a
@@ -351,7 +373,7 @@ class DistanceAnchors:
 
     def __init__(self, sdf, points_W: np.ndarray):
         self.points_W = np.asarray(points_W, np.float32).reshape(-1, 3).astype(float)
-        self.bounds = {id(m): m.Unsigned(self.points_W) for m in _MeshSets(sdf)}
+        self.bounds = {id(m): m.Unsigned(self.points_W) for m in MeshSets(sdf)}
 
     def Take(self, sel) -> "DistanceAnchors":
         """The anchors of the points ``sel`` (a mask or indices)."""
@@ -369,12 +391,12 @@ class DistanceAnchors:
                 - MESH_BOUND_GUARD)
 
 
-def _MeshSets(sdf) -> list:
+def MeshSets(sdf) -> list:
     """The ``MeshSetSdf`` parts of a fruit SDF (itself, or inside ``UnionSdf``s)."""
     if isinstance(sdf, MeshSetSdf):
         return [sdf]
     if isinstance(sdf, UnionSdf):
-        return [m for part, _, _ in sdf._parts for m in _MeshSets(part)]
+        return [m for part, _, _ in sdf._parts for m in MeshSets(part)]
     return []
 
 

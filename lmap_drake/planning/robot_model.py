@@ -269,6 +269,20 @@ class RobotModel:
                               [X_body[i] for i in self._body_of_geometry], self._fingers,
                               self._shapes)
 
+    def FingerSamplesInTcp(self, half_opening: float) -> np.ndarray:
+        """The finger geometries' surface samples (N, 3) in the ``tcp``
+        frame with the pads ``half_opening`` (m) apart: the gripper moves
+        rigidly with the TCP whatever the arm's joints (kept per opening)."""
+        cache = self.__dict__.setdefault("_finger_samples", {})
+        key = float(half_opening)
+        if key not in cache:
+            q = np.zeros(6)
+            samples = self.SurfacePointsByBody(q, key)
+            X_TW = self.TcpPose(q, key).inverse().GetAsMatrix4()
+            p_W = np.vstack([samples[i] for i in np.flatnonzero(self._fingers)])
+            cache[key] = p_W @ X_TW[:3, :3].T + X_TW[:3, 3]
+        return cache[key]
+
     def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
                       margin: float = 0.0) -> str:
         """'' if the arm and gripper at ``q`` do not interpenetrate and links
