@@ -340,26 +340,17 @@ class MeshSetSdf:
         return out.astype(float)
 
 
-    def AnyNearer(self, points_W: np.ndarray, bound: float, chunk: int = 16) -> bool:
-        """Whether a point of ``points_W`` lies nearer than ``bound`` (m) to
-        a mesh's surface (Open3D's unsigned distance; inside or out): the
-        points near the meshes' box, the lowest ``_LowerBound`` first, in
-        growing chunks, until one is found."""
-        import open3d as o3d
+    def AnyNearer(self, points_W: np.ndarray, bound: float) -> bool:
+        """Whether a point of ``points_W`` surely lies nearer than ``bound``
+        (m) to a mesh's surface (inside or out): nearer than ``bound`` to
+        a vertex (on the surface). A cheap sufficient test (False: not
+        found so)."""
         p = np.asarray(points_W, np.float32).reshape(-1, 3)
         if not self._each or bound <= 0.0:
             return False
         p = p[np.all((p >= self._lo - bound) & (p <= self._hi + bound), axis=1)]
-        if not len(p):
-            return False
-        lb = self._LowerBound(p.astype(float), np.full(len(p), bound))
-        cand = np.flatnonzero(lb < bound + MESH_BOUND_GUARD)
-        cand, n = cand[np.argsort(lb[cand], kind="stable")], chunk
-        while len(cand):
-            if self._all.compute_distance(o3d.core.Tensor(p[cand[:n]])).numpy().min() < bound:
-                return True
-            cand, n = cand[n:], 4 * n
-        return False
+        return bool(len(p)) and bool(np.any(
+            self._surface.query(p.astype(float), distance_upper_bound=bound)[0] < bound))
 
 
 class DistanceAnchors:
