@@ -13,8 +13,7 @@ from lmap_drake.deformation.action import Action
 from lmap_drake.planning.collision import MESH_BOUND_GUARD, MeshSets, NearBox
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext
-from lmap_drake.planning.motion import (ApproachBlocked, ApproachPlan, FinalApproachPoses,
-                                        MotionError, PlanApproach)
+from lmap_drake.planning.motion import ApproachBlocked, ApproachPlan, MotionError, PlanApproach
 from lmap_drake.planning.result import Candidate, DistanceId
 from lmap_drake.planning.robot_checks import LeafContact, MotionChecks, RobotPoseReason
 from lmap_drake.planning.robot_model import SELF_MARGIN
@@ -165,19 +164,17 @@ IK_ROTATION_SLACK = 5e-3
 
 def GraspSurelyBlocked(ctx: PlanningContext, grasp, cfg: PlannerConfig) -> bool:
     """Whether every approach to ``grasp`` (``GraspApproach``) fails at the
-    grasp pose or another pose of the final approach to it
-    (``motion.FinalApproachPoses``; every ready distance and opening
-    checks them all, from the grasp out) whatever joints the IK finds
-    there: for each opening ``_Approach`` may try, at one of those target
-    TCP poses a sample of the gripper (the geometries rigid with the TCP,
-    ``RobotModel.GripperSamplesInTcp``) lies nearer to a vertex of a fruit
-    hypothesis mesh than its margin (``collision_margin`` for the fingers,
-    ``robot_fruit_margin`` for the rest, as ``RobotCollisionReason``) less
-    the IK's slack (position, and rotation at the sample's lever), or
-    nearer to the branch than ``collision_margin`` less it. A vertex lies
-    on the surface and distances to surfaces are 1-Lipschitz, so at the
-    solved pose that sample is within its margin and the robot check there
-    fails: the same verdict without the IK and the checks (False: it
+    grasp pose itself whatever joints the IK finds there: for each opening
+    ``_Approach`` may try, a sample of the gripper (the geometries rigid
+    with the TCP, ``RobotModel.GripperSamplesInTcp``) at the target TCP
+    pose lies nearer to a vertex of a fruit hypothesis mesh than its
+    margin (``collision_margin`` for the fingers, ``robot_fruit_margin``
+    for the rest, as ``RobotCollisionReason``) less the IK's slack
+    (position and rotation at the sample's lever), or nearer to the branch
+    than ``collision_margin`` less it. A vertex lies on the surface and
+    distances to surfaces are 1-Lipschitz, so at the solved pose that
+    sample is within its margin and the robot check of the grasp pose
+    fails (the same verdict, without the IK and the check; False when it
     cannot tell)."""
     m = cfg.collision_margin
     meshes = MeshSets(ctx.fruit_sdf)
@@ -185,39 +182,28 @@ def GraspSurelyBlocked(ctx: PlanningContext, grasp, cfg: PlannerConfig) -> bool:
         return False
     body_m = (cfg.robot_fruit_margin if cfg.robot_fruit_margin is not None
               and cfg.robot_fruit_margin > m else m)
-    X_grasp = RigidTransform(RotationMatrix(grasp.R_WG), grasp.p_WG)
-    # the grasp pose first, then the final approach's others (every
-    # ready distance and opening checks them all, from the grasp out)
-    poses = [X_grasp] + FinalApproachPoses(X_grasp, cfg.pregrasp_distance)[::-1][1:]
+    R, p = np.asarray(grasp.R_WG, float), np.asarray(grasp.p_WG, float)
     for opening in dict.fromkeys([cfg.pregrasp_opening, NarrowOpening(ctx.leaf_W, grasp, cfg)]):
-        samples = ctx.robot.GripperSamplesInTcp(0.5 * opening)
-        if not any(_GripperBlocked(ctx, meshes, samples, (m, body_m), X) for X in poses):
+        blocked = False
+        for p_T, margin in zip(ctx.robot.GripperSamplesInTcp(0.5 * opening), (m, body_m)):
+            if not len(p_T):
+                continue
+            slack = (IK_POSITION_SLACK + MESH_BOUND_GUARD
+                     + IK_ROTATION_SLACK * float(np.linalg.norm(p_T, axis=1).max()))
+            p_W = p_T @ R.T + p
+            if any(mesh.AnyNearer(p_W, margin - slack) for mesh in meshes):
+                blocked = True
+                break
+            bound = m - slack
+            if ctx.branch_distance is not None and bound > 0.0:
+                near = (p_W if ctx.branch_box is None else
+                        NearBox(p_W, ctx.branch_box[0] - bound, ctx.branch_box[1] + bound))
+                if len(near) and float(np.min(ctx.branch_distance(near))) < bound:
+                    blocked = True
+                    break
+        if not blocked:
             return False
     return True
-
-
-def _GripperBlocked(ctx: PlanningContext, meshes: list, samples: tuple, margins: tuple,
-                    X_WT: RigidTransform) -> bool:
-    """Whether the gripper's ``samples`` (``RobotModel.GripperSamplesInTcp``)
-    with the TCP at ``X_WT`` come, by more than the IK's slack, within
-    ``margins`` (fingers, rest) of a vertex of ``meshes`` or within
-    ``collision_margin`` (``margins[0]``) of the branch (``GraspSurelyBlocked``)."""
-    R, p = X_WT.rotation().matrix(), X_WT.translation()
-    for p_T, margin in zip(samples, margins):
-        if not len(p_T):
-            continue
-        slack = (IK_POSITION_SLACK + MESH_BOUND_GUARD
-                 + IK_ROTATION_SLACK * float(np.linalg.norm(p_T, axis=1).max()))
-        p_W = p_T @ R.T + p
-        if any(mesh.AnyNearer(p_W, margin - slack) for mesh in meshes):
-            return True
-        bound = margins[0] - slack
-        if ctx.branch_distance is not None and bound > 0.0:
-            near = (p_W if ctx.branch_box is None else
-                    NearBox(p_W, ctx.branch_box[0] - bound, ctx.branch_box[1] + bound))
-            if len(near) and float(np.min(ctx.branch_distance(near))) < bound:
-                return True
-    return False
 
 
 def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only: bool = False

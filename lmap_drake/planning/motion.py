@@ -186,19 +186,6 @@ class ApproachPlan:
     brush_displacement: float = 0.0
 
 
-def BackAlongApproach(X_WT_grasp: RigidTransform, d: float) -> RigidTransform:
-    """The TCP pose ``d`` (m) back from the grasp along its approach axis (z)."""
-    R = X_WT_grasp.rotation()
-    return RigidTransform(R, X_WT_grasp.translation() - d * R.col(2))
-
-
-def FinalApproachPoses(X_WT_grasp: RigidTransform, pregrasp_distance: float
-                       ) -> list[RigidTransform]:
-    """The final approach's poses (``PlanApproach``): from the pre-grasp
-    (excluded) to the grasp (included), about 12.5 mm apart."""
-    return CartesianPath(BackAlongApproach(X_WT_grasp, pregrasp_distance), X_WT_grasp, 0.0125)
-
-
 def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
                  toward_camera_W: np.ndarray, pregrasp_distance: float = 0.05,
                  pregrasp_opening: float = 0.02, ready_extra: float = 0.08,
@@ -214,11 +201,14 @@ def PlanApproach(robot, X_WT_grasp: RigidTransform, q_current: np.ndarray,
     final approach after the pre-grasp; "staging": the pre-grasp, the ready
     pose, the via point and the lines between them); a reason stops the
     planning (``ApproachBlocked``). ``memo``: see ``IkPath``."""
-    X_pre, X_ready = (BackAlongApproach(X_WT_grasp, pregrasp_distance),
-                      BackAlongApproach(X_WT_grasp, pregrasp_distance + ready_extra))
-    X_via = RigidTransform(X_WT_grasp.rotation(),
-                           X_ready.translation() + via_offset * np.asarray(toward_camera_W))
-    grasp_poses = FinalApproachPoses(X_WT_grasp, pregrasp_distance)
+    R = X_WT_grasp.rotation()
+    z = R.col(2)
+
+    def back(d):
+        return RigidTransform(R, X_WT_grasp.translation() - d * z)
+    X_pre, X_ready = back(pregrasp_distance), back(pregrasp_distance + ready_extra)
+    X_via = RigidTransform(R, X_ready.translation() + via_offset * np.asarray(toward_camera_W))
+    grasp_poses = CartesianPath(X_pre, X_WT_grasp, 0.0125)
     pre_poses = CartesianPath(X_ready, X_pre, 0.02)
     ready_poses = CartesianPath(X_via, X_ready, 0.02)
     backwards = ([X_WT_grasp] + grasp_poses[::-1][1:] + [X_pre] + pre_poses[::-1][1:]
