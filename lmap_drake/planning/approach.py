@@ -10,6 +10,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
 from lmap_drake.deformation.action import Action
+from lmap_drake.planning.collision import MESH_BOUND_GUARD, MeshSets, NearBox
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext
 from lmap_drake.planning.motion import ApproachBlocked, ApproachPlan, MotionError, PlanApproach
@@ -151,6 +152,58 @@ def _Approach(ctx: PlanningContext, cfg: PlannerConfig, grasp, ready: float,
         if not why.startswith(("robot-fruit", "robot-leaf")):
             break
     return why
+
+
+# How far (m) a gripper sample may lie from where the target TCP pose puts
+# it once IK has solved that pose: the IK's position acceptance
+# (``ik.SolveTcpIk``: 10 x 1e-4 m) plus ``IK_ROTATION_SLACK`` rad at the
+# sample's lever (``GraspSurelyBlocked``).
+IK_POSITION_SLACK = 1.001e-3
+IK_ROTATION_SLACK = 5e-3
+
+
+def GraspSurelyBlocked(ctx: PlanningContext, grasp, cfg: PlannerConfig) -> bool:
+    """Whether every approach to ``grasp`` (``GraspApproach``) fails at the
+    grasp pose itself whatever joints the IK finds there: for each opening
+    ``_Approach`` may try, a sample of the gripper (the geometries rigid
+    with the TCP, ``RobotModel.GripperSamplesInTcp``) at the target TCP
+    pose lies nearer to a vertex of a fruit hypothesis mesh than its
+    margin (``collision_margin`` for the fingers, ``robot_fruit_margin``
+    for the rest, as ``RobotCollisionReason``) less the IK's slack
+    (position and rotation at the sample's lever), or nearer to the branch
+    than ``collision_margin`` less it. A vertex lies on the surface and
+    distances to surfaces are 1-Lipschitz, so at the solved pose that
+    sample is within its margin and the robot check of the grasp pose
+    fails (the same verdict, without the IK and the check; False when it
+    cannot tell)."""
+    m = cfg.collision_margin
+    meshes = MeshSets(ctx.fruit_sdf)
+    if not np.isfinite(m) or (not meshes and ctx.branch_distance is None):
+        return False
+    body_m = (cfg.robot_fruit_margin if cfg.robot_fruit_margin is not None
+              and cfg.robot_fruit_margin > m else m)
+    R, p = np.asarray(grasp.R_WG, float), np.asarray(grasp.p_WG, float)
+    for opening in dict.fromkeys([cfg.pregrasp_opening, NarrowOpening(ctx.leaf_W, grasp, cfg)]):
+        blocked = False
+        for p_T, margin in zip(ctx.robot.GripperSamplesInTcp(0.5 * opening), (m, body_m)):
+            if not len(p_T):
+                continue
+            slack = (IK_POSITION_SLACK + MESH_BOUND_GUARD
+                     + IK_ROTATION_SLACK * float(np.linalg.norm(p_T, axis=1).max()))
+            p_W = p_T @ R.T + p
+            if any(mesh.AnyNearer(p_W, margin - slack) for mesh in meshes):
+                blocked = True
+                break
+            bound = m - slack
+            if ctx.branch_distance is not None and bound > 0.0:
+                near = (p_W if ctx.branch_box is None else
+                        NearBox(p_W, ctx.branch_box[0] - bound, ctx.branch_box[1] + bound))
+                if len(near) and float(np.min(ctx.branch_distance(near))) < bound:
+                    blocked = True
+                    break
+        if not blocked:
+            return False
+    return True
 
 
 def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only: bool = False

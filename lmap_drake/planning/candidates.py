@@ -15,7 +15,7 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from lmap_drake.deformation.action import (Action, AxisAngleMatrix, HingeAxes, MakeArcActions,
                                            MakeTwistActions, PullDirections)
-from lmap_drake.planning.approach import GraspApproach, IkAndRobotChecks
+from lmap_drake.planning.approach import GraspApproach, GraspSurelyBlocked, IkAndRobotChecks
 from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge, UnseenPetiole
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext, SurfacesOf
@@ -325,7 +325,10 @@ def _FirstApproach(ctx: PlanningContext, cfg: PlannerConfig, g, actions: list[Ac
     approach passes, or None when none does."""
     for R, label in zip(rotations, labels):
         turned = Grasp(g.p_WG, R, g.grasp_id)
-        # (a failed orientation's reason is not kept: its verdict suffices)
+        # (a failed orientation's reason is not kept: its verdict suffices;
+        # one whose fingers surely meet a fruit or the branch is not solved)
+        if GraspSurelyBlocked(ctx, turned, cfg):
+            continue
         approach = GraspApproach(ctx, turned, cfg, verdict_only=True)
         if approach[0] is None:
             continue            # (the actions are turned only for an approach that passes)

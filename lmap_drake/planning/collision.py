@@ -41,11 +41,12 @@ class UnionSdf:
         self.pad = float(pad)
 
     def __call__(self, points_W: np.ndarray, pad: float | None = None,
-                 bound: float | None = None) -> np.ndarray:
+                 bound: float | None = None, anchors: DistanceAnchors | None = None
+                 ) -> np.ndarray:
         """The signed distances; ``pad`` (m, at most ``self.pad``): a
         narrower band for this call (``Below``); ``bound`` (m): the parts
         with ``LowerBelow`` give their values only where below it and the
-        parts before them (``LowerBelow``)."""
+        parts before them (``LowerBelow``, with ``anchors``)."""
         pad = self.pad if pad is None else min(float(pad), self.pad)
         p = np.asarray(points_W, float).reshape(-1, 3)
         out = np.full(len(p), np.inf)
@@ -56,18 +57,23 @@ class UnionSdf:
             if near.any():
                 low = None if bound is None else getattr(sdf, "LowerBelow", None)
                 # (below the parts before, at a point, it must come to matter)
-                d[near] = np.asarray(sdf(p[near]) if low is None else
-                                     low(p[near], np.minimum(bound[near], out[near])),
-                                     float).reshape(-1)
+                if low is None:
+                    d[near] = np.asarray(sdf(p[near]), float).reshape(-1)
+                else:
+                    extra = {} if anchors is None else {"anchors": anchors.Take(near)}
+                    d[near] = np.asarray(low(p[near], np.minimum(bound[near], out[near]),
+                                             **extra), float).reshape(-1)
             out = np.minimum(out, d)
         return out
 
-    def LowerBelow(self, points_W: np.ndarray, bound) -> np.ndarray:
+    def LowerBelow(self, points_W: np.ndarray, bound,
+                   anchors: DistanceAnchors | None = None) -> np.ndarray:
         """``self(points_W)`` where it is below ``bound`` (m; one value or
         one per point), a lower bound of it, at least ``bound``, elsewhere:
         the parts with ``LowerBelow`` (a ``MeshSetSdf``) skip what cannot
-        come below it."""
-        return self(points_W, bound=bound)
+        come below it, also by ``anchors`` (``DistanceAnchors``, one per
+        point: where each point was)."""
+        return self(points_W, bound=bound, anchors=anchors)
 
     def Below(self, points_W: np.ndarray, bound: float) -> np.ndarray:
         """The distances where they may lie below ``bound`` (m): each SDF
@@ -171,6 +177,11 @@ class MeshSetSdf:
                   if len(f)]
         self._all = o3d.t.geometry.RaycastingScene()
         self._each = []
+        V = [v for v, _ in meshes]
+        self._lo, self._hi = ((np.vstack(V).min(0), np.vstack(V).max(0)) if V
+                              else (np.zeros(3), np.zeros(3)))
+        # (``_Inside``: each mesh's box top, float32 as the query points)
+        self._each_hi = [(v.max(0) + OCCUPANCY_GUARD).astype(np.float32) for v, _ in meshes]
         for v, f in meshes:
             self._all.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
             one = o3d.t.geometry.RaycastingScene()
@@ -214,9 +225,21 @@ class MeshSetSdf:
         return out
 
     def _Inside(self, q) -> np.ndarray:
-        inside = np.zeros(q.shape[0], bool)
-        for one in self._each:
-            inside |= one.compute_occupancy(q).numpy() > 0.5
+        """Whether each point of ``q`` (an Open3D float32 tensor (N, 3)) is
+        inside a mesh (Open3D's occupancy, each mesh's own). Open3D counts
+        the crossings of a ray along about (1, 1, 1) (each component
+        positive; ``tests/planning/test_collision.py`` checks it): a point
+        beyond a mesh's box in any coordinate (by ``OCCUPANCY_GUARD``) has
+        none, so only the others are asked (the same answer)."""
+        import open3d as o3d
+        p = q.numpy()
+        inside = np.zeros(len(p), bool)
+        for one, hi in zip(self._each, self._each_hi):
+            ask = np.flatnonzero(~np.any(p > hi, axis=1))
+            if len(ask) == len(p):
+                inside |= one.compute_occupancy(q).numpy() > 0.5
+            elif len(ask):
+                inside[ask] |= one.compute_occupancy(o3d.core.Tensor(p[ask])).numpy() > 0.5
         return inside
 
     def __call__(self, points_W: np.ndarray) -> np.ndarray:
@@ -228,14 +251,16 @@ class MeshSetSdf:
         d = self._all.compute_distance(q).numpy().astype(float)
         return np.where(self._Inside(q), -d, d)
 
-    def LowerBelow(self, points_W: np.ndarray, bound) -> np.ndarray:
+    def LowerBelow(self, points_W: np.ndarray, bound,
+                   anchors: DistanceAnchors | None = None) -> np.ndarray:
         """``self(points_W)`` where it is below ``bound`` (m; one value or
         one per point); elsewhere a lower bound of it, at least ``bound``:
         ``_LowerBound`` (``MESH_BOUND_GUARD`` kept for the float32
-        distances), so the exact distance (Open3D's, the costly part) is
-        computed only inside a mesh or where that bound is below
-        ``bound``. The same verdict and nearest distance for a check
-        against ``bound``."""
+        distances), and with ``anchors`` (``DistanceAnchors``, one per
+        point) also the anchor's distance less how far the point lies from
+        it, so the exact distance (Open3D's, the costly part) is computed
+        only inside a mesh or where those bounds are below ``bound``. The
+        same verdict and nearest distance for a check against ``bound``."""
         import open3d as o3d
         p = np.asarray(points_W, np.float32).reshape(-1, 3)
         if len(p) == 0 or not self._each:
@@ -243,6 +268,8 @@ class MeshSetSdf:
         inside = self._Inside(o3d.core.Tensor(p))
         bound = np.broadcast_to(np.asarray(bound, float), (len(p),))
         d = self._LowerBound(p.astype(float), bound)
+        if anchors is not None and id(self) in anchors.bounds:
+            d = np.maximum(d, anchors.Bound(self, p))
         exact = inside | (d < bound + MESH_BOUND_GUARD)
         if exact.any():
             d[exact] = self._all.compute_distance(o3d.core.Tensor(p[exact])).numpy()
@@ -299,6 +326,74 @@ class MeshSetSdf:
                 rest, lb = rest[:left], lb[:left]
         return best if best < bound else float(bound)
 
+
+    def Unsigned(self, points_W: np.ndarray, reach: float = 0.1) -> np.ndarray:
+        """A lower bound (m) of the unsigned distance from ``points_W`` to
+        the meshes' surfaces: Open3D's distance within ``reach`` (m) of the
+        meshes' box, the distance to that box farther out."""
+        import open3d as o3d
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        out = np.linalg.norm(np.maximum(np.maximum(self._lo - p, p - self._hi), 0.0), axis=1)
+        near = out < reach
+        if near.any() and self._each:
+            out[near] = self._all.compute_distance(o3d.core.Tensor(p[near])).numpy()
+        return out.astype(float)
+
+
+    def AnyNearer(self, points_W: np.ndarray, bound: float) -> bool:
+        """Whether a point of ``points_W`` surely lies nearer than ``bound``
+        (m) to a mesh's surface (inside or out): nearer than ``bound`` to
+        a vertex (on the surface). A cheap sufficient test (False: not
+        found so)."""
+        p = np.asarray(points_W, np.float32).reshape(-1, 3)
+        if not self._each or bound <= 0.0:
+            return False
+        p = p[np.all((p >= self._lo - bound) & (p <= self._hi + bound), axis=1)]
+        return bool(len(p)) and bool(np.any(
+            self._surface.query(p.astype(float), distance_upper_bound=bound)[0] < bound))
+
+
+class DistanceAnchors:
+    """Where points were (``points_W`` (N, 3), e.g. a leaf at rest) and,
+    for each ``MeshSetSdf`` inside a fruit SDF (``UnionSdf`` parts), a
+    lower bound of its unsigned distance there (``MeshSetSdf.Unsigned``).
+    A distance is 1-Lipschitz: a point s (m) from its anchor is at least
+    the anchor's distance less s from the meshes (``Bound``), which spares
+    ``MeshSetSdf.LowerBelow`` Open3D's exact distance where that is
+    already beyond its bound (a moved leaf: most of it far from a fruit)."""
+
+    def __init__(self, sdf, points_W: np.ndarray):
+        self.points_W = np.asarray(points_W, np.float32).reshape(-1, 3).astype(float)
+        self.bounds = {id(m): m.Unsigned(self.points_W) for m in MeshSets(sdf)}
+
+    def Take(self, sel) -> "DistanceAnchors":
+        """The anchors of the points ``sel`` (a mask or indices)."""
+        out = DistanceAnchors.__new__(DistanceAnchors)
+        out.points_W = self.points_W[sel]
+        out.bounds = {k: v[sel] for k, v in self.bounds.items()}
+        return out
+
+    def Bound(self, mesh_set: "MeshSetSdf", points_W: np.ndarray) -> np.ndarray:
+        """A lower bound (m) of ``mesh_set``'s unsigned distance at
+        ``points_W`` (one per anchor, float32 as Open3D sees them), less
+        ``MESH_BOUND_GUARD`` for Open3D's float32 distances."""
+        p = np.asarray(points_W, np.float32).reshape(-1, 3).astype(float)
+        return (self.bounds[id(mesh_set)] - np.linalg.norm(p - self.points_W, axis=1)
+                - MESH_BOUND_GUARD)
+
+
+def MeshSets(sdf) -> list:
+    """The ``MeshSetSdf`` parts of a fruit SDF (itself, or inside ``UnionSdf``s)."""
+    if isinstance(sdf, MeshSetSdf):
+        return [sdf]
+    if isinstance(sdf, UnionSdf):
+        return [m for part, _, _ in sdf._parts for m in MeshSets(part)]
+    return []
+
+
+# m: ``MeshSetSdf._Inside`` asks Open3D's occupancy of the points not beyond
+# a mesh's box by more than this (its rays start at the point).
+OCCUPANCY_GUARD = 1e-4
 
 # m: ``MeshSetSdf.LowerBelow`` computes the exact distance wherever its bound
 # is below the check's bound plus this (Open3D's distances are float32).
@@ -402,7 +497,8 @@ def RobotCollisionReason(robot_points_W: np.ndarray, fruit_sdf, branch_distance,
 
 def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
                         margin: float, box=None, rest_distance=None, what: str = "fruit",
-                        ignore_touching: bool = False) -> str:
+                        ignore_touching: bool = False,
+                        anchors: DistanceAnchors | None = None) -> str:
     """'' unless a leaf point ends within ``margin`` of an object (or inside
     it) after moving toward it: ``distance`` maps (N, 3) points to the
     object's signed (the fruit's SDF) or unsigned (``BranchDistance``)
@@ -414,7 +510,8 @@ def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
     only deformed points within ``margin`` of it are evaluated (the others
     are farther than ``margin`` from the object); ``rest_distance``: the
     distance at ``rest_W``, when already known (one evaluation for many
-    actions)."""
+    actions); ``anchors``: ``DistanceAnchors`` at ``rest_W`` (the same
+    verdict, fewer exact mesh distances)."""
     if distance is None or deformed_W is None or len(deformed_W) == 0:
         return ""
     deformed_W = np.asarray(deformed_W, float)
@@ -429,9 +526,10 @@ def LeafCollisionReason(rest_W: np.ndarray, deformed_W: np.ndarray, distance,
     d0 = (np.asarray(rest_distance, float)[sel] if rest_distance is not None
           else np.asarray(distance(np.asarray(rest_W)[sel]), float))
     low = getattr(distance, "LowerBelow", None)
+    extra = {} if anchors is None or low is None else {"anchors": anchors.Take(sel)}
     d1 = np.asarray(distance(deformed_W[sel]) if low is None else
                     low(deformed_W[sel], np.minimum(margin, np.nan_to_num(d0, nan=margin)
-                                                    - 1e-3)), float)
+                                                    - 1e-3), **extra), float)
     if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d0))):
         return f"leaf-{what} (non-finite {what} distance)"
     bad = (d1 < margin) & (d1 < d0 - 1e-3)

@@ -203,6 +203,45 @@ def SheetPush(pts, points_W: np.ndarray, normals: np.ndarray, margin: float,
     return push
 
 
+def _OtherLeafPoints(ctx: PlanningContext) -> tuple | None:
+    """None without a branch estimate, else (the other leaves' points
+    (``ctx.other_leaves_W``), which of them may be brushed (not within
+    ``BRUSH_FRUIT_CLEARANCE`` of a fruit), their distances to the branch):
+    what both sets of ``_BrushObstacles`` share, computed once per context
+    (cached on it)."""
+    if hasattr(ctx, "_other_leaf_points"):
+        return ctx._other_leaf_points
+    other = np.asarray(ctx.other_leaves_W, float).reshape(-1, 3)
+    branch = np.asarray(getattr(ctx, "branch_all_W", np.zeros((0, 3))), float).reshape(-1, 3)
+    out = None
+    if ctx.branch_distance is not None or len(branch):
+        free = np.ones(len(other), bool)
+        if len(other) and ctx.fruit_sdf is not None:
+            d = np.asarray(ctx.fruit_sdf(other), float).reshape(-1)
+            free &= np.nan_to_num(d, nan=-1.0) >= BRUSH_FRUIT_CLEARANCE
+        d_branch = np.full(len(other), np.inf)
+        if len(other) and ctx.branch_distance is not None:
+            d_branch = np.asarray(ctx.branch_distance(other), float)
+        if len(other) and len(branch):
+            d_branch = np.minimum(d_branch, cKDTree(branch).query(other)[0])
+        out = (other, free, d_branch)
+    ctx._other_leaf_points = out
+    return out
+
+
+def _BrushedLeaves(ctx: PlanningContext) -> tuple:
+    """(the other leaves' points that may be brushed, their KD-tree or
+    None, normals, distances to the branch), once per context (cached on
+    it; needs ``_OtherLeafPoints``)."""
+    if not hasattr(ctx, "_brushed_leaves"):
+        other, free, d_branch = _OtherLeafPoints(ctx)
+        brushed = other[free]
+        brushed_tree = cKDTree(brushed) if len(brushed) else None
+        ctx._brushed_leaves = (brushed, brushed_tree, LeafNormals(brushed, brushed_tree),
+                               d_branch[free])
+    return ctx._brushed_leaves
+
+
 def _BrushObstacles(ctx: PlanningContext, held: bool = True) -> tuple | None:
     """None without a branch estimate (no lever known: nothing is brushed),
     else (KD-tree or None of the leaf points the robot may not touch, their
@@ -210,32 +249,21 @@ def _BrushObstacles(ctx: PlanningContext, held: bool = True) -> tuple | None:
     may brush, their KD-tree, normals and distances to the branch): the
     held leaf (with ``held``; without, it moves with the gripper) and every
     point of another leaf within ``BRUSH_FRUIT_CLEARANCE`` of a fruit are
-    not brushed; cached on ``ctx``."""
+    not brushed; cached on ``ctx`` (the other leaves' part shared by both,
+    ``_OtherLeafPoints``, ``_BrushedLeaves``)."""
     attr = "_brush_obstacles" if held else "_brush_obstacles_moving"
     if hasattr(ctx, attr):
         return getattr(ctx, attr)
-    other = np.asarray(ctx.other_leaves_W, float).reshape(-1, 3)
-    branch = np.asarray(getattr(ctx, "branch_all_W", np.zeros((0, 3))), float).reshape(-1, 3)
-    if ctx.branch_distance is None and not len(branch):
+    shared = _OtherLeafPoints(ctx)
+    if shared is None:
         setattr(ctx, attr, None)
         return None
-    free = np.ones(len(other), bool)
-    if len(other) and ctx.fruit_sdf is not None:
-        d = np.asarray(ctx.fruit_sdf(other), float).reshape(-1)
-        free &= np.nan_to_num(d, nan=-1.0) >= BRUSH_FRUIT_CLEARANCE
-    d_branch = np.full(len(other), np.inf)
-    if len(other) and ctx.branch_distance is not None:
-        d_branch = np.asarray(ctx.branch_distance(other), float)
-    if len(other) and len(branch):
-        d_branch = np.minimum(d_branch, cKDTree(branch).query(other)[0])
+    other, free, _ = shared
     mine = np.asarray(ctx.leaf_W if held else np.zeros((0, 3)), float).reshape(-1, 3)
     strict = np.vstack([mine, other[~free]])
     tree = ((cKDTree(strict), (strict.min(0), strict.max(0))) if len(strict)
             else (None, (None, None)))
-    brushed = other[free]
-    brushed_tree = cKDTree(brushed) if len(brushed) else None
-    normals = LeafNormals(brushed, brushed_tree)
-    cached = (tree[0], tree[1], len(mine), brushed, brushed_tree, normals, d_branch[free])
+    cached = (tree[0], tree[1], len(mine)) + _BrushedLeaves(ctx)
     setattr(ctx, attr, cached)
     return cached
 

@@ -269,6 +269,29 @@ class RobotModel:
                               [X_body[i] for i in self._body_of_geometry], self._fingers,
                               self._shapes)
 
+    def GripperSamplesInTcp(self, half_opening: float) -> tuple[np.ndarray, np.ndarray]:
+        """(finger samples (N, 3), other samples (M, 3)) in the ``tcp``
+        frame of the geometries that move rigidly with the TCP whatever the
+        arm's joints (the gripper, and what else the TCP is fixed to), with
+        the pads ``half_opening`` (m) apart: the fingers' and the rest's
+        (kept per opening)."""
+        cache = self.__dict__.setdefault("_gripper_samples", {})
+        key = float(half_opening)
+        if key not in cache:
+            rel = []
+            for q in (np.zeros(6), np.array([0.3, -1.1, 1.2, -0.5, 0.7, 0.4])):
+                samples = self.SurfacePointsByBody(q, key)
+                X_TW = self.TcpPose(q, key).inverse().GetAsMatrix4()
+                rel.append([X_TW @ X for X in samples._X])
+            rigid = [bool(np.allclose(a, b, rtol=0.0, atol=1e-12)) for a, b in zip(*rel)]
+            parts = []
+            for want in (True, False):
+                idx = [i for i in range(len(rigid)) if rigid[i] and self._fingers[i] == want]
+                parts.append(np.vstack([self._points[i] @ rel[0][i][:3, :3].T + rel[0][i][:3, 3]
+                                        for i in idx]) if idx else np.zeros((0, 3)))
+            cache[key] = tuple(parts)
+        return cache[key]
+
     def SelfCollision(self, q: np.ndarray, half_opening: float = 0.0,
                       margin: float = 0.0) -> str:
         """'' if the arm and gripper at ``q`` do not interpenetrate and links

@@ -14,7 +14,7 @@ import numpy as np
 from lmap_drake.deformation.graph import FREE
 from lmap_drake.deformation.predict import UnmodelledGrasp
 from lmap_drake.planning.candidates import PlanningError
-from lmap_drake.planning.collision import LeafCollisionReason
+from lmap_drake.planning.collision import DistanceAnchors, LeafCollisionReason
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import FruitShapesRecord, PlanningContext
 from lmap_drake.planning.energy import (ARC_REFERENCE_DEG, PULL_LEVER_REFERENCE,
@@ -206,13 +206,16 @@ class _LeafChecks:
         self.ctx, self.cfg = ctx, cfg
         self.rest_sdf = None       # the fruit SDF at the observed leaf
         self.rest_branch = None    # the branch distance there
+        self.anchors = None        # the fruits' mesh distances there (``DistanceAnchors``)
 
     def Reason(self, deformed_leaf_W: np.ndarray) -> str:
         ctx, cfg = self.ctx, self.cfg
         if self.rest_sdf is None and ctx.fruit_sdf is not None:
             self.rest_sdf = np.asarray(ctx.fruit_sdf(ctx.leaf_W), float)
+            self.anchors = DistanceAnchors(ctx.fruit_sdf, ctx.leaf_W)
         why = LeafCollisionReason(ctx.leaf_W, deformed_leaf_W, ctx.fruit_sdf,
-                                  cfg.collision_margin, ctx.fruit_box, self.rest_sdf)
+                                  cfg.collision_margin, ctx.fruit_box, self.rest_sdf,
+                                  anchors=self.anchors)
         if not why and cfg.check_leaf_branch and ctx.branch_distance is not None:
             # the held leaf swung into a stem or shoot (the FEM leaf
             # then presses it, loading its own petiole); points resting

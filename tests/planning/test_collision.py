@@ -316,3 +316,94 @@ def test_union_lower_below_is_exact_below_the_bound_with_an_estimate_and_meshes(
     full = fruit(p)
     bound = rng.uniform(-0.01, 0.015, len(p))
     _AssertExactBelow(full, fruit.LowerBelow(p, bound), bound)
+
+
+def test_occupancy_rays_point_along_every_positive_axis():
+    """``MeshSetSdf._Inside`` asks Open3D only about points not beyond a
+    mesh's box: its occupancy rays must run toward +x, +y and +z (an open
+    plane counts once from below along each axis, never from above)."""
+    import open3d as o3d
+    for axis in range(3):
+        a, b = [i for i in range(3) if i != axis]
+        V = np.zeros((4, 3), np.float32)
+        V[:, a], V[:, b] = [-5, 5, 5, -5], [-5, -5, 5, 5]
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(np.array([[0, 1, 2], [0, 2, 3]],
+                                                                         np.uint32)))
+        p = np.zeros((2, 3), np.float32)
+        p[:, axis] = [-1.0, 1.0]
+        np.testing.assert_array_equal(scene.compute_occupancy(o3d.core.Tensor(p)).numpy(),
+                                      [1.0, 0.0])
+
+
+def test_mesh_set_inside_is_open3d_occupancy_of_every_mesh():
+    import open3d as o3d
+    rng = np.random.default_rng(10)
+    sdf, meshes = _MeshSet(rng)
+    p = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4], (5000, 3)).astype(np.float32)
+    q = o3d.core.Tensor(p)
+    ref = np.zeros(len(p), bool)
+    for one in sdf._each:
+        ref |= one.compute_occupancy(q).numpy() > 0.5
+    assert ref.any() and (~ref).any()
+    np.testing.assert_array_equal(sdf._Inside(q), ref)
+
+
+def test_distance_anchors_give_the_same_leaf_fruit_reason_with_fewer_exact_distances():
+    """Anchored at the rest leaf, the mesh set computes fewer exact
+    distances and the leaf-fruit check gives the same reasons (verdict and
+    distance) as without anchors."""
+    from lmap_drake.planning.collision import DistanceAnchors, LeafCollisionReason, MeshSetSdf
+    rng = np.random.default_rng(11)
+    mesh_set, meshes = _MeshSet(rng)
+    V = np.vstack([v for v, _ in meshes])
+    c = np.array([0.5, 0.0, 0.3])
+    union = UnionSdf([_Sphere(c, 0.037), mesh_set], [(c - 0.037, c + 0.037),
+                                                     (V.min(0), V.max(0))], 0.03)
+    box = (V.min(0), V.max(0))
+    rest = np.array([0.5, -0.06, 0.3]) + rng.normal(0, 0.012, (600, 3)) * [1, 0.1, 1]
+    anchors = DistanceAnchors(union, rest)
+    assert list(anchors.bounds) == [id(mesh_set)]
+    rest_d = union(rest)
+    counted = {"plain": 0, "anchored": 0}
+    exact = MeshSetSdf.LowerBelow
+
+    def counting(key):
+        def low(self, p, bound, anchors=None):
+            out = exact(self, p, bound, anchors)
+            counted[key] += int(np.count_nonzero(out == self(p)))
+            return out
+        return low
+    reasons = []
+    for shift in np.linspace(0.0, 0.04, 9):
+        moved = rest + [0.0, shift, 0.0] + rng.normal(0, 0.002, rest.shape)
+        MeshSetSdf.LowerBelow = counting("plain")
+        try:
+            plain = LeafCollisionReason(rest, moved, union, 0.005, box, rest_d)
+            MeshSetSdf.LowerBelow = counting("anchored")
+            got = LeafCollisionReason(rest, moved, union, 0.005, box, rest_d, anchors=anchors)
+        finally:
+            MeshSetSdf.LowerBelow = exact
+        assert got == plain
+        reasons.append(got)
+    assert "" in reasons and any(r.startswith("leaf-fruit (") for r in reasons)
+    assert counted["anchored"] < counted["plain"]
+    # the anchor bound never exceeds the distance
+    moved = rest + rng.normal(0, 0.01, rest.shape)
+    assert np.all(anchors.Bound(mesh_set, moved) <= np.abs(mesh_set(moved)) + 1e-7)
+
+
+def test_mesh_set_first_hit_has_the_verdict_of_the_nearest_distance():
+    rng = np.random.default_rng(12)
+    sdf, _ = _MeshSet(rng)
+    verdicts = set()
+    for k in range(80):
+        pts = rng.uniform([0.42, -0.08, 0.22], [0.6, 0.08, 0.4]) + rng.normal(0, 0.004, (150, 3))
+        for bound in (0.005, 0.015):
+            full = sdf.NearestWithin(pts, bound)
+            fast = sdf.NearestWithin(pts, bound, first_hit=True)
+            assert (fast < bound) == (full < bound)
+            if fast >= bound:
+                assert fast == full == bound
+            verdicts.add((full < bound, bool(np.any(sdf(pts) < 0))))
+    assert {(True, True), (True, False), (False, False)} <= verdicts   # inside, near, clear

@@ -220,3 +220,25 @@ def test_an_approach_checked_for_its_verdict_only_passes_or_fails_as_the_full_on
                                                                 getattr(fast, seg)))
         outcomes.append(why.split(" (")[0])
     assert "" in outcomes and any(o.startswith("robot-fruit") for o in outcomes), outcomes
+
+
+def test_a_grasp_surely_blocked_has_no_approach():
+    """``GraspSurelyBlocked`` (an orientation skipped without IK) says so
+    only of grasps whose approach fails; grasps with the fingers in the
+    fruit's hypotheses are found, and approaches that pass are not."""
+    from lmap_drake.planning.approach import GraspApproach, GraspSurelyBlocked
+    from lmap_drake.planning.candidates import Grasp
+    ctx = _Context("union")
+    cfg = PlannerConfig()
+    R = np.c_[[-1.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0]]       # approach along +y
+    seen = set()
+    for k, dp in enumerate([[0, -0.07, 0.05], [0, -0.05, 0.0], [0, -0.035, 0.0],
+                            [0.02, -0.04, 0.02], [0, -0.10, 0.08], [0, -0.02, 0.0],
+                            [0, 0.0, 0.0], [0.01, -0.01, 0.01]]):
+        g = Grasp(C + np.asarray(dp), R, k)
+        blocked = GraspSurelyBlocked(ctx, g, cfg)
+        approach, why = GraspApproach(ctx, g, cfg, verdict_only=True)
+        if blocked:
+            assert approach is None, dp
+        seen.add((blocked, approach is None))
+    assert (True, True) in seen and (False, False) in seen, seen
