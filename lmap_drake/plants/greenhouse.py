@@ -308,7 +308,7 @@ def _ChooseFem(g, targets, occluders, fruits, surfs, blocked) -> list[int]:
     a blocked leaf."""
     chosen: list[int] = []
     budget = g.max_fem_leaves
-    if getattr(g, "fem_occluders", False):     # (mesh plants: their own budget)
+    if g.fem_occluders:
         hiding = {int(j) for o in occluders for j in o if j not in blocked}
         budget = max(budget, min(len(hiding), MAX_FEM_LEAVES))
 

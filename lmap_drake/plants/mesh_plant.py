@@ -248,7 +248,8 @@ def BuildMeshPlant(cfg, p_WC) -> MeshPlantModel:
     half = 0.5 * cfg.leaf.thickness + 0.001
     blocked = {j for j, s in enumerate(surfs)
                if float(SurfaceDistance([f.mesh_W for f in fruits], s.vertices).min()) < half}
-    fem = _ChooseFem(SimpleNamespace(max_fem_leaves=mp.max_fem_leaves, fem_radius=mp.fem_radius),
+    fem = _ChooseFem(SimpleNamespace(max_fem_leaves=mp.max_fem_leaves, fem_radius=mp.fem_radius,
+                                     fem_occluders=False),
                      target_idx, occluders, fruits, surfs, blocked)
     order = fem + [j for j in range(len(leaf_parts)) if j not in fem]
     new_index = {j: k for k, j in enumerate(order)}
