@@ -326,7 +326,6 @@ class MeshSetSdf:
                 rest, lb = rest[:left], lb[:left]
         return best if best < bound else float(bound)
 
-
     def Unsigned(self, points_W: np.ndarray, reach: float = 0.1) -> np.ndarray:
         """A lower bound (m) of the unsigned distance from ``points_W`` to
         the meshes' surfaces: Open3D's distance within ``reach`` (m) of the
@@ -338,7 +337,6 @@ class MeshSetSdf:
         if near.any() and self._each:
             out[near] = self._all.compute_distance(o3d.core.Tensor(p[near])).numpy()
         return out.astype(float)
-
 
     def AnyNearer(self, points_W: np.ndarray, bound: float) -> bool:
         """Whether a point of ``points_W`` surely lies nearer than ``bound``

@@ -211,6 +211,7 @@ class RobotModel:
             self._points.append((X_BG.GetAsMatrix4() @ np.c_[p, np.ones(len(p))].T).T[:, :3])
             self._shapes.append(_ShapeParams(shape) + (X_BG.GetAsMatrix4(),))
         self.num_points = int(sum(len(p) for p in self._points))
+        self._gripper_samples: dict = {}    # GripperSamplesInTcp, per half-opening
         index = {b.index(): k for k, b in reversed(list(enumerate(self._bodies)))}
         self._unique_bodies = [self._bodies[k] for k in sorted(set(index.values()))]
         order = {b.index(): n for n, b in enumerate(self._unique_bodies)}
@@ -275,7 +276,7 @@ class RobotModel:
         arm's joints (the gripper, and what else the TCP is fixed to), with
         the pads ``half_opening`` (m) apart: the fingers' and the rest's
         (kept per opening)."""
-        cache = self.__dict__.setdefault("_gripper_samples", {})
+        cache = self._gripper_samples
         key = float(half_opening)
         if key not in cache:
             rel = []
