@@ -63,3 +63,32 @@ def NeighbourClassMap(label_image: np.ndarray) -> np.ndarray:
         lab = lab[..., 0]
     return np.where((lab == NEIGHBOUR + BRANCH) | (lab == NEIGHBOUR + LEAF), lab - NEIGHBOUR,
                     BACKGROUND)
+
+
+def LeafBoundaryMask(leaf_id: np.ndarray, radius: int = 2) -> np.ndarray:
+    """HxW bool: leaf pixels (``leaf_id`` >= 0, one id per leaf, -1 = not a
+    leaf) with a pixel of another leaf within ``radius`` pixels (Chebyshev):
+    a band about ``2 * radius`` pixels wide along every border where two
+    leaves meet in the image, whatever their depths (flush blades
+    included), and nowhere inside a leaf or along its border with anything
+    but a leaf."""
+    from scipy import ndimage
+    ids = np.asarray(leaf_id, np.int64)
+    leaf = ids >= 0
+    if not leaf.any():
+        return np.zeros(ids.shape, bool)
+    size = 2 * int(radius) + 1
+    big = int(ids.max()) + 1
+    hi = ndimage.grey_dilation(np.where(leaf, ids, -1), size=(size, size))
+    lo = -ndimage.grey_dilation(np.where(leaf, -ids, -big), size=(size, size))
+    return leaf & ((hi != ids) | (lo != ids))
+
+
+def TrueLeafIds(label_image: np.ndarray) -> np.ndarray:
+    """HxW int64 leaf identity from a render label image: the worked plant's
+    leaf instance index, ``NEIGHBOUR + LEAF`` for every neighbouring-plant
+    leaf (one id for all of them: the render does not tell them apart), -1
+    elsewhere."""
+    cls, inst = DecodeLabels(label_image)
+    out = np.where(cls == LEAF, inst, -1)
+    return np.where(NeighbourClassMap(label_image) == LEAF, NEIGHBOUR + LEAF, out)

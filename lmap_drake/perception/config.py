@@ -29,6 +29,10 @@ class PerceptionConfig:
     dbscan_eps: float = 0.008  # m, DBSCAN neighbour radius that splits a class into instances
     # DBSCAN: points a core point needs within dbscan_eps; fewer = noise (no instance)
     dbscan_min_points: int = 15
+    # Cut leaf clusters along the segmenter's leaf boundaries (label: the
+    # render's leaf ids; segnet: its boundary head): flush blades that one
+    # DBSCAN cluster joins (perception/leaf_boundaries.py). false: the ablation.
+    leaf_boundaries: bool = True
     # m, voxel of the downsampled class clouds (per instance) and of view fusion
     voxel_size: float = 0.003
     # Statistical outlier removal (open3d): neighbours and std-dev ratio.

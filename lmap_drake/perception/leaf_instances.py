@@ -15,6 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from lmap_drake.labels import LEAF
+from lmap_drake.perception.leaf_boundaries import ImagePatches, SplitClustersByPatches
 from lmap_drake.perception.points import (AssignToParts, DbscanLabels, DeprojectPixels,
                                           FlyingPixelMask, Intrinsics, SplitOversizedLeaves, SplitTouchingLeaves,
                                           StatisticalOutlierMask, ValidDepthMask)
@@ -97,14 +98,17 @@ def SummariseLeafInstances(rows: list[dict]) -> dict:
 
 def PointLeafInstances(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, params,
                        split_angle_deg: float = 15.0, check_spread: bool = True,
-                       neck_ratio: float = 0.5) -> np.ndarray:
+                       neck_ratio: float = 0.5, boundary: np.ndarray | None = None
+                       ) -> np.ndarray:
     """HxW leaf instance ids (-1 = none) the planner would get from
     ``class_map``'s leaf pixels: the leaf step of ``points.BuildSemanticScene``
     (depth cut, flying pixels, outlier removal, DBSCAN, voxels of
     ``params.voxel_size``; ``params`` a ``PerceptionConfig``) and the splits
     of ``shape.completion.CompletePlant`` (``split_angle_deg``; 0 = none;
     ``neck_ratio`` as ``SplitLeafNecks``, 0 = not; ``check_spread`` as
-    ``SplitOversizedLeaves``), in the camera frame; each pixel takes its voxel's instance."""
+    ``SplitOversizedLeaves``), in the camera frame; each pixel takes its voxel's instance.
+    ``boundary`` (HxW bool, ``Segmentation.leaf_boundary``): clusters cut
+    along it as ``points.BuildSemanticScene`` does."""
     d = np.asarray(depth, np.float64)
     out = np.full(d.shape, -1, np.int64)
     valid = ValidDepthMask(d, params.depth_cut) & ~FlyingPixelMask(d, params.flying_pixel_jump)
@@ -116,6 +120,9 @@ def PointLeafInstances(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
     keep = StatisticalOutlierMask(pts, params.outlier_neighbors, params.outlier_std_ratio)
     pts, v, u = pts[keep], v[keep], u[keep]
     inst = DbscanLabels(pts, params.dbscan_eps, params.dbscan_min_points)
+    if boundary is not None:
+        patch, cannot = ImagePatches(m, boundary)
+        inst = SplitClustersByPatches(pts, inst, patch[v, u], cannot)
     if params.voxel_size > 0:                   # as points.VoxelDownsample
         keys = np.concatenate([np.floor(pts / params.voxel_size).astype(np.int64),
                                inst[:, None]], axis=1)

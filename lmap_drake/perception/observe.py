@@ -21,4 +21,5 @@ def SemanticSceneFromImages(rgb, depth, label, camera_config, perception_config
     d = np.asarray(getattr(depth, "data", depth))
     return BuildSemanticScene(seg.class_map, d, K, X_WC, perception_config,
                               flags=list(getattr(seg, "flags", [])),
-                              instance_map=seg.instance_map, confidence=seg.confidence)
+                              instance_map=seg.instance_map, confidence=seg.confidence,
+                              leaf_boundary=seg.leaf_boundary)

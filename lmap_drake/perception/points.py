@@ -22,6 +22,7 @@ import numpy as np
 
 from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF
 from lmap_drake.perception.config import PerceptionConfig
+from lmap_drake.perception.leaf_boundaries import ImagePatches, SplitClustersByPatches
 from lmap_drake.types import SemanticScene
 
 CLASS_FIELDS = {BRANCH: "branch", LEAF: "leaf", FRUIT: "fruit"}
@@ -217,16 +218,21 @@ def ClassPoints(points_W: np.ndarray, params: PerceptionConfig) -> tuple[np.ndar
 
 
 def ClassPointsAndMeans(points_W: np.ndarray, values: np.ndarray | None,
-                        params: PerceptionConfig) -> tuple[np.ndarray, np.ndarray, dict]:
+                        params: PerceptionConfig, patches: tuple | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, dict]:
     """``ClassPoints``, and per instance the mean of ``values`` (one per
     full-resolution point, NaN = none) over its full-resolution points
     ({instance id: mean}, rounded to 4 digits; instances with no value are
-    left out; ``values`` None: {})."""
+    left out; ``values`` None: {}). ``patches`` (per-point image patch ids,
+    cannot-link pairs; ``leaf_boundaries.ImagePatches``): DBSCAN clusters
+    are cut along the pairs (``SplitClustersByPatches``) before the voxels."""
     if len(points_W) == 0:
         return np.zeros((0, 3)), np.zeros(0, np.int64), {}
     keep = StatisticalOutlierMask(points_W, params.outlier_neighbors, params.outlier_std_ratio)
     pts = points_W[keep]
     inst = DbscanLabels(pts, params.dbscan_eps, params.dbscan_min_points)
+    if patches is not None:
+        inst = SplitClustersByPatches(pts, inst, np.asarray(patches[0])[keep], patches[1])
     means = {}
     if values is not None:
         v = np.asarray(values, float)[keep]
@@ -293,7 +299,8 @@ def BackgroundRayEnds(background: np.ndarray, depth: np.ndarray, K: Intrinsics, 
 def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, X_WC,
                        params: PerceptionConfig, flags: list[str] | None = None,
                        instance_map: np.ndarray | None = None,
-                       confidence: dict | None = None) -> SemanticScene:
+                       confidence: dict | None = None,
+                       leaf_boundary: np.ndarray | None = None) -> SemanticScene:
     """Semantic point sets in W from a per-pixel class map (``lmap_drake.labels``
     ids). Pixels beyond ``params.depth_cut`` or without valid depth are
     dropped. Background pixels (robot included) give the ray ends of
@@ -302,7 +309,10 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
     ``empty_scene``). With the segmentation's ``instance_map`` and
     ``confidence`` (``Segmentation``), each fruit instance (a DBSCAN cluster
     of points, not the image's instance) gets the mean over its pixels of
-    their image instance's confidence (``SemanticScene.fruit_confidence``)."""
+    their image instance's confidence (``SemanticScene.fruit_confidence``).
+    With ``leaf_boundary`` (HxW bool, ``Segmentation.leaf_boundary``) and
+    ``params.leaf_boundaries``, leaf clusters are cut along it
+    (``leaf_boundaries``)."""
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim == 3:
         d = d[..., 0]
@@ -320,7 +330,11 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
                 if cls == FRUIT else None)
         # DeprojectPixels keeps the mask's pixels with valid depth, row-major
         values = None if conf is None else conf[mask & ValidDepthMask(d)]
-        pts, inst, means = ClassPointsAndMeans(pts, values, params)
+        patches = None
+        if cls == LEAF and leaf_boundary is not None and params.leaf_boundaries:
+            patch, cannot = ImagePatches(mask, leaf_boundary)
+            patches = (patch[mask & ValidDepthMask(d)], cannot)
+        pts, inst, means = ClassPointsAndMeans(pts, values, params, patches)
         if cls == FRUIT:
             scene.fruit_confidence = means
         setattr(scene, f"{name}_points_W", pts)

@@ -41,7 +41,7 @@ import numpy as np
 from scipy import ndimage
 
 from lmap_drake.errors import WeightsError
-from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels
+from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels, LeafBoundaryMask
 from lmap_drake.perception.fruit_fragments import JoinFruitFragments
 from lmap_drake.perception.leaf_instances import SplitAtNecks
 from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
@@ -62,11 +62,14 @@ class MissingWeightsError(WeightsError):
 class Segmentation:
     """``class_map`` HxW int64 (labels ids, 0 = background), ``instance_map``
     HxW int64 (per-class instance index, -1 = background), ``flags``,
-    ``confidence`` {(class id, instance index): score in [0, 1]}."""
+    ``confidence`` {(class id, instance index): score in [0, 1]},
+    ``leaf_boundary`` HxW bool where two leaves meet in the image (None: the
+    backend does not say; ``perception.leaf_boundaries``)."""
     class_map: np.ndarray
     instance_map: np.ndarray
     flags: list[str] = dc.field(default_factory=list)
     confidence: dict = dc.field(default_factory=dict)
+    leaf_boundary: np.ndarray | None = None
 
     def mask(self, class_id: int) -> np.ndarray:
         return self.class_map == class_id
@@ -187,7 +190,8 @@ class LabelSegmenter(Segmenter):
         cls, inst = DecodeLabels(np.asarray(getattr(label, "data", label)))
         cls = np.where(cls == ROBOT, BACKGROUND, cls).astype(np.int64)
         inst = np.where(cls == BACKGROUND, -1, inst).astype(np.int64)
-        return Segmentation(cls, inst, [], InstanceConfidence(cls, inst, 1.0))
+        return Segmentation(cls, inst, [], InstanceConfidence(cls, inst, 1.0),
+                            LeafBoundaryMask(np.where(cls == LEAF, inst, -1)))
 
 
 # ----------------------------------------------------------------------------
@@ -472,7 +476,8 @@ class SegNetSegmenter(Segmenter):
 
 def _CopySegmentation(seg: Segmentation) -> Segmentation:
     return Segmentation(seg.class_map.copy(), seg.instance_map.copy(), list(seg.flags),
-                        dict(seg.confidence))
+                        dict(seg.confidence),
+                        None if seg.leaf_boundary is None else seg.leaf_boundary.copy())
 
 
 def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:

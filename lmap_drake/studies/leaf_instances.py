@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lmap_drake.labels import LEAF, DecodeLabels, NeighbourClassMap
+from lmap_drake.labels import LEAF, DecodeLabels, LeafBoundaryMask, NeighbourClassMap
 from lmap_drake.perception.leaf_instances import (LeafInstanceScores, PointLeafInstances,
                                                   SummariseLeafInstances)
 from lmap_drake.perception.points import Intrinsics
@@ -93,15 +93,17 @@ def LoadView(path) -> dict:
 
 
 def ViewLeafInstances(view: dict, class_map: np.ndarray, perception,
-                      baseline: bool = False) -> dict:
+                      baseline: bool = False, boundary: np.ndarray | None = None) -> dict:
     """{step: HxW leaf instance map (-1 = none)} of ``class_map`` on
     ``view`` for each instance step of ``STEPS``; ``baseline``: as before
-    issue 57 (no neck cuts, sizes split without checking their spread)."""
+    issue 57 (no neck cuts, sizes split without checking their spread);
+    ``boundary``: the segmenter's leaf boundary (``points`` cut along it)."""
     leaf = class_map == LEAF
     image = np.where(leaf, InstancesFromComponents(class_map, view["depth"],
                                                    leaf_neck_ratio=0.0 if baseline else 0.5), -1)
     points = PointLeafInstances(class_map, view["depth"], view["K"], perception,
-                                check_spread=not baseline, neck_ratio=0.0 if baseline else 0.5)
+                                check_spread=not baseline, neck_ratio=0.0 if baseline else 0.5,
+                                boundary=boundary)
     return {"image": image, "points": points}
 
 
@@ -124,12 +126,16 @@ def EvalLeafInstances(out, views: list, class_maps=CLASS_MAPS, min_pixels: int =
         for c in class_maps:
             if c == "truth":
                 cmap = TruthClassMap(v["label"])
+                boundary = LeafBoundaryMask(truth_leaf)
             else:
                 if seg is None:
                     seg = MakeSegmenter(dc.replace(perception, segmenter=c), v["K"])
-                cmap = seg.Segment(v["rgb"], v["depth"]).class_map
+                out_seg = seg.Segment(v["rgb"], v["depth"])
+                cmap, boundary = out_seg.class_map, out_seg.leaf_boundary
             t0 = time.time()
-            maps = ViewLeafInstances(v, cmap, perception, baseline)
+            maps = ViewLeafInstances(v, cmap, perception, baseline,
+                                     boundary if perception.leaf_boundaries and not baseline
+                                     else None)
             row = {}
             dropped = (cmap == LEAF) & (maps["points"] < 0)
             for s in STEPS:

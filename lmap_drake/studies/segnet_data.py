@@ -22,6 +22,9 @@ white balance), its neighbouring row truth leaf / branch.
 Each sample ``NNNNN.npz`` holds the network input (``SegNetInputs``, float16,
 cropped to the plant and robot returns plus a margin) and the truth class
 map (uint8, background / branch / leaf / fruit; the robot is background),
+``leaf_edge`` (uint8: 1 on the band where two leaves meet in the image,
+``labels.LeafBoundaryMask``; 255 on neighbouring-row leaves, whose leaves
+the render does not tell apart; else 0),
 with ``fruit_kind`` (red / orange / yellow / green; ``mixed`` for a
 multi-fruit plant not all green) and ``multi`` (a multi-fruit plant,
 ``--multi``), ``greenhouse`` (a greenhouse scene). Sample ``i`` depends only
@@ -45,7 +48,7 @@ from tqdm import tqdm
 
 from lmap_drake.errors import InputError
 from lmap_drake.perception.points import Intrinsics
-from lmap_drake.labels import NeighbourClassMap
+from lmap_drake.labels import LEAF, NEIGHBOUR, LeafBoundaryMask, NeighbourClassMap, TrueLeafIds
 from lmap_drake.perception.segmentation import TruthClassMap
 from lmap_drake.perception.segnet import CropBox, SegNetInputs
 from lmap_drake.planning.candidates import GraspCandidates
@@ -235,7 +238,10 @@ def RenderSample(seed: int, margin: int = 24, arm_near_leaf: float = 0.0,
     box = CropBox((x[3] > 0) | (truth > 0), margin)
     if box is None or not (truth == 3).any():
         raise ValueError("no fruit in view")
+    ids = TrueLeafIds(label)
+    edge = np.where(ids == NEIGHBOUR + LEAF, 255, LeafBoundaryMask(ids)).astype(np.uint8)
     return {"inputs": x[:, box[0], box[1]].astype(np.float16), "truth": truth[box],
+            "leaf_edge": edge[box],
             "fruit_kind": kind, "multi": s.plant_scene.kind in MULTI_KINDS, "held": bool(held),
             "greenhouse": s.plant_scene.kind == "greenhouse"}
 

@@ -189,7 +189,7 @@ class Perception(LeafSystem):
             class_map, instance_map = MaskRobotPixels(
                 class_map, instance_map, self.RobotMask(q, opening, X_WC, depth))
         scene = BuildSemanticScene(class_map, depth, self._K, X_WC, self._config, seg.flags,
-                                   instance_map, seg.confidence)
+                                   instance_map, seg.confidence, seg.leaf_boundary)
         if q is not None and distance > 0:
             robot_W = np.vstack([self._robot.SurfacePoints(q, h)
                                  for h in (0.0, 0.5 * GRIPPER_MAX_WIDTH)])
