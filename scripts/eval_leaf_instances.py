@@ -32,6 +32,9 @@ def main(argv=None) -> int:
                     help=f"class maps to score the instances of ({', '.join(CLASS_MAPS)})")
     ap.add_argument("--min_pixels", type=int, default=200,
                     help="smallest visible true leaf counted (pixels)")
+    ap.add_argument("--scenario_text", default="",
+                    help="YAML overrides of the default scenario's perception, e.g. "
+                         "'{perception: {segnet_weights: models/segnet/segnet_greenhouse.pt}}'")
     ap.add_argument("--baseline", action="store_true",
                     help="the instance steps as before issue 57 (no neck cuts; leaf sizes "
                          "split without checking their spread), for a before/after")
@@ -63,7 +66,8 @@ def main(argv=None) -> int:
                 ap.error(f"--views {v}: no such file or folder")
         if not files:
             ap.error(f"--views {' '.join(map(str, args.views))}: no .npz view in it")
-        EvalLeafInstances(args.out, files, args.class_maps, args.min_pixels, args.baseline)
+        EvalLeafInstances(args.out, files, args.class_maps, args.min_pixels, args.baseline,
+                          scenario_text=args.scenario_text)
     return 0
 
 

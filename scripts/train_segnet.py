@@ -27,6 +27,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=d.threads)
     ap.add_argument("--seed", type=int, default=d.seed)
     ap.add_argument("--init", default=d.init, help="start from these weights (fine-tuning)")
+    ap.add_argument("--no_boundary_head", dest="boundary_head", action="store_false",
+                    help="do not learn the leaf boundary channel (perception.leaf_boundaries)")
     args = ap.parse_args(argv)
     try:
         TrainSegNet(SegNetTrainingOptions(**vars(args)))

@@ -28,3 +28,16 @@ def test_neighbour_labels_are_background_to_decode_and_classes_to_neighbour_map(
     assert NeighbourClassMap(img).tolist() == [[LEAF, BRANCH, BACKGROUND, BACKGROUND]]
     with pytest.raises(ValueError):
         EncodeNeighbourLabel(FRUIT)
+
+
+def test_leaf_boundary_band_lies_where_two_leaves_meet_and_nowhere_else():
+    from lmap_drake.labels import LeafBoundaryMask
+    ids = np.full((20, 30), -1)
+    ids[5:15, 2:15] = 0
+    ids[5:15, 15:28] = 1           # flush against leaf 0 along column 15
+    band = LeafBoundaryMask(ids, radius=2)
+    assert band[5:15, 13:17].all()                       # two pixels either side of the seam
+    assert not band[:, :13].any() and not band[:, 17:].any()
+    assert not band[ids < 0].any()                       # never off a leaf
+    one = np.where(ids >= 0, 0, -1)
+    assert not LeafBoundaryMask(one).any()               # one leaf: no band along its outline

@@ -42,14 +42,18 @@ def _Shift(x: np.ndarray, dr: int, dc: int) -> np.ndarray:
 
 
 def ImagePatches(leaf: np.ndarray, boundary: np.ndarray, reach: int = 8,
-                 min_contact: int = 8) -> tuple[np.ndarray, set]:
+                 min_contact: int = 8, neck_ratio: float = 0.35) -> tuple[np.ndarray, set]:
     """(HxW patch ids, 0 = not a leaf pixel; cannot-link pairs {(a, b), a < b})
     of the ``leaf`` pixels (HxW bool) cut by the ``boundary`` pixels (HxW
     bool): 8-connected patches of leaf and not boundary, the boundary pixels
     then given to their nearest patch. A pair of patches cannot link when at
     least ``min_contact`` pixel pairs, one in each patch and at most
     ``reach`` pixels apart along a row, column or diagonal, have only
-    boundary pixels between them."""
+    boundary pixels between them. A band with a gap leaves one patch joined
+    through a neck: patches that touch the band are first cut at their
+    necks (``SplitAtNecks`` at ``neck_ratio``; 0 = not), and the parts
+    facing each other across the band then cannot link (parts that only
+    meet at a neck stay free to join)."""
     leaf = np.asarray(leaf, bool)
     band = np.asarray(boundary, bool) & leaf
     core = leaf & ~band
@@ -57,6 +61,8 @@ def ImagePatches(leaf: np.ndarray, boundary: np.ndarray, reach: int = 8,
     cannot: set = set()
     if n == 0:
         return np.zeros(leaf.shape, np.int64), cannot
+    if neck_ratio > 0 and band.any():
+        patch, n = _SplitAtNecks(patch, n, band, neck_ratio)
     if n > 1 and band.any():
         counts: dict = {}
         for dr, dc in _DIRECTIONS:
@@ -81,6 +87,27 @@ def ImagePatches(leaf: np.ndarray, boundary: np.ndarray, reach: int = 8,
         out[band] = patch[iy[band], ix[band]]
     out[~leaf] = 0
     return out, cannot
+
+
+def _SplitAtNecks(patch: np.ndarray, n: int, band: np.ndarray, neck_ratio: float
+                  ) -> tuple[np.ndarray, int]:
+    """``patch`` (ids 1..n) with every patch next to the ``band`` cut at its
+    necks; new parts get ids from n + 1 on."""
+    patch = patch.copy()
+    near = ndimage.binary_dilation(band, structure=np.ones((3, 3)))
+    touching = np.unique(patch[near & (patch > 0)])
+    for i, sl in enumerate(ndimage.find_objects(patch), start=1):
+        if sl is None or i not in touching:
+            continue
+        mine = patch[sl] == i
+        if mine.sum() < 50:
+            continue
+        parts, k = SplitAtNecks(mine, neck_ratio)
+        view = patch[sl]
+        for p in range(1, k):
+            n += 1
+            view[mine & (parts == p)] = n
+    return patch, n
 
 
 def SplitClustersByPatches(points: np.ndarray, instance: np.ndarray, patch: np.ndarray,
@@ -141,3 +168,69 @@ def SplitClustersByPatches(points: np.ndarray, instance: np.ndarray, patch: np.n
                 ids[mine[label == g]] = next_id
                 next_id += 1
     return ids
+
+
+def SplitAtNecks(mask: np.ndarray, neck_ratio: float = 0.5, min_radius: float = 3.0
+                 ) -> tuple[np.ndarray, int]:
+    """(HxW part ids, -1 outside ``mask``; number of parts) of one region
+    cut where its outline narrows to a neck: a leaf blade is convex in
+    outline, so the distance to the outline rises to one ridge; two blades
+    touching side by side or tip to edge at one depth join through a neck.
+    Every peak of that distance (a local maximum of at least ``min_radius``
+    pixels) whose pixels at or above ``neck_ratio`` times its height do not
+    reach a higher peak is a blade (the way to any higher peak passes a
+    neck narrower than ``neck_ratio`` of it); the blades' peaks seed a
+    watershed of the distance (``_GrowDownDistance``) that gives every
+    pixel of ``mask`` to one part. A region with one blade is one part
+    (ids 0). Scale-free: the same for a leaf near or far."""
+    mask = np.asarray(mask, bool)
+    out = np.full(mask.shape, -1, np.int64)
+    if not mask.any():
+        return out, 0
+    dist = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
+    out[mask] = 0
+    if dist.max() < 2 * min_radius:
+        return out, 1
+    peaks = mask & (dist >= min_radius) & (dist >= ndimage.maximum_filter(dist, size=5))
+    lab, n = ndimage.label(peaks, structure=np.ones((3, 3)))
+    if n <= 1:
+        return out, 1
+    height = np.asarray(ndimage.maximum(dist, lab, index=np.arange(1, n + 1)))
+    seeds = np.full(mask.shape, -1, np.int64)
+    kept = 0
+    for i in np.argsort(-height, kind="stable"):
+        level, _ = ndimage.label(dist >= neck_ratio * height[i], structure=np.ones((3, 3)))
+        mine = level[lab == i + 1][0]
+        if (dist[level == mine] > height[i]).any() or (seeds[level == mine] >= 0).any():
+            continue                   # reaches a higher (or an earlier) peak: no neck
+        seeds[lab == i + 1] = kept
+        kept += 1
+    if kept <= 1:
+        return out, 1
+    parts = _GrowDownDistance(seeds, dist, mask)
+    out[mask] = parts[mask]
+    return out, kept
+
+
+def _GrowDownDistance(seeds: np.ndarray, dist: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Watershed by flooding: ``seeds`` (HxW, -1 = none) grow, one pixel
+    step at a time, into the ``mask`` pixels at or above a level of
+    ``dist`` that falls by one pixel per round (the basins meet along the
+    necks); pixels still unreached take the nearest part."""
+    parts = np.where(mask, seeds, -1)
+    for level in np.arange(np.floor(dist.max()), -1.0, -1.0):
+        allowed = mask & (dist >= level)
+        for _ in range(4 * int(dist.max()) + 4):
+            todo = allowed & (parts < 0)
+            if not todo.any():
+                break
+            grown = ndimage.grey_dilation(parts, size=(3, 3))
+            take = todo & (grown >= 0)
+            if not take.any():
+                break
+            parts[take] = grown[take]
+    lost = mask & (parts < 0)
+    if lost.any() and (parts >= 0).any():
+        _, (iy, ix) = ndimage.distance_transform_edt(parts < 0, return_indices=True)
+        parts[lost] = parts[iy[lost], ix[lost]]
+    return parts

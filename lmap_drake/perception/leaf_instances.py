@@ -15,7 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from lmap_drake.labels import LEAF
-from lmap_drake.perception.leaf_boundaries import ImagePatches, SplitClustersByPatches
+from lmap_drake.perception.leaf_boundaries import ImagePatches, SplitAtNecks, SplitClustersByPatches
 from lmap_drake.perception.points import (AssignToParts, DbscanLabels, DeprojectPixels,
                                           FlyingPixelMask, Intrinsics, SplitOversizedLeaves, SplitTouchingLeaves,
                                           StatisticalOutlierMask, ValidDepthMask)
@@ -142,72 +142,6 @@ def PointLeafInstances(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
         vox_inst = SplitOversizedLeaves(vox, vox_inst, check_spread=check_spread)
     out[v, u] = vox_inst[cell]
     return out
-
-
-def SplitAtNecks(mask: np.ndarray, neck_ratio: float = 0.5, min_radius: float = 3.0
-                 ) -> tuple[np.ndarray, int]:
-    """(HxW part ids, -1 outside ``mask``; number of parts) of one region
-    cut where its outline narrows to a neck: a leaf blade is convex in
-    outline, so the distance to the outline rises to one ridge; two blades
-    touching side by side or tip to edge at one depth join through a neck.
-    Every peak of that distance (a local maximum of at least ``min_radius``
-    pixels) whose pixels at or above ``neck_ratio`` times its height do not
-    reach a higher peak is a blade (the way to any higher peak passes a
-    neck narrower than ``neck_ratio`` of it); the blades' peaks seed a
-    watershed of the distance (``_GrowDownDistance``) that gives every
-    pixel of ``mask`` to one part. A region with one blade is one part
-    (ids 0). Scale-free: the same for a leaf near or far."""
-    mask = np.asarray(mask, bool)
-    out = np.full(mask.shape, -1, np.int64)
-    if not mask.any():
-        return out, 0
-    dist = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
-    out[mask] = 0
-    if dist.max() < 2 * min_radius:
-        return out, 1
-    peaks = mask & (dist >= min_radius) & (dist >= ndimage.maximum_filter(dist, size=5))
-    lab, n = ndimage.label(peaks, structure=np.ones((3, 3)))
-    if n <= 1:
-        return out, 1
-    height = np.asarray(ndimage.maximum(dist, lab, index=np.arange(1, n + 1)))
-    seeds = np.full(mask.shape, -1, np.int64)
-    kept = 0
-    for i in np.argsort(-height, kind="stable"):
-        level, _ = ndimage.label(dist >= neck_ratio * height[i], structure=np.ones((3, 3)))
-        mine = level[lab == i + 1][0]
-        if (dist[level == mine] > height[i]).any() or (seeds[level == mine] >= 0).any():
-            continue                   # reaches a higher (or an earlier) peak: no neck
-        seeds[lab == i + 1] = kept
-        kept += 1
-    if kept <= 1:
-        return out, 1
-    parts = _GrowDownDistance(seeds, dist, mask)
-    out[mask] = parts[mask]
-    return out, kept
-
-
-def _GrowDownDistance(seeds: np.ndarray, dist: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Watershed by flooding: ``seeds`` (HxW, -1 = none) grow, one pixel
-    step at a time, into the ``mask`` pixels at or above a level of
-    ``dist`` that falls by one pixel per round (the basins meet along the
-    necks); pixels still unreached take the nearest part."""
-    parts = np.where(mask, seeds, -1)
-    for level in np.arange(np.floor(dist.max()), -1.0, -1.0):
-        allowed = mask & (dist >= level)
-        for _ in range(4 * int(dist.max()) + 4):
-            todo = allowed & (parts < 0)
-            if not todo.any():
-                break
-            grown = ndimage.grey_dilation(parts, size=(3, 3))
-            take = todo & (grown >= 0)
-            if not take.any():
-                break
-            parts[take] = grown[take]
-    lost = mask & (parts < 0)
-    if lost.any() and (parts >= 0).any():
-        _, (iy, ix) = ndimage.distance_transform_edt(parts < 0, return_indices=True)
-        parts[lost] = parts[iy[lost], ix[lost]]
-    return parts
 
 
 def SplitLeafNecks(leaf_W: np.ndarray, leaf_instance: np.ndarray, voxel: float = 0.003,

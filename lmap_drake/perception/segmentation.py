@@ -127,19 +127,24 @@ class Segmenter(abc.ABC):
 
 
 def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = None,
-                            depth_jump: float = 0.02, leaf_neck_ratio: float = 0.5
-                            ) -> np.ndarray:
+                            depth_jump: float = 0.02, leaf_neck_ratio: float = 0.5,
+                            leaf_boundary: np.ndarray | None = None) -> np.ndarray:
     """Per-class 8-connected components as instance ids (0 = largest);
     neighbouring pixels whose depth differs by more than ``depth_jump`` m are
     cut apart when ``depth`` is given, and a leaf region is cut where its
     outline narrows to a neck (``leaf_instances.SplitAtNecks`` at
-    ``leaf_neck_ratio``; 0 = not): blades touching at one depth."""
+    ``leaf_neck_ratio``; 0 = not): blades touching at one depth. Leaf pixels
+    are also cut at ``leaf_boundary`` (HxW bool, the segmenter's leaf
+    boundary band), which then joins its nearest instance."""
     inst = np.full(class_map.shape, -1, np.int64)
     cut = DepthEdges(depth, depth_jump, both_sides=True) if depth is not None else None
     for c in (BRANCH, LEAF, FRUIT):
         m = class_map == c
-        if cut is not None:
-            m = m & ~cut
+        cut_c = cut
+        if c == LEAF and leaf_boundary is not None:
+            cut_c = leaf_boundary if cut is None else cut | leaf_boundary
+        if cut_c is not None:
+            m = m & ~cut_c
         lab, n = ndimage.label(m, structure=np.ones((3, 3)))
         if n == 0:
             continue
@@ -150,8 +155,8 @@ def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = No
         remap = np.full(n + 1, -1, np.int64)
         remap[order + 1] = np.arange(n)
         inst[m] = remap[lab[m]]
-        if cut is not None:  # cut pixels join their nearest instance
-            rest = (class_map == c) & cut
+        if cut_c is not None:  # cut pixels join their nearest instance
+            rest = (class_map == c) & cut_c
             if rest.any():
                 _, (iy, ix) = ndimage.distance_transform_edt(~m, return_indices=True)
                 inst[rest] = inst[iy[rest], ix[rest]]
@@ -454,24 +459,32 @@ class SegNetSegmenter(Segmenter):
         return seg
 
     def _Segment(self, rgb: np.ndarray, d: np.ndarray) -> Segmentation:
-        from lmap_drake.perception.segnet import CropBox, PredictLogits, SegNetInputs
+        from lmap_drake.perception.segnet import NUM_CLASSES, CropBox, PredictLogits, SegNetInputs
         cls = np.zeros(d.shape, np.int64)
         valid = ValidDepthMask(d, self.depth_cut)
         box = CropBox(valid, 16)
         if box is None:
             return Segmentation(cls, np.full(d.shape, -1, np.int64), ["no_valid_depth"])
         x = SegNetInputs(rgb, d, self.K, self.depth_cut)
-        logits = PredictLogits(self.net, x[:, box[0], box[1]], self.device)
+        out = PredictLogits(self.net, x[:, box[0], box[1]], self.device)
+        logits = out[:NUM_CLASSES]
         cls[box] = logits.argmax(0)
         with np.errstate(invalid="ignore"):
             cls[np.isfinite(d) & (d > self.depth_cut)] = BACKGROUND
         cls = SnapFruitToDepthEdges(cls, d)
-        inst = JoinFruitFragments(cls, InstancesFromComponents(cls, d, 0.02), d, self.K, 0.02)
+        boundary = None
+        if len(out) > NUM_CLASSES:   # the boundary head: logit > 0 is probability > 0.5
+            boundary = np.zeros(d.shape, bool)
+            boundary[box] = out[NUM_CLASSES] > 0.0
+            boundary &= cls == LEAF
+        inst = JoinFruitFragments(cls, InstancesFromComponents(cls, d, 0.02,
+                                                               leaf_boundary=boundary),
+                                  d, self.K, 0.02)
         e = np.exp(logits - logits.max(0))
         prob = np.zeros((len(e),) + d.shape)
         prob[:, box[0], box[1]] = e / e.sum(0)
         p_cls = np.take_along_axis(prob, cls[None], 0)[0]  # probability of the class given
-        return Segmentation(cls, inst, [], InstanceConfidence(cls, inst, p_cls))
+        return Segmentation(cls, inst, [], InstanceConfidence(cls, inst, p_cls), boundary)
 
 
 def _CopySegmentation(seg: Segmentation) -> Segmentation:

@@ -73,18 +73,22 @@ def _block(cin: int, cout: int) -> nn.Sequential:
 
 
 class SegNet(nn.Module):
-    """U-Net, channels ``widths`` per level (level 0 at full resolution)."""
+    """U-Net, channels ``widths`` per level (level 0 at full resolution).
+    Outputs NUM_CLASSES class logits and, with ``boundary_head``, one more
+    channel: the logit of "two leaves meet here" (``labels.LeafBoundaryMask``
+    of the truth leaves), which flush blades need (``perception.leaf_boundaries``)."""
 
-    def __init__(self, widths: tuple[int, ...] = (12, 24, 48, 64)):
+    def __init__(self, widths: tuple[int, ...] = (12, 24, 48, 64), boundary_head: bool = False):
         super().__init__()
         self.widths = tuple(int(w) for w in widths)
+        self.boundary_head = bool(boundary_head)
         w = self.widths
         self.enc = nn.ModuleList([_block(NUM_INPUTS if i == 0 else w[i - 1], w[i])
                                   for i in range(len(w))])
         self.up = nn.ModuleList([nn.ConvTranspose2d(w[i + 1], w[i], 2, stride=2)
                                  for i in range(len(w) - 1)])
         self.dec = nn.ModuleList([_block(2 * w[i], w[i]) for i in range(len(w) - 1)])
-        self.head = nn.Conv2d(w[0], NUM_CLASSES, 1)
+        self.head = nn.Conv2d(w[0], NUM_CLASSES + int(self.boundary_head), 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         skips = []
@@ -98,8 +102,8 @@ class SegNet(nn.Module):
 
 
 def SaveSegNet(net: SegNet, path: str | Path, meta: dict) -> None:
-    torch.save({"widths": list(net.widths), "state_dict": net.state_dict(), "meta": meta},
-               str(path))
+    torch.save({"widths": list(net.widths), "boundary_head": net.boundary_head,
+                "state_dict": net.state_dict(), "meta": meta}, str(path))
 
 
 class SegNetWeightsError(WeightsError):
@@ -116,7 +120,7 @@ def LoadSegNet(path: str | Path, device: str = "cpu") -> SegNet:
             f"make them with 'python scripts/train_segnet.py'")
     try:
         blob = torch.load(str(path), map_location=device, weights_only=True)
-        net = SegNet(tuple(blob["widths"]))
+        net = SegNet(tuple(blob["widths"]), bool(blob.get("boundary_head", False)))
         net.load_state_dict(blob["state_dict"])
     except pickle.UnpicklingError as err:   # never executed: weights_only=True
         first = " ".join(str(err).split("\n\n")[-1].split())[:160]
@@ -138,7 +142,8 @@ def _Pad(x: np.ndarray, align: int) -> tuple[np.ndarray, tuple[int, int]]:
 
 @torch.no_grad()
 def PredictLogits(net: SegNet, inputs: np.ndarray, device: str = "cpu") -> np.ndarray:
-    """(NUM_CLASSES, H, W) logits for a (NUM_INPUTS, H, W) input of any size."""
+    """(NUM_CLASSES [+ 1 boundary], H, W) logits for a (NUM_INPUTS, H, W)
+    input of any size."""
     x, (H, W) = _Pad(inputs, ALIGN)
     y = net(torch.from_numpy(x)[None].to(device))[0, :, :H, :W]
     return y.cpu().numpy()

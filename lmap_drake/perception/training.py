@@ -5,7 +5,9 @@ on the randomised renders of ``scripts/make_segnet_data.py``.
     python scripts/train_segnet.py --data out/segnet_data --out models/segnet/segnet.pt
 
 Random 128 x 128 crops (centred on fruit pixels 45 % of the time, on other
-plant pixels 25 %, on the robot and other non-plant returns 30 %), horizontal flips and
+plant pixels 25 %, on the robot and other non-plant returns 30 %; in a
+sample with a leaf boundary target 35 % fruit, 15 % on the boundary band,
+25 % plant, 25 % robot and other returns), horizontal flips and
 colour jitter (``ColorJitter``: gain, per-channel white balance, hue shifts,
 blur, pixel noise); cross-entropy with the fruit and branch classes weighted
 2x; Adam with a cosine learning-rate decay. A tenth of the samples (every
@@ -27,9 +29,17 @@ from scipy import ndimage
 from tqdm import tqdm
 
 from lmap_drake.errors import InputError
-from lmap_drake.perception.segnet import LoadSegNet, PredictLogits, SaveSegNet, SegNet
+from lmap_drake.labels import LEAF
+from lmap_drake.perception.segnet import NUM_CLASSES, LoadSegNet, PredictLogits, SaveSegNet, SegNet
 
 CROP = 128
+IGNORE = 255            # a boundary target pixel left out of the loss
+# The boundary head's loss: binary cross-entropy on the truth leaf pixels
+# (the only ones perception cuts), the band's pixels weighted
+# BOUNDARY_POS_WEIGHT (about 4 % of leaf pixels lie on a band in a
+# greenhouse view), added to the class loss with BOUNDARY_WEIGHT.
+BOUNDARY_WEIGHT = 0.5
+BOUNDARY_POS_WEIGHT = 3.0
 
 
 @dc.dataclass
@@ -44,6 +54,7 @@ class SegNetTrainingOptions:
     seed: int = 0
     init: str = ""                   # start from these weights (fine-tuning)
     color_jitter: bool = True        # ColorJitter on every crop (off: the ablation's variant)
+    boundary_head: bool = True       # learn the leaf boundary too (needs samples with leaf_edge)
 
 
 def LoadSamples(folder: Path) -> list[dict]:
@@ -53,6 +64,7 @@ def LoadSamples(folder: Path) -> list[dict]:
             continue
         d = np.load(f, allow_pickle=False)
         out.append({"seed": int(f.stem), "x": d["inputs"], "y": d["truth"].astype(np.int64),
+                    "e": d["leaf_edge"] if "leaf_edge" in d.files else None,
                     "kind": str(d["fruit_kind"]),
                     "multi": bool(d["multi"]) if "multi" in d.files else False,
                     "held": bool(d["held"]) if "held" in d.files else False,
@@ -67,25 +79,34 @@ def RandomCrop(sample: dict, rng: np.random.Generator, size: int = CROP,
     fruit = np.argwhere(y == 3)
     plant = np.argwhere(y > 0)
     other = np.argwhere((y == 0) & (x[3] > 0))   # returns that are not plant: the robot
+    band = np.argwhere(sample["e"] == 1) if sample.get("e") is not None else fruit[:0]
     r = rng.random()
-    pool = (fruit if r < 0.45 and len(fruit) else
-            other if r > 0.7 and len(other) else plant)
+    if len(band):          # a leaf boundary target: 15 % of the crops on the band
+        pool = (fruit if r < 0.35 and len(fruit) else band if r < 0.5 else
+                other if r > 0.75 and len(other) else plant)
+    else:
+        pool = (fruit if r < 0.45 and len(fruit) else
+                other if r > 0.7 and len(other) else plant)
     cy, cx = pool[rng.integers(len(pool))] + rng.integers(-size // 3, size // 3 + 1, 2)
     y0 = int(np.clip(cy - size // 2, 0, max(H - size, 0)))
     x0 = int(np.clip(cx - size // 2, 0, max(W - size, 0)))
     xc = np.zeros((x.shape[0], size, size), np.float32)
     yc = np.zeros((size, size), np.int64)
+    ec = np.full((size, size), IGNORE, np.int64)
     xs = x[:, y0:y0 + size, x0:x0 + size].astype(np.float32)
     ys = y[y0:y0 + size, x0:x0 + size]
     xc[:, :xs.shape[1], :xs.shape[2]] = xs
     yc[:ys.shape[0], :ys.shape[1]] = ys
+    if sample.get("e") is not None:
+        ec[:ys.shape[0], :ys.shape[1]] = sample["e"][y0:y0 + size, x0:x0 + size]
     if rng.random() < 0.5:  # horizontal flip: mirror columns, negate the normal's x
         xc = xc[:, :, ::-1].copy()
         yc = yc[:, ::-1].copy()
+        ec = ec[:, ::-1].copy()
         xc[5] *= -1.0
     if jitter:
         xc[:3] = ColorJitter(xc[:3] + 0.5, rng) - 0.5
-    return xc, yc
+    return xc, yc, ec
 
 
 def HueRotation(deg: float) -> np.ndarray:
@@ -121,8 +142,14 @@ def Iou(pred: np.ndarray, truth: np.ndarray, c: int) -> float:
 def Validate(net, samples: list[dict]) -> dict:
     net.eval()
     rows = []
+    edge_counts = np.zeros(3)               # boundary pixels: hit and true, predicted, true
     for s in samples:
-        pred = PredictLogits(net, s["x"].astype(np.float32)).argmax(0)
+        out = PredictLogits(net, s["x"].astype(np.float32))
+        pred = out[:NUM_CLASSES].argmax(0)
+        if len(out) > NUM_CLASSES and s.get("e") is not None:
+            m = (s["y"] == LEAF) & (s["e"] != IGNORE)
+            hit, true = (out[NUM_CLASSES] > 0)[m], s["e"][m] == 1
+            edge_counts += np.array([(hit & true).sum(), hit.sum(), true.sum()])
         rows.append({"kind": s["kind"], "multi": s["multi"], "held": s["held"],
                      "greenhouse": s.get("greenhouse", False),
                      **{k: Iou(pred, s["y"], c)
@@ -144,6 +171,10 @@ def Validate(net, samples: list[dict]) -> dict:
     if held:        # a leaf held by the gripper, turned (make_segnet_data.py --held_leaf)
         out.update(n_held=len(held), leaf_iou_held=mean(held, "leaf"),
                    fruit_iou_held=mean(held, "fruit"))
+    if edge_counts[2] > 0:  # the boundary head on truth leaf pixels
+        tp, pp, tt = edge_counts
+        out.update(boundary_precision=round(float(tp / max(pp, 1)), 4),
+                   boundary_recall=round(float(tp / tt), 4))
     gh = [r for r in rows if r["greenhouse"]]
     if gh:          # greenhouse scenes (make_segnet_data.py --greenhouse)
         out.update(n_greenhouse=len(gh), **{f"{k}_iou_greenhouse": mean(gh, k)
@@ -154,8 +185,10 @@ def Validate(net, samples: list[dict]) -> dict:
 def TrainSteps(net, draw, steps: int, batch: int, lr: float, desc: str) -> None:
     """``steps`` Adam steps (cosine learning-rate decay from ``lr``) of the
     class-weighted cross-entropy (leaf and fruit weighted 2) on batches of
-    ``batch`` crops, each ``draw()``: (input, target) as ``RandomCrop``
-    gives; a progress bar named ``desc`` shows the loss."""
+    ``batch`` crops, each ``draw()``: (input, class target, boundary
+    target) as ``RandomCrop`` gives; with the network's boundary head, its
+    loss is added (``BOUNDARY_WEIGHT``); a progress bar named ``desc``
+    shows the loss."""
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     weight = torch.tensor([1.0, 2.0, 1.0, 2.0])
@@ -164,13 +197,40 @@ def TrainSteps(net, draw, steps: int, batch: int, lr: float, desc: str) -> None:
         crops = [draw() for _ in range(batch)]
         x = torch.from_numpy(np.stack([b[0] for b in crops]))
         y = torch.from_numpy(np.stack([b[1] for b in crops]))
-        loss = torch.nn.functional.cross_entropy(net(x), y, weight=weight)
+        out = net(x)
+        loss = torch.nn.functional.cross_entropy(out[:, :NUM_CLASSES], y, weight=weight)
+        if out.shape[1] > NUM_CLASSES:
+            e = torch.from_numpy(np.stack([b[2] for b in crops]))
+            m = (y == LEAF) & (e != IGNORE)
+            if m.any():
+                loss = loss + BOUNDARY_WEIGHT * torch.nn.functional.binary_cross_entropy_with_logits(
+                    out[:, NUM_CLASSES][m], e[m].float(),
+                    pos_weight=torch.tensor(BOUNDARY_POS_WEIGHT))
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
         if step % 20 == 0:
             bar.set_postfix(loss=f"{loss.item():.3f}")
+
+
+def WithBoundaryHead(net: SegNet, boundary_head: bool) -> SegNet:
+    """``net`` itself when it has (or should not have) the boundary head;
+    else a copy with it added: every weight kept, the new channel's weights
+    zero and its bias -2 (probability 0.12: nowhere a boundary yet)."""
+    if net.boundary_head or not boundary_head:
+        return net
+    new = SegNet(net.widths, boundary_head=True)
+    state = net.state_dict()
+    w, b = state.pop("head.weight"), state.pop("head.bias")
+    new.load_state_dict(state, strict=False)
+    with torch.no_grad():
+        new.head.weight.zero_()
+        new.head.weight[:NUM_CLASSES] = w
+        new.head.bias.fill_(-2.0)
+        new.head.bias[:NUM_CLASSES] = b
+    new.meta = getattr(net, "meta", {})
+    return new
 
 
 def TrainSegNet(args: SegNetTrainingOptions) -> dict:
@@ -186,15 +246,16 @@ def TrainSegNet(args: SegNetTrainingOptions) -> dict:
                          "scripts/make_segnet_data.py")
     val = [s for s in samples if s["seed"] % 10 == 0]
     train = [s for s in samples if s["seed"] % 10 != 0]
-    net = SegNet()
+    net = SegNet(boundary_head=args.boundary_head)
     if args.init:
-        net = LoadSegNet(args.init).train()
+        net = WithBoundaryHead(LoadSegNet(args.init), args.boundary_head).train()
     t0 = time.time()
     TrainSteps(net, lambda: RandomCrop(train[rng.integers(len(train))], rng,
                                        jitter=args.color_jitter),
                args.steps, args.batch, args.lr, "training")
     metrics = Validate(net, val)
-    meta = {"init": args.init, "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
+    meta = {"init": args.init, "boundary_head": args.boundary_head,
+            "boundary_samples": sum(s["e"] is not None for s in samples), "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
             "batch": args.batch, "lr": args.lr, "crop": CROP, "color_jitter": args.color_jitter,
             "multi_samples": sum(s["multi"] for s in samples),
             "held_samples": sum(s["held"] for s in samples),

@@ -97,10 +97,11 @@ def ViewLeafInstances(view: dict, class_map: np.ndarray, perception,
     """{step: HxW leaf instance map (-1 = none)} of ``class_map`` on
     ``view`` for each instance step of ``STEPS``; ``baseline``: as before
     issue 57 (no neck cuts, sizes split without checking their spread);
-    ``boundary``: the segmenter's leaf boundary (``points`` cut along it)."""
+    ``boundary``: the segmenter's leaf boundary (both steps cut along it)."""
     leaf = class_map == LEAF
     image = np.where(leaf, InstancesFromComponents(class_map, view["depth"],
-                                                   leaf_neck_ratio=0.0 if baseline else 0.5), -1)
+                                                   leaf_neck_ratio=0.0 if baseline else 0.5,
+                                                   leaf_boundary=boundary), -1)
     points = PointLeafInstances(class_map, view["depth"], view["K"], perception,
                                 check_spread=not baseline, neck_ratio=0.0 if baseline else 0.5,
                                 boundary=boundary)
@@ -108,12 +109,14 @@ def ViewLeafInstances(view: dict, class_map: np.ndarray, perception,
 
 
 def EvalLeafInstances(out, views: list, class_maps=CLASS_MAPS, min_pixels: int = 200,
-                      baseline: bool = False, log=print) -> dict:
+                      baseline: bool = False, log=print, scenario_text: str = "") -> dict:
     """Scores the leaf instances of every view file (``RenderViews``) for
     each class map and instance step (``baseline``: the steps as before
     issue 57, ``ViewLeafInstances``); writes ``out`` (JSON: ``{class map:
-    {step: summary, "views": {name: {step: row}}}}``) and returns it."""
-    perception = LoadScenario().perception
+    {step: summary, "views": {name: {step: row}}}}``) and returns it.
+    ``scenario_text``: YAML overrides of the default scenario (its
+    perception section is used: segnet weights, ``leaf_boundaries``)."""
+    perception = LoadScenario(scenario_text=scenario_text).perception
     seg = None
     res = {c: {"views": {}} for c in class_maps}
     rows = {(c, s): [] for c in class_maps for s in STEPS}
@@ -152,7 +155,7 @@ def EvalLeafInstances(out, views: list, class_maps=CLASS_MAPS, min_pixels: int =
         for s in STEPS:
             res[c][s] = SummariseLeafInstances(rows[(c, s)])
     res["_meta"] = {"views": [str(p) for p in views], "min_pixels": min_pixels,
-                   "baseline": baseline}
+                   "baseline": baseline, "scenario_text": scenario_text}
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".partial")

@@ -28,7 +28,7 @@ from lmap_drake.paths import REPO_ROOT
 from lmap_drake.perception.annotations import Annotation, LoadCoco, LoadLabelMe
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.recording import LoadRecording
-from lmap_drake.perception.segnet import (CropBox, LoadSegNet, PredictLogits, SaveSegNet,
+from lmap_drake.perception.segnet import (NUM_CLASSES, CropBox, LoadSegNet, PredictLogits, SaveSegNet,
                                           SegNetInputs)
 from lmap_drake.perception.training import Iou, LoadSamples, RandomCrop, TrainSteps
 from lmap_drake.scenario import LoadScenario
@@ -104,7 +104,8 @@ def AnnotatedViews(recordings: Path, annotations: Path | None, depth_cut: float)
 def HeldOutIou(net, samples: list[dict]) -> dict:
     """Mean per-class IoU of ``net`` over ``samples`` (classes present)."""
     net.eval()
-    rows = [(PredictLogits(net, s["x"].astype(np.float32)).argmax(0), s["y"]) for s in samples]
+    rows = [(PredictLogits(net, s["x"].astype(np.float32))[:NUM_CLASSES].argmax(0), s["y"])
+            for s in samples]
     out = {}
     for k, c in (("fruit_iou", 3), ("leaf_iou", 2), ("branch_iou", 1)):
         v = [Iou(p, y, c) for p, y in rows]

@@ -145,3 +145,49 @@ def test_greenhouse_weights_see_a_greenhouse_plant_the_default_weights_do_not():
     fruit, leaf = iou["models/segnet/segnet_greenhouse.pt"]
     assert fruit > 0.7 and leaf > 0.8
     assert fruit > iou["models/segnet/segnet.pt"][0] + 0.1
+
+
+def test_boundary_head_round_trips_and_adding_it_keeps_the_class_logits(tmp_path):
+    import torch
+    from lmap_drake.perception.segnet import PredictLogits, SaveSegNet
+    from lmap_drake.perception.training import WithBoundaryHead
+    torch.manual_seed(0)
+    net = SegNet((4, 8, 8, 8)).eval()
+    x = np.random.default_rng(0).normal(size=(NUM_INPUTS, 24, 40)).astype(np.float32)
+    before = PredictLogits(net, x)
+    more = WithBoundaryHead(net, True).eval()
+    after = PredictLogits(more, x)
+    assert after.shape == (5, 24, 40)
+    np.testing.assert_allclose(after[:4], before, atol=1e-5)
+    assert (after[4] < 0).all()                       # nowhere a boundary before training
+    SaveSegNet(more, tmp_path / "b.pt", {})
+    back = LoadSegNet(tmp_path / "b.pt")
+    assert back.boundary_head and PredictLogits(back, x).shape == (5, 24, 40)
+    assert WithBoundaryHead(net, False) is net
+
+
+def test_training_learns_the_boundary_channel_on_leaf_pixels():
+    import torch
+    from lmap_drake.perception.training import RandomCrop, TrainSteps, WithBoundaryHead
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    H, W = 48, 48
+    x = np.zeros((NUM_INPUTS, H, W), np.float32)
+    x[0, :, 24:] = 0.3                                 # the right blade is lighter
+    x[3] = 1.0
+    y = np.full((H, W), LEAF, np.int64)
+    e = np.zeros((H, W), np.uint8)
+    e[:, 22:26] = 1                                    # the seam between the blades
+    sample = {"x": x, "y": y, "e": e}
+    net = WithBoundaryHead(SegNet((4, 8, 8, 8)), True).train()
+
+    def seam_probability():
+        with torch.no_grad():
+            out = torch.sigmoid(net.eval()(torch.from_numpy(x)[None])[0, 4]).numpy()
+        net.train()
+        return out[e == 1].mean(), out[e == 0].mean()
+    on, off = seam_probability()
+    assert on < 0.5 and off < 0.5
+    TrainSteps(net, lambda: RandomCrop(sample, rng, size=32, jitter=False), 80, 2, 1e-2, "t")
+    on, off = seam_probability()
+    assert on > 0.5 > off

@@ -47,8 +47,8 @@ def test_crop_without_jitter_keeps_the_colours():
     x = rng.uniform(-0.5, 0.5, (8, 64, 64)).astype(np.float16)
     y = np.full((64, 64), 2, np.int64)
     sample = {"x": x, "y": y}
-    xc, _ = RandomCrop(sample, np.random.default_rng(1), size=64, jitter=False)
-    xj, _ = RandomCrop(sample, np.random.default_rng(1), size=64, jitter=True)
+    xc, _, _ = RandomCrop(sample, np.random.default_rng(1), size=64, jitter=False)
+    xj, _, _ = RandomCrop(sample, np.random.default_rng(1), size=64, jitter=True)
     plain = x[:3].astype(np.float32)
     assert np.allclose(xc[:3], plain) or np.allclose(xc[:3], plain[:, :, ::-1])
     assert not np.allclose(xj[:3], xc[:3])
