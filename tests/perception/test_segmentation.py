@@ -160,3 +160,19 @@ def test_fruit_instance_truth_finds_a_stalk_taken_for_a_fruit():
     assert [r["pixels"] for r in rows] == [100, 100]
     assert rows[0]["fruit"] == 1.0
     assert rows[1]["fruit"] == 0.0 and rows[1]["branch"] == 0.6 and rows[1]["leaf"] == 0.4
+
+
+def test_pixel_instances_of_leaves_are_cut_at_the_leaf_boundary():
+    from lmap_drake.labels import LeafBoundaryMask
+    from lmap_drake.perception.segmentation import InstancesFromComponents
+    ids = np.full((60, 80), -1)
+    ids[10:50, 10:40] = 0
+    ids[10:50, 40:70] = 1                  # flush, one depth, one rectangle: no neck
+    cls = np.where(ids >= 0, LEAF, 0)
+    depth = np.where(ids >= 0, 0.5, np.inf)
+    one = InstancesFromComponents(cls, depth)
+    assert len(np.unique(one[cls == LEAF])) == 1
+    two = InstancesFromComponents(cls, depth, leaf_boundary=LeafBoundaryMask(ids))
+    assert len(np.unique(two[cls == LEAF])) == 2
+    for t in (0, 1):                       # band pixels went to their own side
+        assert len(np.unique(two[ids == t])) == 1
