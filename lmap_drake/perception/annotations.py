@@ -56,6 +56,18 @@ class Annotation:
         """HxW int64 class map (``RasterisePolygons``)."""
         return RasterisePolygons(self.shapes, self.height, self.width)
 
+    def LeafIds(self) -> np.ndarray:
+        """HxW int64: each leaf pixel's annotated object (its index in
+        ``shapes``; painted in the order of ``ClassMap``), -1 elsewhere: one
+        id per annotated leaf, for the leaf boundary target."""
+        obj = np.full((self.height, self.width), -1, np.int64)
+        for k in _PaintOrder(self.shapes):
+            c, polys = self.shapes[k]
+            if c != BACKGROUND:
+                for p in polys:
+                    obj[PolygonMask(p, self.height, self.width)] = k if c == LEAF else -1
+        return obj
+
 
 def NameToClass(name: str) -> int:
     """Annotation label -> class id (BACKGROUND when unrecognised)."""
@@ -87,11 +99,16 @@ def PolygonMask(poly: np.ndarray, height: int, width: int) -> np.ndarray:
     return out
 
 
+def _PaintOrder(shapes) -> list[int]:
+    """Indices of ``shapes``, larger first (a stable sort)."""
+    return sorted(range(len(shapes)), key=lambda k: -sum(_Area(p) for p in shapes[k][1]))
+
+
 def RasterisePolygons(shapes, height: int, width: int) -> np.ndarray:
     """Class map of ``shapes`` [(class id, [(N, 2) x, y polygons])], larger
     shapes first."""
     out = np.zeros((height, width), np.int64)
-    for c, polys in sorted(shapes, key=lambda s: -sum(_Area(p) for p in s[1])):
+    for c, polys in (shapes[k] for k in _PaintOrder(shapes)):
         if c != BACKGROUND:
             for p in polys:
                 out[PolygonMask(p, height, width)] = c

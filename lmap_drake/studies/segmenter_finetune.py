@@ -12,7 +12,9 @@ is held out. Training starts from the shipped weights (``--init``), mixes
 the annotated views with simulated samples (``--sim_data``, a folder of
 ``scripts/make_segnet_data.py``; ``--sim_fraction`` of each batch), and
 writes the new weights (``--out``, never over the input) with their
-``.json``; it prints the held-out IoU before and after.
+``.json``; it prints the held-out IoU before and after. When the weights
+carry the leaf boundary head, it is fine-tuned too, on the seams between
+the annotated leaf polygons (one polygon object per leaf).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ import numpy as np
 import torch
 
 from lmap_drake.errors import InputError
+from lmap_drake.labels import LeafBoundaryMask
 from lmap_drake.paths import REPO_ROOT
 from lmap_drake.perception.annotations import Annotation, LoadCoco, LoadLabelMe
 from lmap_drake.perception.points import Intrinsics
@@ -92,7 +95,8 @@ def AnnotatedViews(recordings: Path, annotations: Path | None, depth_cut: float)
         box = CropBox((x[3] > 0) | (y > 0), 24)
         if box is None:
             continue
-        samples.append({"name": key, "x": x[:, box[0], box[1]], "y": y[box]})
+        edge = LeafBoundaryMask(a.LeafIds()).astype(np.uint8)   # where two annotated leaves meet
+        samples.append({"name": key, "x": x[:, box[0], box[1]], "y": y[box], "e": edge[box]})
     if len(samples) < 2:
         source = (f"--annotations {annotations}" if annotations else
                   "LabelMe view<k>_rgb.json files")

@@ -9,8 +9,8 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from lmap_drake.cli import main as cli_main
-from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels
-from lmap_drake.perception.annotations import LoadCoco, RasterisePolygons
+from lmap_drake.labels import BRANCH, FRUIT, LEAF, DecodeLabels, LeafBoundaryMask
+from lmap_drake.perception.annotations import Annotation, LoadCoco, RasterisePolygons
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.segnet import LoadSegNet, SegNetInputs
 from recorded_views import RecordView
@@ -83,6 +83,16 @@ def test_annotations_rasterise_to_the_labels(runs):
     shapes = [(FRUIT, [np.array([[1, 1], [3, 1], [3, 3], [1, 3.]])]),
               (LEAF, [np.array([[0, 0], [6, 0], [6, 6], [0, 6.]])])]
     assert (RasterisePolygons(shapes, 6, 6) == FRUIT).sum() == 4
+    # one id per annotated leaf (the boundary head's target), none under a fruit
+    truth_leaf = np.where(DecodeLabels(views["lab_a"].label)[0] == LEAF, 0, -1)
+    assert np.array_equal(ann.LeafIds() >= 0, truth_leaf >= 0)
+    two = Annotation("x.png", 12, 8, [(LEAF, [np.array([[0, 0], [6, 0], [6, 8], [0, 8.]])]),
+                                      (LEAF, [np.array([[6, 0], [12, 0], [12, 8], [6, 8.]])]),
+                                      (FRUIT, [np.array([[1, 1], [3, 1], [3, 3], [1, 3.]])])])
+    ids = two.LeafIds()
+    assert set(np.unique(ids)) == {-1, 0, 1} and (ids[1:3, 1:3] == -1).all()
+    band = LeafBoundaryMask(ids)
+    assert band[:, 4:8].all() and not band[:, :4].any() and not band[:, 8:].any()
 
 
 def test_train_segmenter_writes_weights_and_prints_held_out_iou(runs, tmp_path, capsys):
