@@ -61,8 +61,10 @@ def ImagePatches(leaf: np.ndarray, boundary: np.ndarray, reach: int = 8,
     cannot: set = set()
     if n == 0:
         return np.zeros(leaf.shape, np.int64), cannot
-    if neck_ratio > 0 and band.any():
-        patch, n = _SplitAtNecks(patch, n, band, neck_ratio)
+    if neck_ratio > 0 and band.any():     # only the patches the band touches
+        near = ndimage.binary_dilation(band, structure=np.ones((3, 3)))
+        patch, n = SplitRegionsAtNecks(patch, n, neck_ratio,
+                                       set(np.unique(patch[near & (patch > 0)]).tolist()))
     if n > 1 and band.any():
         counts: dict = {}
         for dr, dc in _DIRECTIONS:
@@ -89,25 +91,24 @@ def ImagePatches(leaf: np.ndarray, boundary: np.ndarray, reach: int = 8,
     return out, cannot
 
 
-def _SplitAtNecks(patch: np.ndarray, n: int, band: np.ndarray, neck_ratio: float
-                  ) -> tuple[np.ndarray, int]:
-    """``patch`` (ids 1..n) with every patch next to the ``band`` cut at its
-    necks; new parts get ids from n + 1 on."""
-    patch = patch.copy()
-    near = ndimage.binary_dilation(band, structure=np.ones((3, 3)))
-    touching = np.unique(patch[near & (patch > 0)])
-    for i, sl in enumerate(ndimage.find_objects(patch), start=1):
-        if sl is None or i not in touching:
+def SplitRegionsAtNecks(lab: np.ndarray, n: int, neck_ratio: float, only=None
+                        ) -> tuple[np.ndarray, int]:
+    """Regions ``lab`` (HxW ids 1..n, 0 = none) with every region of 50
+    pixels or more (of ``only``, a set of ids, when given) cut at its necks
+    (``SplitAtNecks``); new parts get ids from n + 1 on."""
+    lab = lab.copy()
+    for i, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is None or (only is not None and i not in only):
             continue
-        mine = patch[sl] == i
+        mine = lab[sl] == i
         if mine.sum() < 50:
             continue
         parts, k = SplitAtNecks(mine, neck_ratio)
-        view = patch[sl]
+        view = lab[sl]
         for p in range(1, k):
             n += 1
             view[mine & (parts == p)] = n
-    return patch, n
+    return lab, n
 
 
 def SplitClustersByPatches(points: np.ndarray, instance: np.ndarray, patch: np.ndarray,
@@ -153,10 +154,9 @@ def SplitClustersByPatches(points: np.ndarray, instance: np.ndarray, patch: np.n
         if len(big) < 2:
             continue
         label = np.full(len(mine), -1, np.int64)
-        where = {int(i): k for k, i in enumerate(mine)}
         for g in big:
             for q in groups[g]:
-                label[[where[int(i)] for i in members[q]]] = g
+                label[np.searchsorted(mine, members[q])] = g   # ``mine`` is sorted
         rest = label < 0                         # small groups and patch-0 points: nearest big group
         if rest.any():
             tree = cKDTree(points[mine[~rest]])

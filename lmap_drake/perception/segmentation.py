@@ -43,7 +43,7 @@ from scipy import ndimage
 from lmap_drake.errors import WeightsError
 from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels, LeafBoundaryMask
 from lmap_drake.perception.fruit_fragments import JoinFruitFragments
-from lmap_drake.perception.leaf_instances import SplitAtNecks
+from lmap_drake.perception.leaf_boundaries import SplitRegionsAtNecks
 from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
 
 SEGMENTERS = ("segnet", "color_depth", "label", "sam", "grounded_sam")
@@ -132,7 +132,7 @@ def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = No
     """Per-class 8-connected components as instance ids (0 = largest);
     neighbouring pixels whose depth differs by more than ``depth_jump`` m are
     cut apart when ``depth`` is given, and a leaf region is cut where its
-    outline narrows to a neck (``leaf_instances.SplitAtNecks`` at
+    outline narrows to a neck (``leaf_boundaries.SplitAtNecks`` at
     ``leaf_neck_ratio``; 0 = not): blades touching at one depth. Leaf pixels
     are also cut at ``leaf_boundary`` (HxW bool, the segmenter's leaf
     boundary band), which then joins its nearest instance."""
@@ -149,7 +149,7 @@ def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = No
         if n == 0:
             continue
         if c == LEAF and leaf_neck_ratio > 0:
-            lab, n = _SplitLeafNecks(lab, n, leaf_neck_ratio)
+            lab, n = SplitRegionsAtNecks(lab, n, leaf_neck_ratio)
         sizes = ndimage.sum(m, lab, index=np.arange(1, n + 1))
         order = np.argsort(-sizes, kind="stable")
         remap = np.full(n + 1, -1, np.int64)
@@ -161,25 +161,6 @@ def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = No
                 _, (iy, ix) = ndimage.distance_transform_edt(~m, return_indices=True)
                 inst[rest] = inst[iy[rest], ix[rest]]
     return inst
-
-
-def _SplitLeafNecks(lab: np.ndarray, n: int, neck_ratio: float) -> tuple[np.ndarray, int]:
-    """Components ``lab`` (1..n) with every component cut at its necks
-    (``SplitAtNecks``); new parts get ids from n + 1 on."""
-    lab = lab.copy()
-    for i, sl in enumerate(ndimage.find_objects(lab), start=1):
-        if sl is None:
-            continue
-        mine = lab[sl] == i
-        if mine.sum() < 50:
-            continue
-        parts, k = SplitAtNecks(mine, neck_ratio)
-        if k > 1:
-            view = lab[sl]
-            for p in range(1, k):
-                n += 1
-                view[mine & (parts == p)] = n
-    return lab, n
 
 
 class LabelSegmenter(Segmenter):
