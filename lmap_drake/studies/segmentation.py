@@ -32,7 +32,10 @@ all). ``leaf_instances`` scores the backend's leaf instances against the true
 leaves (``perception.leaf_instances.LeafInstanceScores``: per view the
 best IoU of each true leaf of 200 pixels or more, matched at IoU 0.5,
 merges, splits; per backend ``matched_fraction``, ``mean_best_iou``,
-``merges_per_view``, ``splits_per_view``; docs/explanation/leaf-instances.md).
+``merges_per_view``, ``splits_per_view``; docs/explanation/leaf-instances.md);
+``leaf_boundary`` the backend's leaf boundary band against the true seams
+(``labels.LeafBoundaryMask``) on the true leaf pixels: pooled
+``precision`` and ``recall`` (null for a backend without a band).
 ``fruit_colors`` gives per view the fruit IoU of each true fruit
 colour (the fruit pixels of the other colours left out; phantom fruit
 counts against every colour) and its recall (the share of that colour's
@@ -63,7 +66,8 @@ import numpy as np
 from tqdm import tqdm
 
 from lmap_drake.errors import InputError
-from lmap_drake.labels import BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels, NeighbourClassMap
+from lmap_drake.labels import (BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels, LeafBoundaryMask,
+                               NeighbourClassMap)
 from lmap_drake.perception.leaf_instances import LeafInstanceScores, SummariseLeafInstances
 from lmap_drake.paths import REPO_ROOT as REPO
 from lmap_drake.perception.points import Intrinsics
@@ -151,6 +155,12 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     row["leaf_instances"] = LeafInstanceScores(
         np.where(seg.class_map == LEAF, seg.instance_map, -1), np.where(cls == LEAF, inst, -1),
         ignore=~keep)
+    if seg.leaf_boundary is not None:   # the band against the true seams, on true leaf pixels
+        true_leaf = keep & (cls == LEAF)
+        band = LeafBoundaryMask(np.where(true_leaf, inst, -1))[true_leaf]
+        said = np.asarray(seg.leaf_boundary, bool)[true_leaf]
+        row["leaf_boundary"] = {"true_px": int(band.sum()), "predicted_px": int(said.sum()),
+                                "hit_px": int((band & said).sum())}
     colors = {}
     for i in np.unique(inst[cls == FRUIT]):
         colors.setdefault(_fruit_color(rgb, np.where((cls == FRUIT) & (inst == i), 3, 0)),
@@ -190,9 +200,21 @@ def Summary(rows: list[dict]) -> dict:
             "phantom_fruits_per_view_no_overlap": round(
                 sum(r["phantoms_no_overlap"] for r in rows) / n, 3),
             "leaf_instances": SummariseLeafInstances([r["leaf_instances"] for r in rows]),
+            "leaf_boundary": _BoundarySummary([r["leaf_boundary"] for r in rows
+                                               if "leaf_boundary" in r]),
             "instances": {"fruit_instances": sum(len(r["fruit_instances"]) for r in rows),
                           "phantoms": sum(r["phantoms"] for r in rows)},
             "views_evaluated": len(rows)}
+
+
+def _BoundarySummary(rows: list[dict]) -> dict | None:
+    """Pooled ``precision`` and ``recall`` of a backend's leaf boundary band
+    (None when it gives none)."""
+    if not rows:
+        return None
+    hit, said, true = (sum(r[k] for r in rows) for k in ("hit_px", "predicted_px", "true_px"))
+    return {"precision": round(hit / said, 4) if said else None,
+            "recall": round(hit / true, 4) if true else None, "views": len(rows)}
 
 
 def Evaluate(scenario_file: Path, names: list[str], backends: list[str],

@@ -43,6 +43,9 @@ def test_recordings_give_means_per_backend_view_and_fruit_colour(runs, tmp_path)
     li = d["label"]["leaf_instances"]
     assert (li["matched_fraction"], li["mean_best_iou"], li["leaves"]) == (1.0, 1.0, 2)
     assert li["merges_per_view"] == li["splits_per_view"] == 0.0
+    # one leaf per view: no seam to find; backends without a band give none
+    assert d["label"]["leaf_boundary"] == {"precision": None, "recall": None, "views": 2}
+    assert d["color_depth"]["leaf_boundary"] is None
     assert d["label"]["per_fruit_color"]["green"] == {"fruit_iou": 1.0, "fruit_recall": 1.0,
                                                       "views": 1}
     assert d["label"]["views"]["run_red/view0"]["fruit_colors"] == {

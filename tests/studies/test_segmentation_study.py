@@ -24,3 +24,29 @@ def test_eval_segmentation_writes_means(tmp_path):
     assert res["segnet"]["mean"]["fruit_iou"] >= 0.9
     assert res["segnet"]["mean"]["leaf_iou"] >= 0.9
     assert res["segnet"]["mean_non_green"]["fruit_n"] == 1
+
+
+def test_view_rows_score_the_leaf_boundary_band_against_the_true_seams():
+    import numpy as np
+    from lmap_drake.labels import LEAF, EncodeLabel
+    from lmap_drake.perception.segmentation import LabelSegmenter, Segmentation, TruthClassMap
+    from lmap_drake.studies.segmentation import Summary, ViewRow
+    label = np.zeros((40, 60), np.int32)
+    label[5:35, 5:30] = EncodeLabel(LEAF, 0)
+    label[5:35, 30:55] = EncodeLabel(LEAF, 1)         # flush against leaf 0
+    rgb = np.full((40, 60, 3), 90, np.uint8)
+    truth = TruthClassMap(label)
+    exact = LabelSegmenter().Segment(None, None, label)
+    row = ViewRow(exact, truth, label, rgb)
+    assert row["leaf_boundary"]["true_px"] == row["leaf_boundary"]["hit_px"] > 0
+    half = exact.leaf_boundary.copy()
+    half[20:] = False                                 # the band on the upper half only
+    rows = [row, ViewRow(Segmentation(exact.class_map, exact.instance_map, [], {}, half),
+                         truth, label, rgb)]
+    for r in rows:
+        r["fruit_color"] = None                       # as the evaluation sets it per scene
+    b = Summary(rows)["leaf_boundary"]
+    assert b["precision"] == 1.0 and 0.7 < b["recall"] < 0.8 and b["views"] == 2
+    none = ViewRow(Segmentation(exact.class_map, exact.instance_map), truth, label, rgb)
+    none["fruit_color"] = None
+    assert "leaf_boundary" not in none and Summary([none])["leaf_boundary"] is None
