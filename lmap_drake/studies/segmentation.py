@@ -155,7 +155,7 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     row["leaf_instances"] = LeafInstanceScores(
         np.where(seg.class_map == LEAF, seg.instance_map, -1), np.where(cls == LEAF, inst, -1),
         ignore=~keep)
-    if seg.leaf_boundary is not None:   # the band against the true seams, on true leaf pixels
+    if getattr(seg, "leaf_boundary", None) is not None:   # the band against the true seams
         true_leaf = keep & (cls == LEAF)
         band = LeafBoundaryMask(np.where(true_leaf, inst, -1))[true_leaf]
         said = np.asarray(seg.leaf_boundary, bool)[true_leaf]
