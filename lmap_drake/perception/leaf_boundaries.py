@@ -32,6 +32,21 @@ from scipy.spatial import cKDTree
 _DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
+def BandCounts(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(hit, predicted, true) pixel counts of a predicted boundary band
+    against the true band (bool arrays of the pixels scored, e.g. the true
+    leaf pixels)."""
+    predicted, truth = np.asarray(predicted, bool), np.asarray(truth, bool)
+    return np.array([(predicted & truth).sum(), predicted.sum(), truth.sum()], np.int64)
+
+
+def BandPrecisionRecall(counts) -> tuple[float | None, float | None]:
+    """(precision, recall) from summed ``BandCounts``, rounded to 4 digits;
+    None where nothing was predicted / nothing is true."""
+    hit, said, true = (int(c) for c in counts)
+    return (round(hit / said, 4) if said else None, round(hit / true, 4) if true else None)
+
+
 def _Shift(x: np.ndarray, dr: int, dc: int) -> np.ndarray:
     """y[r, c] = x[r + dr, c + dc], zero (False) outside."""
     y = np.zeros_like(x)

@@ -329,11 +329,12 @@ def BuildSemanticScene(class_map: np.ndarray, depth: np.ndarray, K: Intrinsics, 
         conf = (InstanceConfidenceImage(class_map, instance_map, confidence, cls)
                 if cls == FRUIT else None)
         # DeprojectPixels keeps the mask's pixels with valid depth, row-major
-        values = None if conf is None else conf[mask & ValidDepthMask(d)]
+        kept = mask & ValidDepthMask(d)
+        values = None if conf is None else conf[kept]
         patches = None
         if cls == LEAF and leaf_boundary is not None and params.leaf_boundaries:
             patch, cannot = ImagePatches(mask, leaf_boundary)
-            patches = (patch[mask & ValidDepthMask(d)], cannot)
+            patches = (patch[kept], cannot)
         pts, inst, means = ClassPointsAndMeans(pts, values, params, patches)
         if cls == FRUIT:
             scene.fruit_confidence = means

@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from lmap_drake.errors import InputError
 from lmap_drake.labels import LEAF
+from lmap_drake.perception.leaf_boundaries import BandCounts, BandPrecisionRecall
 from lmap_drake.perception.segnet import NUM_CLASSES, LoadSegNet, PredictLogits, SaveSegNet, SegNet
 
 CROP = 128
@@ -142,14 +143,13 @@ def Iou(pred: np.ndarray, truth: np.ndarray, c: int) -> float:
 def Validate(net, samples: list[dict]) -> dict:
     net.eval()
     rows = []
-    edge_counts = np.zeros(3)               # boundary pixels: hit and true, predicted, true
+    edge_counts = np.zeros(3, np.int64)     # boundary pixels: hit, predicted, true
     for s in samples:
         out = PredictLogits(net, s["x"].astype(np.float32))
         pred = out[:NUM_CLASSES].argmax(0)
         if len(out) > NUM_CLASSES and s.get("e") is not None:
             m = (s["y"] == LEAF) & (s["e"] != IGNORE)
-            hit, true = (out[NUM_CLASSES] > 0)[m], s["e"][m] == 1
-            edge_counts += np.array([(hit & true).sum(), hit.sum(), true.sum()])
+            edge_counts += BandCounts((out[NUM_CLASSES] > 0)[m], s["e"][m] == 1)
         rows.append({"kind": s["kind"], "multi": s["multi"], "held": s["held"],
                      "greenhouse": s.get("greenhouse", False),
                      **{k: Iou(pred, s["y"], c)
@@ -172,9 +172,8 @@ def Validate(net, samples: list[dict]) -> dict:
         out.update(n_held=len(held), leaf_iou_held=mean(held, "leaf"),
                    fruit_iou_held=mean(held, "fruit"))
     if edge_counts[2] > 0:  # the boundary head on truth leaf pixels
-        tp, pp, tt = edge_counts
-        out.update(boundary_precision=round(float(tp / max(pp, 1)), 4),
-                   boundary_recall=round(float(tp / tt), 4))
+        precision, recall = BandPrecisionRecall(edge_counts)
+        out.update(boundary_precision=precision or 0.0, boundary_recall=recall)
     gh = [r for r in rows if r["greenhouse"]]
     if gh:          # greenhouse scenes (make_segnet_data.py --greenhouse)
         out.update(n_greenhouse=len(gh), **{f"{k}_iou_greenhouse": mean(gh, k)
@@ -255,7 +254,8 @@ def TrainSegNet(args: SegNetTrainingOptions) -> dict:
                args.steps, args.batch, args.lr, "training")
     metrics = Validate(net, val)
     meta = {"init": args.init, "boundary_head": args.boundary_head,
-            "boundary_samples": sum(s["e"] is not None for s in samples), "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
+            "boundary_samples": sum(s["e"] is not None for s in samples),
+            "train_samples": len(train), "val_samples": len(val), "steps": args.steps,
             "batch": args.batch, "lr": args.lr, "crop": CROP, "color_jitter": args.color_jitter,
             "multi_samples": sum(s["multi"] for s in samples),
             "held_samples": sum(s["held"] for s in samples),

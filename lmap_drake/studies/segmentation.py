@@ -68,6 +68,7 @@ from tqdm import tqdm
 from lmap_drake.errors import InputError
 from lmap_drake.labels import (BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels, LeafBoundaryMask,
                                NeighbourClassMap)
+from lmap_drake.perception.leaf_boundaries import BandCounts, BandPrecisionRecall
 from lmap_drake.perception.leaf_instances import LeafInstanceScores, SummariseLeafInstances
 from lmap_drake.paths import REPO_ROOT as REPO
 from lmap_drake.perception.points import Intrinsics
@@ -157,10 +158,10 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
         ignore=~keep)
     if getattr(seg, "leaf_boundary", None) is not None:   # the band against the true seams
         true_leaf = keep & (cls == LEAF)
-        band = LeafBoundaryMask(np.where(true_leaf, inst, -1))[true_leaf]
-        said = np.asarray(seg.leaf_boundary, bool)[true_leaf]
-        row["leaf_boundary"] = {"true_px": int(band.sum()), "predicted_px": int(said.sum()),
-                                "hit_px": int((band & said).sum())}
+        hit, said, true = BandCounts(np.asarray(seg.leaf_boundary, bool)[true_leaf],
+                                     LeafBoundaryMask(np.where(true_leaf, inst, -1))[true_leaf])
+        row["leaf_boundary"] = {"true_px": int(true), "predicted_px": int(said),
+                                "hit_px": int(hit)}
     colors = {}
     for i in np.unique(inst[cls == FRUIT]):
         colors.setdefault(_fruit_color(rgb, np.where((cls == FRUIT) & (inst == i), 3, 0)),
@@ -212,9 +213,9 @@ def _BoundarySummary(rows: list[dict]) -> dict | None:
     (None when it gives none)."""
     if not rows:
         return None
-    hit, said, true = (sum(r[k] for r in rows) for k in ("hit_px", "predicted_px", "true_px"))
-    return {"precision": round(hit / said, 4) if said else None,
-            "recall": round(hit / true, 4) if true else None, "views": len(rows)}
+    precision, recall = BandPrecisionRecall(
+        [sum(r[k] for r in rows) for k in ("hit_px", "predicted_px", "true_px")])
+    return {"precision": precision, "recall": recall, "views": len(rows)}
 
 
 def Evaluate(scenario_file: Path, names: list[str], backends: list[str],
