@@ -147,6 +147,9 @@ def MakeEpisodeDiagram(scenario: Scenario, resources: EpisodeResources, station:
               controller.GetInputPort("ur5.state_estimated"))
     b.Connect(station.GetOutputPort("gripper.state_measured"),
               controller.GetInputPort("gripper.state_measured"))
+    if station.HasOutputPort("ur5.wrist_force"):
+        b.Connect(station.GetOutputPort("ur5.wrist_force"),
+                  controller.GetInputPort("ur5.wrist_force"))
     b.Connect(controller.GetOutputPort("ur5.position"), station.GetInputPort("ur5.position"))
     b.Connect(controller.GetOutputPort("gripper.position"),
               station.GetInputPort("gripper.position"))

@@ -47,6 +47,21 @@ class PlannerConfig:
     grasped (before the release) this many times faster than it was moved
     (the pull's pace: 3 cm/s, turns at 0.5 rad/s).
 
+    ``max_pull_force`` (N; 0 = off): the force guard. While the held leaf
+    is moved (the action and its continuations), the station's wrist force
+    (``ur5.wrist_force``) is compared with its value when the leaf was
+    grasped; when it has risen more than this, the motion stops where it
+    is, the view is taken, no further motion is planned, and the leaf is
+    carried back along what was executed and released (the target's record
+    says so). In the FEM world the rise reads 0.8-1.0 of the grasped leaf's
+    petiole load and follows it within one sample
+    (docs/explanation/force-guard.md); 10 N, two thirds of the 15 N
+    plant-hazard limit, leaves room for the stop's lag (the load rose 15
+    N/s in the fastest overload measured) and the deformation model's
+    misses (a merged leaf instance, the wrong leaf between the pads), while
+    the safe pulls measured stayed below 8 N. A station without the port
+    (a replay) has no guard.
+
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the
     grasped leaf swung about its estimated petiole attachment by each of
@@ -338,6 +353,7 @@ class PlannerConfig:
     speed_scale: float = 1.0
     approach_speed: float = 0.1
     return_speed_scale: float = 1.0
+    max_pull_force: float = 10.0   # N: the force guard on a held leaf's motion (0 = off)
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
@@ -429,6 +445,7 @@ _RULES = {
     "speed_scale": "(0,1]",
     "approach_speed": ">0",
     "return_speed_scale": ">0",
+    "max_pull_force": ">=0",
     "arc_angles_deg": "+x>0",
     "twist_angles_deg": "+x>0",
     "num_arc_axes": ">=1",

@@ -152,6 +152,8 @@ def ScorePlantEpisode(record: dict, sim: PlantWorldSim, scenario: Scenario, view
                          "leaf_id": t["target"].get("leaf_id"), "outcome": t["outcome"],
                          "motions": [c.action.Describe() for c in executed(t)],
                          "t_start": t["t_start"], "t_end": t["t_end"],
+                         "force_stop": t.get("force_stop") or None,
+                         "force_peak_N": t.get("force_peak_N"),
                          "max_petiole_force": (None if worst is None
                                                else float(worst.petiole_force)),
                          "max_strain_percentile": worst_strain(t),

@@ -13,6 +13,13 @@ Exported ports (both modes):
 - ``camera0.rgb_image`` (out, ImageRgba8U), ``camera0.depth_image`` (out,
   ImageDepth32F, metres along the optical axis), ``camera0.label_image`` (out,
   ImageLabel16I, sim only; values per ``lmap_drake.labels``).
+- ``ur5.wrist_force`` (out, 3): the force the tool (the 2F-85 and what it
+  holds or touches) exerts on the UR5's flange, N, world frame (on
+  hardware: the arm's TCP force estimate, base frame). Its value at rest
+  is the tool's weight (or, on hardware, the arm's offset): a user zeroes
+  it (the controller's force guard, ``planner.max_pull_force``, measures
+  from its value when the pull starts). Optional for a station: without
+  it, the guard is off.
 
 The camera pose ``X_WC`` is the scenario's ``cameras.camera0.X_PB`` (eye-to-hand,
 fixed), with the Drake camera convention (+z forward, +x right, +y down).
@@ -40,8 +47,45 @@ from lmap_drake.robot import (GRIPPER_JOINTS, UR5_JOINTS, AddUr5AndGripper,
 STATION_PORTS = {
     "inputs": ["ur5.position", "gripper.position"],
     "outputs": ["ur5.position_measured", "ur5.state_estimated", "gripper.state_measured",
-                "camera0.rgb_image", "camera0.depth_image", "camera0.label_image"],
+                "camera0.rgb_image", "camera0.depth_image", "camera0.label_image",
+                "ur5.wrist_force"],
 }
+
+
+class WristForceSensor(LeafSystem):
+    """The simulated wrist force sensor: from the plant's joint reaction
+    forces, the force the tool exerts on the flange across the weld joint
+    ``joint`` (flange -> ``robotiq_base``), N, world frame. Inputs
+    ``reaction_forces`` (the plant's, sampled at its last step) and
+    ``body_poses``; output ``wrist_force`` (3)."""
+
+    def __init__(self, plant: MultibodyPlant, joint):
+        super().__init__()
+        self._plant, self._joint = plant, joint
+        self._reactions = self.DeclareAbstractInputPort(
+            "reaction_forces", plant.get_reaction_forces_output_port().Allocate())
+        self._poses = self.DeclareAbstractInputPort(
+            "body_poses", plant.get_body_poses_output_port().Allocate())
+        self.DeclareVectorOutputPort("wrist_force", 3, self._calc)
+
+    def _calc(self, context: Context, output) -> None:
+        # F_CJc_Jc: the spatial force on the child (the tool) at Jc, in Jc
+        # (indexed by joint; no joint of the station is ever removed)
+        F = self._reactions.Eval(context)[int(self._joint.index())]
+        X_WC = self._poses.Eval(context)[int(self._joint.child_body().index())]
+        R_WJc = X_WC.rotation().multiply(self._joint.frame_on_child().GetFixedPoseInBodyFrame()
+                                         .rotation())
+        output.SetFromVector(-(R_WJc.multiply(F.translational())))
+
+
+def _ToolWeld(plant: MultibodyPlant, tool_body_name: str = "robotiq_base"):
+    """The joint whose child body is ``tool_body_name`` (the flange weld)."""
+    body = plant.GetBodyByName(tool_body_name)
+    for index in plant.GetJointIndices():
+        joint = plant.get_joint(index)
+        if joint.child_body().index() == body.index():
+            return joint
+    raise ValueError(f"no joint holds {tool_body_name}")
 
 
 class GravityCompensation(LeafSystem):
@@ -121,6 +165,11 @@ def _MakeSimStation(scenario: Scenario, meshcat: Meshcat | None, add_world) -> D
     builder.Connect(plant.get_state_output_port(ur5), demux.get_input_port())
     builder.ExportOutput(demux.get_output_port(0), "ur5.position_measured")
     builder.ExportOutput(plant.get_state_output_port(ur5), "ur5.state_estimated")
+    wrist = builder.AddNamedSystem("ur5_wrist_force", WristForceSensor(plant, _ToolWeld(plant)))
+    builder.Connect(plant.get_reaction_forces_output_port(),
+                    wrist.GetInputPort("reaction_forces"))
+    builder.Connect(plant.get_body_poses_output_port(), wrist.GetInputPort("body_poses"))
+    builder.ExportOutput(wrist.get_output_port(), "ur5.wrist_force")
 
     # Gripper: opening command -> both half-openings; measured opening.
     grip_cmd = builder.AddNamedSystem(

@@ -18,6 +18,9 @@ Input ports:
 - ``ur5.state_estimated`` (12: q rad, v rad/s), ``gripper.state_measured``
   (3: opening m, rate m/s, object flag: 1 the gripper stopped on an object,
   NaN unknown), ``views_fused`` (1: views Perception has fused).
+- ``ur5.wrist_force`` (3, N; optional): the station's wrist force, read
+  while the held leaf moves (the force guard, ``planner.max_pull_force``);
+  unconnected, there is no guard.
 
 Output ports:
 
@@ -73,6 +76,7 @@ class ArmController(LeafSystem):
             "ur5.state_estimated": self.DeclareVectorInputPort("ur5.state_estimated", 12),
             "gripper.state_measured": self.DeclareVectorInputPort("gripper.state_measured", 3),
             "views_fused": self.DeclareVectorInputPort("views_fused", 1),
+            "ur5.wrist_force": self.DeclareVectorInputPort("ur5.wrist_force", 3),
             "continuation": self.DeclareAbstractInputPort("continuation", plan0)}
         q0 = options.initial_q if options.initial_q is not None else scenario.robot.initial_q
         w0 = (options.initial_gripper if options.initial_gripper is not None
@@ -180,3 +184,7 @@ class _PortInputs:
 
     def measured_state(self) -> np.ndarray:
         return self._Eval("ur5.state_estimated")
+
+    def wrist_force(self) -> np.ndarray | None:
+        port = self._ports["ur5.wrist_force"]
+        return port.Eval(self._context) if port.HasValue(self._context) else None

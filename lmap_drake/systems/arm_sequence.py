@@ -69,6 +69,17 @@ class ArmInputs(Protocol):
     def views_fused(self) -> int: ...               # a large number when not connected
     def gripper_state(self) -> np.ndarray: ...      # (opening m, rate m/s, object flag)
     def measured_state(self) -> np.ndarray: ...     # (12,): q rad, v rad/s
+    def wrist_force(self) -> np.ndarray | None: ...  # (3,) N, or None without a sensor
+
+
+def ExecutedPart(path: list, q_now: np.ndarray) -> list:
+    """The part of joint ``path`` (waypoints from its start) executed up to
+    ``q_now`` (a configuration on it): the waypoints before the one nearest
+    ``q_now``, then ``q_now``."""
+    if not path:
+        return [np.asarray(q_now, float)]
+    k = int(np.argmin([np.linalg.norm(np.asarray(q, float) - q_now) for q in path]))
+    return [np.asarray(q, float) for q in path[:k]] + [np.asarray(q_now, float)]
 
 
 class StageFailure(Exception):
@@ -253,13 +264,44 @@ class ArmSequence:
 
     def _GraspWait(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if st.grasp_acknowledged or not self._options.grasp_ack_required:
+            f = inputs.wrist_force()
+            st.force_zero = None if f is None else np.asarray(f, float).copy()
+            st.force_peak, st.force_stop = 0.0, ""
             self._start_path(st, t, st.pull_path, 0.3, self._pull_duration(st))
             st.motion_paths = [st.pull_path]
             self._enter(st, "pull", t, st.plan.chosen.action.Describe())
 
     def _Pull(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
+        if self._ForceGuard(inputs, st, t):
+            return
         if self._traj_done(st, t):
             self._enter(st, "hold", t)
+
+    def _ForceGuard(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> bool:
+        """``planner.max_pull_force``: True (and the motion stopped where
+        it is commanded now, the executed part kept as the motion's path,
+        then ``hold``) when the wrist force has risen more than the limit
+        above its value at the grasp."""
+        limit = float(self._planner.max_pull_force)
+        if st.force_zero is None or st.trajectory is None:
+            return False
+        f = inputs.wrist_force()
+        if f is None:
+            return False
+        rise = float(np.linalg.norm(np.asarray(f, float) - st.force_zero))
+        st.force_peak = max(st.force_peak, rise)
+        if limit <= 0.0 or rise <= limit:
+            return False
+        q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()
+        st.motion_paths = st.motion_paths[:-1] + [ExecutedPart(st.motion_paths[-1], q_now)]
+        st.trajectory, st.q_hold = None, q_now.copy()
+        st.force_stop = (f"force guard: the wrist force rose {rise:.1f} N above its value at "
+                         f"the grasp (planner.max_pull_force {limit:g} N); the motion stopped "
+                         "there")
+        st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
+                                            "motion": len(st.motion_paths)}]
+        self._enter(st, "hold", t, st.force_stop)
+        return True
 
     def _Hold(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if t - st.t_mode >= self._hold:
@@ -298,6 +340,8 @@ class ArmSequence:
         else:
             message = ("action executed; shape re-estimated on the fused views; "
                        "leaf released and arm retreated")
+            if st.force_stop:
+                message = f"{st.force_stop}; " + message
             end, outcome = "done", "revealed: " + message
         if self._multi:         # the next fruit, from a fresh view
             self._EndTarget(st, t, outcome)
@@ -395,7 +439,9 @@ class ArmSequence:
             "t_start": st.t_target, "t_end": t, "captures": st.captures,
             "motions": len(st.motion_paths), "view_plan": st.captures_plan - 1,
             "view_after": st.captures - 1 if st.motion_paths else None,
-            "stage_seconds": dict(st.stage_seconds)}]
+            "stage_seconds": dict(st.stage_seconds), "force_stop": st.force_stop,
+            "force_peak_N": st.force_peak}]
+        st.force_zero, st.force_peak, st.force_stop = None, 0.0, ""
         st.continuations, st.replan_results, st.replan_log = [], [], []
         st.motion_paths, st.pull_path, st.segments = [], [], []
         st.grasp_path, st.pregrasp_path, st.grip_history = [], [], []
@@ -423,7 +469,7 @@ class ArmSequence:
         ``planner.max_replans``); start it (or ask the operator) and return
         True, or return False to release. A continuation that cannot be
         planned or timed is not an error: the episode releases the leaf."""
-        if len(st.continuations) >= self._max_replans:
+        if len(st.continuations) >= self._max_replans or st.force_stop:
             return False
         t0 = time.perf_counter()
         if not inputs.has_continuation():

@@ -83,6 +83,13 @@ class ControllerStatus:
     targets: list = dc.field(default_factory=list)
     t_target: float = 0.0               # when the current target's plan was requested
     captures_plan: int = 0              # captures when it was planned (its view: this - 1)
+    # the force guard (planner.max_pull_force): the wrist force (N, station
+    # frame) when the leaf was grasped, the largest rise above it while
+    # moving the held leaf (N), and why the guard stopped a motion ("": never)
+    force_zero: np.ndarray | None = None
+    force_peak: float = 0.0
+    force_stop: str = ""
+    force_stops: list = dc.field(default_factory=list)   # every stop of the episode
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -97,6 +104,7 @@ class ControllerStatus:
         out.replan_results = list(self.replan_results)
         out.targets = list(self.targets)
         out.motion_paths = list(self.motion_paths)
+        out.force_stops = list(self.force_stops)
         return out
 
     @property

@@ -40,6 +40,7 @@ class FakeRTDEReceiveInterface:
         self.hostname = hostname
         self.q = np.array(q if q is not None else [0.0, -1.5, 1.5, -1.57, -1.57, 0.0], float)
         self.qd = np.zeros(6)
+        self.tcp_force = np.zeros(6)      # N, N m: what the fake arm's TCP estimate reads
         self.protective_stopped = False
         self.emergency_stopped = False
         self.connected = True
@@ -52,6 +53,9 @@ class FakeRTDEReceiveInterface:
 
     def getActualQd(self):
         return self.qd.tolist()
+
+    def getActualTCPForce(self):
+        return self.tcp_force.tolist()
 
     def isProtectiveStopped(self):
         return self.protective_stopped

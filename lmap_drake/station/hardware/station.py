@@ -6,6 +6,7 @@ exported ports as the simulated station (``lmap_drake.station.STATION_PORTS``).
   (``hardware.gripper.link`` urcap_socket) or the same request written to
   the 2F-85's Modbus RTU registers from 0x03E8 (modbus_rtu);
 - ``ur5.position_measured`` (6), ``ur5.state_estimated`` (12) <- getActualQ/Qd;
+- ``ur5.wrist_force`` (3, N, base frame) <- getActualTCPForce (its force part);
 - ``gripper.state_measured`` (3) <- ``GET POS``, ``GET OBJ`` (opening m,
   rate m/s, 1 when the gripper reports it stopped on an object while
   closing, else 0);
@@ -226,6 +227,7 @@ def MakeHardwareStation(scenario: Scenario, clients: HardwareClients | None = No
         builder.ExportInput(gripper.GetInputPort("position"), "gripper.position")
         builder.ExportOutput(ur5.GetOutputPort("position_measured"), "ur5.position_measured")
         builder.ExportOutput(ur5.GetOutputPort("state_estimated"), "ur5.state_estimated")
+        builder.ExportOutput(ur5.GetOutputPort("wrist_force"), "ur5.wrist_force")
         builder.ExportOutput(gripper.GetOutputPort("state_measured"), "gripper.state_measured")
         builder.ExportOutput(camera.GetOutputPort("rgb_image"), "camera0.rgb_image")
         builder.ExportOutput(camera.GetOutputPort("depth_image"), "camera0.depth_image")

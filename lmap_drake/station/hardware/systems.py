@@ -38,7 +38,8 @@ def _StopOnAbort(update, on_abort):
 
 class Ur5Driver(LeafSystem):
     """Input ``position`` (6, rad; optional: unconnected = send nothing);
-    outputs ``position_measured`` (6) and ``state_estimated`` (12: q, v).
+    outputs ``position_measured`` (6), ``state_estimated`` (12: q, v) and
+    ``wrist_force`` (3, N, base frame: the arm's TCP force estimate).
     Every ``period`` s: read the joint state, then hand the commanded
     position to the client (which checks it and streams it with servoJ).
     With ``command=False`` or a read-only client it only reads."""
@@ -51,15 +52,18 @@ class Ur5Driver(LeafSystem):
         q, v = client.ReadState()
         self._input = self.DeclareVectorInputPort("position", 6)
         self._x = self.DeclareDiscreteState(np.concatenate([q, v]))
+        self._f = self.DeclareDiscreteState(np.asarray(client.ReadTcpForce(), float))
         self.DeclareInitializationDiscreteUpdateEvent(self._Read)
         self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._Update)
         self.DeclareVectorOutputPort("position_measured", 6, self._CalcQ,
                                      prerequisites_of_calc={self.xd_ticket()})
         self.DeclareStateOutputPort("state_estimated", self._x)
+        self.DeclareStateOutputPort("wrist_force", self._f)
 
     def _Read(self, context, discrete_state) -> None:
         q, v = self.client.ReadState()
         discrete_state.set_value(self._x, np.concatenate([q, v]))
+        discrete_state.set_value(self._f, np.asarray(self.client.ReadTcpForce(), float))
 
     def _Update(self, context, discrete_state) -> None:
         self._Read(context, discrete_state)

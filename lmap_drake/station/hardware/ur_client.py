@@ -5,7 +5,7 @@ lazily and builds ``UrClient`` around an ``RTDEControlInterface`` and an
 ``RTDEReceiveInterface``. ``UrClient`` only uses these methods of them (the
 names and argument orders of ur_rtde's Python bindings):
 
-- receive: ``getActualQ()``, ``getActualQd()``, ``isProtectiveStopped()``,
+- receive: ``getActualQ()``, ``getActualQd()``, ``getActualTCPForce()``, ``isProtectiveStopped()``,
   ``isEmergencyStopped()``, ``isConnected()``, ``disconnect()``;
 - control: ``servoJ(q, speed, acceleration, time, lookahead_time, gain)``,
   ``servoStop(a)``, ``stopScript()``, ``initPeriod()``, ``waitPeriod(t)``,
@@ -170,6 +170,22 @@ class UrClient:
             raise HardwareAbort(f"UR5 returned {q.size} joint positions and {v.size} "
                                 f"velocities, expected 6 and 6")
         return q, v
+
+    def ReadTcpForce(self) -> np.ndarray:
+        """The arm's TCP force estimate (N, base frame: the first three of
+        ``getActualTCPForce``); zeros when the receive interface has none
+        (the force guard then never fires)."""
+        read = getattr(self.receive, "getActualTCPForce", None)
+        if read is None:
+            return np.zeros(3)
+        try:
+            f = np.asarray(read(), dtype=float).ravel()
+        except Exception as err:
+            self._fault = f"reading the UR5 TCP force failed ({err})"
+            self.Halt()
+            raise HardwareAbort(f"hardware episode aborted: {self._fault}; the arm was "
+                                f"stopped") from err
+        return f[:3] if f.size >= 3 else np.zeros(3)
 
     # ---- commands ----------------------------------------------------------
     def SetTarget(self, q, dt: float) -> np.ndarray:
