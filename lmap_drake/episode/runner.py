@@ -141,12 +141,15 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
             p.chosen.seen / p.seen_max if p.seen_max and p.chosen.seen >= 0 else None))
             for p in st.plans if p.chosen is not None][:len(st.motion_paths)],
         "replans": list(st.replan_log),
-        # the force guard (planner.max_pull_force): the largest rise of the
-        # wrist force above its value at each grasp while the leaf moved (N),
+        # the force guard (planner.max_pull_force, max_retreat_force): the
+        # largest rise of the wrist force above its value at each grasp
+        # while the leaf moved, and on the ways back out of the plant (N),
         # and every stop it made (when, the rise, which motion)
         "force_guard": {"limit_N": scenario.planner.max_pull_force,
                         "peak_N": max([st.force_peak] + [u.get("force_peak_N", 0.0)
                                                          for u in st.targets]),
+                        "retreat_limit_N": scenario.planner.max_retreat_force,
+                        "retreat_peak_N": st.retreat_peak,
                         "stops": list(st.force_stops)},
         # The planner's own visibility model (voxels of the estimated fruit):
         # seen initially, at most (fruit alone) and after the chosen action.

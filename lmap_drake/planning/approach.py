@@ -17,6 +17,7 @@ from lmap_drake.planning.motion import ApproachBlocked, ApproachPlan, MotionErro
 from lmap_drake.planning.result import Candidate, DistanceId
 from lmap_drake.planning.robot_checks import LeafContact, MotionChecks, RobotPoseReason
 from lmap_drake.planning.robot_model import SELF_MARGIN
+from lmap_drake.robot_models import PAD_LEN, PAD_WIDTH
 
 
 class _ApproachChecks:
@@ -206,6 +207,36 @@ def GraspSurelyBlocked(ctx: PlanningContext, grasp, cfg: PlannerConfig) -> bool:
     return True
 
 
+# Another leaf's points between the open pads at the grasp pose: closing,
+# the pads pinch that leaf too, and the action then drags a leaf its model
+# does not hold (gh_random_6363_004: a neighbour squeezed as the pads
+# closed spiked its petiole to 17.8 N). Points within OFF_BLADE of the
+# grasped blade's plane are not counted: a piece of the same leaf split off
+# as another instance, or a blade lying flush, which the pads hold anyway.
+# MIN_POINTS: a few stray (flying) pixels do not count as a leaf.
+BETWEEN_PADS_OFF_BLADE = 0.003     # m
+BETWEEN_PADS_MIN_POINTS = 5
+
+
+def LeafBetweenPads(other_leaves_W: np.ndarray, p_WG: np.ndarray, R_WG: np.ndarray,
+                    half_open: float, pushed_ahead: float = 0.0) -> int:
+    """How many of ``other_leaves_W`` (m, world) lie in the volume the pads
+    close through at the grasp pose (``p_WG``, ``R_WG``: y the closing
+    axis, z the approach): within the pads' footprint (x, z), at most
+    ``half_open`` (m) from the grasped blade along y and more than
+    ``BETWEEN_PADS_OFF_BLADE`` off it. Points within ``pushed_ahead`` (m)
+    of the pads' tips are left out: a leaf across the tips is pushed ahead
+    of them (the approach's brush check bounds that push), not pinched."""
+    pts = np.asarray(other_leaves_W, float).reshape(-1, 3)
+    if not len(pts):
+        return 0
+    p_G = (pts - np.asarray(p_WG, float)) @ np.asarray(R_WG, float)
+    inside = ((np.abs(p_G[:, 0]) <= 0.5 * PAD_WIDTH)
+              & (p_G[:, 2] >= -0.5 * PAD_LEN) & (p_G[:, 2] <= 0.5 * PAD_LEN - pushed_ahead)
+              & (np.abs(p_G[:, 1]) <= half_open) & (np.abs(p_G[:, 1]) > BETWEEN_PADS_OFF_BLADE))
+    return int(inside.sum())
+
+
 def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only: bool = False
                   ) -> tuple[ApproachPlan | None, str]:
     """The approach to ``grasp`` (IK chain via, ready, pre-grasp, grasp; see
@@ -224,6 +255,12 @@ def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only:
     for ready in cfg.ready_distances:
         got = _Approach(ctx, cfg, grasp, ready, memo, verdict_only)
         if isinstance(got, ApproachPlan):
+            n = LeafBetweenPads(getattr(ctx, "other_leaves_W", np.zeros((0, 3))), grasp.p_WG,
+                                grasp.R_WG, 0.5 * (got.opening or cfg.pregrasp_opening),
+                                cfg.max_brush_displacement)
+            if n >= BETWEEN_PADS_MIN_POINTS:
+                return None, (f"another leaf between the pads ({n} of its points where "
+                              "the pads close)")
             return got, ""
         why = got
         if not why.startswith("IK failed (staging)") and "on the way to the pre-grasp" not in why:

@@ -55,12 +55,21 @@ class PlannerConfig:
     carried back along what was executed and released (the target's record
     says so). In the FEM world the rise reads 0.8-1.0 of the grasped leaf's
     petiole load and follows it within one sample
-    (docs/explanation/force-guard.md); 10 N, two thirds of the 15 N
+    (docs/explanation/planner-parameters.md, "The force guard"); 10 N, two thirds of the 15 N
     plant-hazard limit, leaves room for the stop's lag (the load rose 15
     N/s in the fastest overload measured) and the deformation model's
     misses (a merged leaf instance, the wrong leaf between the pads), while
-    the safe pulls measured stayed below 8 N. A station without the port
-    (a replay) has no guard.
+    the safe pulls measured stayed below 8 N. ``max_retreat_force`` (N;
+    0 = off) guards the way back out of the plant after the release (grasp
+    -> pre-grasp, the open gripper backing out), measured from the wrist
+    force as the retreat begins: nothing is held there, so a rise means a
+    leaf caught on the gripper (one sprung back around its body while the
+    leaf was held); the arm then goes back to where it released the leaf
+    (which unloads the caught one) and the episode aborts. 3 N: twice the
+    largest rise measured on that segment without a caught leaf (1.4 N),
+    and low because a caught leaf loads fast there (about 50 N/s at the
+    10 cm/s approach speed; at the 10 N pull limit the blade tore before
+    the arm stopped). A station without the port (a replay) has no guard.
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the
@@ -354,6 +363,7 @@ class PlannerConfig:
     approach_speed: float = 0.1
     return_speed_scale: float = 1.0
     max_pull_force: float = 10.0   # N: the force guard on a held leaf's motion (0 = off)
+    max_retreat_force: float = 3.0  # N: the force guard backing out of the plant (0 = off)
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
@@ -446,6 +456,7 @@ _RULES = {
     "approach_speed": ">0",
     "return_speed_scale": ">0",
     "max_pull_force": ">=0",
+    "max_retreat_force": ">=0",
     "arc_angles_deg": "+x>0",
     "twist_angles_deg": "+x>0",
     "num_arc_axes": ">=1",

@@ -6,6 +6,7 @@ on its periodic update, with its input ports as ``ArmInputs``.
     approach -> close_gripper -> grasp_wait -> pull -> hold -> observe
     [-> [confirm_wait ->] pull -> hold -> observe, up to planner.max_replans]
     -> release -> retreat -> done            (or planned, or aborted)
+                      [-> back_off -> aborted: the force guard stopped the retreat]
 
 With ``planner.targets: all`` (several fruits) the plan is
 ``PlantPlanning``'s plan for the next fruit; after ``retreat`` the fruit's
@@ -24,6 +25,11 @@ grasped, then the gripper opens (no spring-back); retreat: the approach in
 reverse (grasp -> pre-grasp -> ready -> via), then the start pose. The
 status, its modes and the options are in ``arm_status``; the joint paths
 and their timing in ``arm_motion``.
+
+The force guard (``planner.max_pull_force``, the station's wrist force):
+a held leaf's motion that loads the wrist past the limit stops there (then
+hold, observe, no further motion, release); a retreat that does, on its way
+out of the plant, goes back to where the leaf was released and aborts.
 
 The episode aborts cleanly (holds the measured position and leaves the
 gripper as it is: a held leaf is never dropped by surprise; ``aborted``
@@ -127,7 +133,8 @@ class ArmSequence:
             "confirm_wait": self._ConfirmWait, "pregrasp": self._Pregrasp,
             "approach": self._Approach, "close_gripper": self._CloseGripper,
             "grasp_wait": self._GraspWait, "pull": self._Pull, "hold": self._Hold,
-            "observe": self._Observe, "release": self._Release, "retreat": self._Retreat}
+            "observe": self._Observe, "release": self._Release, "retreat": self._Retreat,
+            "back_off": self._BackOff}
 
     def Update(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         """One step of the mode in ``st`` (modified in place). Never raises:
@@ -326,8 +333,11 @@ class ArmSequence:
             self._StartRetreat(st, t)
 
     def _Retreat(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
+        if st.retreat_out and self._RetreatGuard(inputs, st, t):
+            return
         if not self._traj_done(st, t):
             return
+        st.retreat_out, st.retreat_zero = [], None      # out of the plant: unguarded
         if st.segments:
             waypoints, fraction = st.segments.pop(0)
             self._start_path(st, t, waypoints, fraction)
@@ -529,8 +539,55 @@ class ArmSequence:
     def _StartRetreat(self, st: ControllerStatus, t: float) -> None:
         """The approach in reverse (all of it checked at planning time):
         back out to the pre-grasp pose, through the ready and via poses,
-        then the joint move to the episode's start pose."""
+        then the joint move to the episode's start pose. The way out to the
+        pre-grasp is guarded (``_RetreatGuard``)."""
         out = st.grasp_path[::-1][1:] + [st.pregrasp_path[-1]]
         st.segments = [(st.pregrasp_path[::-1][1:], 0.5), ([self._q_start.copy()], 0.5)]
+        st.retreat_out, st.retreat_zero = [st.grasp_path[-1]] + out, None
         self._start_path(st, t, out, **self.motions.ApproachTiming(st.q_hold, out))
         self._enter(st, "retreat", t)
+
+    def _RetreatGuard(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> bool:
+        """``planner.max_retreat_force`` on the way out of the plant (grasp ->
+        pre-grasp, the open gripper backing out): a leaf the gripper's body
+        or pads drag (one sprung back around them while the leaf was held)
+        loads its petiole as the arm backs out. When the wrist force rises
+        more than the limit above its value as the retreat began, the arm
+        stops and goes back (``back_off``) to where it let the leaf go,
+        which unloads the dragged leaf, and the episode aborts there with
+        the gripper open: freeing the leaf is left to the operator. True
+        when it stopped."""
+        limit = float(self._planner.max_retreat_force)
+        f = inputs.wrist_force()
+        if f is None or limit <= 0.0 or st.trajectory is None:
+            return False
+        f = np.asarray(f, float)
+        if st.retreat_zero is None:
+            st.retreat_zero = f.copy()
+            return False
+        rise = float(np.linalg.norm(f - st.retreat_zero))
+        st.retreat_peak = max(st.retreat_peak, rise)
+        if rise <= limit:
+            return False
+        q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()
+        done = ExecutedPart(st.retreat_out, q_now)
+        back = done[:-1][::-1] or [st.retreat_out[0]]
+        self._start_path(st, t, back, 0.3)
+        st.segments, st.retreat_out, st.retreat_zero = [], [], None
+        why = (f"force guard: backing out of the plant, the wrist force rose {rise:.1f} N "
+               f"(planner.max_retreat_force {limit:g} N): a leaf is caught on the gripper")
+        st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
+                                            "motion": "retreat"}]
+        self._enter(st, "back_off", t, why + "; going back to where the leaf was released")
+        return True
+
+    def _BackOff(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
+        if self._traj_done(st, t):
+            st.trajectory = None
+            if self._multi:       # the fruit's record closes; no further fruit
+                self._EndTarget(st, t, "revealed, then the retreat was stopped: "
+                                + st.message.split("; going back")[0])
+            self._enter(st, "aborted", t, st.message.replace(
+                "; going back to where the leaf was released",
+                "; the arm went back to where the leaf was released and stopped there, "
+                "gripper open: free the leaf, then move the arm out"))

@@ -27,7 +27,7 @@ from lmap_drake.types import SceneEstimate
 
 MODES = ("idle", "capture", "plan_requested", "confirm_wait", "pregrasp", "approach",
          "close_gripper", "grasp_wait", "pull", "hold", "observe", "release", "retreat",
-         "done", "planned", "aborted")
+         "back_off", "done", "planned", "aborted")
 FINISHED = ("done", "planned", "aborted")
 STALL_WINDOW = 0.3   # s: the pads count as stalled on the leaf after this long without closing
 
@@ -90,6 +90,9 @@ class ControllerStatus:
     force_peak: float = 0.0
     force_stop: str = ""
     force_stops: list = dc.field(default_factory=list)   # every stop of the episode
+    retreat_out: list = dc.field(default_factory=list)   # the retreat's way out of the plant
+    retreat_zero: np.ndarray | None = None   # the wrist force (N) when the retreat began
+    retreat_peak: float = 0.0   # N: the largest rise on the ways out of the plant
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.

@@ -189,11 +189,11 @@ class _EmulatorChild:
     def Poll(self) -> None:
         self.state = self.proc.State()
 
-    def Exchange(self, q_measured=None, v_measured=None) -> None:
+    def Exchange(self, q_measured=None, v_measured=None, tcp_force=(0.0, 0.0, 0.0)) -> None:
         """Writes the simulated arm's joints (rad, rad/s; None: none yet) and
-        reads the emulator's servo joints and stop flags."""
+        wrist force (N) and reads the emulator's servo joints and stop flags."""
         if q_measured is not None:
-            self.proc.shared.WriteMeasured(q_measured, v_measured)
+            self.proc.shared.WriteMeasured(q_measured, v_measured, tcp_force)
         servo = self.proc.shared.ReadServo()
         if servo is not None:
             self._servo = servo
@@ -260,6 +260,7 @@ class Twin:
         self.trace: list[dict] = []            # every 0.1 simulated s: commands and the world
         self.lag_max = 0.0
         self.paced = {"simulated_s": 0.0, "wall_s": 0.0}   # from the first motion on
+        self._payload_force = None     # N: the wrist force at the start (the tool's weight)
         # wall s by phase (leaf held or not) and kind of work, from the first motion on
         # (and ``cpu_s``: the process's CPU seconds, every thread)
         self.timing = {p: dict.fromkeys(("simulated_s", "advance", "render", "other", "idle",
@@ -317,11 +318,19 @@ class Twin:
         return self
 
     def _Measure(self) -> np.ndarray:
-        """The simulated arm's joints to the emulator (its ``getActualQ``);
-        returns its joint speeds (rad/s)."""
-        state = self.world.station.GetOutputPort("ur5.state_estimated").Eval(
-            self.world.station_context)
-        self.emulator.Exchange(state[:6], state[6:])
+        """The simulated arm's joints to the emulator (its ``getActualQ``)
+        and its wrist force, less its value at the start (the tool's weight:
+        a UR compensates its payload), as ``getActualTCPForce``; returns its
+        joint speeds (rad/s)."""
+        station, ctx = self.world.station, self.world.station_context
+        state = station.GetOutputPort("ur5.state_estimated").Eval(ctx)
+        f = np.zeros(3)
+        if station.HasOutputPort("ur5.wrist_force"):
+            f = np.asarray(station.GetOutputPort("ur5.wrist_force").Eval(ctx), float)
+            if self._payload_force is None:
+                self._payload_force = f.copy()
+            f = f - self._payload_force
+        self.emulator.Exchange(state[:6], state[6:], f)
         return state[6:]
 
     def _FrameRequest(self):

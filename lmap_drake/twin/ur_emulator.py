@@ -802,6 +802,7 @@ class UrEmulator:
         self._refuse_until = 0.0
         self._t_start = time.monotonic()
         self._measured: tuple[np.ndarray, np.ndarray] | None = None  # a simulated arm's (q, qd)
+        self._tcp_force = np.zeros(3)   # N: a simulated arm's wrist force (actual_TCP_force)
         self._shared: SharedArmState | None = None
         self.stats = {"ticks": 0, "late_ticks": 0, "max_late_s": 0.0, "packages_sent": 0,
                       "packages_received": 0}
@@ -869,10 +870,14 @@ class UrEmulator:
         with self._lock:
             return self.arm.q.copy()
 
-    def SetMeasured(self, q, qd=None) -> None:
+    def SetMeasured(self, q, qd=None, tcp_force=None) -> None:
         """A simulated arm's measured joints (rad, rad/s): reported from now
-        on as ``actual_q`` / ``actual_qd`` (None: the servo model's again)."""
+        on as ``actual_q`` / ``actual_qd`` (None: the servo model's again);
+        ``tcp_force`` (3, N): its wrist force, reported as the force part of
+        ``actual_TCP_force`` (None: unchanged)."""
         with self._lock:
+            if tcp_force is not None:
+                self._tcp_force = np.array(tcp_force, float).reshape(3)
             self._measured = None if q is None else (
                 np.array(q, float), np.zeros(6) if qd is None else np.array(qd, float))
 
@@ -1012,6 +1017,7 @@ class UrEmulator:
             "actual_TCP_pose": tuple(TransformToPose(T)),
             "target_TCP_pose": tuple(TransformToPose(T_ref)),
             "actual_TCP_speed": tuple(tcp_speed), "target_TCP_speed": tuple(tcp_speed),
+            "actual_TCP_force": (*self._tcp_force.tolist(), 0.0, 0.0, 0.0),
             "joint_temperatures": (30.0,) * 6, "actual_joint_voltage": (48.0,) * 6,
             "robot_mode": self._RobotMode(), "joint_mode": (joint_mode,) * 6,
             "safety_mode": self._SafetyMode(), "safety_status": self._SafetyMode(),
@@ -1068,7 +1074,7 @@ class UrEmulator:
             if self._shared is not None:
                 measured = self._shared.ReadMeasured()
                 if measured is not None:
-                    self._measured = measured
+                    self._measured, self._tcp_force = measured[:2], measured[2]
                 self._shared.WriteServo(self.arm.q, self.protective_stopped,
                                         self.emergency_stopped)
             conns = [c for c in self._connections
@@ -1441,7 +1447,7 @@ class SharedArmState:
     (a seqlock: a reader retries a torn read). ``name=None`` creates the
     block (its owner unlinks it on ``Close``); a name attaches to it."""
     SIZE = 32                      # float64 slots
-    _SERVO, _MEASURED = 0, 16      # [seq, q(6), protective, estop] / [seq, q(6), qd(6)]
+    _SERVO, _MEASURED = 0, 16      # [seq, q(6), protective, estop] / [seq, q(6), qd(6), f(3)]
 
     def __init__(self, name: str | None = None):
         from multiprocessing import resource_tracker, shared_memory
@@ -1483,12 +1489,13 @@ class SharedArmState:
         seq, v = self._Read(self._SERVO, 8)
         return None if seq == 0 else (v[:6], bool(v[6]), bool(v[7]))
 
-    def WriteMeasured(self, q, qd) -> None:
-        self._Write(self._MEASURED, [*q, *qd])
+    def WriteMeasured(self, q, qd, tcp_force=(0.0, 0.0, 0.0)) -> None:
+        self._Write(self._MEASURED, [*q, *qd, *tcp_force])
 
-    def ReadMeasured(self) -> tuple[np.ndarray, np.ndarray] | None:
-        seq, v = self._Read(self._MEASURED, 12)
-        return None if seq == 0 else (v[:6], v[6:])
+    def ReadMeasured(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(q rad, qd rad/s, the wrist force N) the twin wrote last."""
+        seq, v = self._Read(self._MEASURED, 15)
+        return None if seq == 0 else (v[:6], v[6:12], v[12:15])
 
     def Close(self) -> None:
         self.a = None

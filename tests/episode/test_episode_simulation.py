@@ -50,6 +50,9 @@ def test_episode_record_is_complete(episode):
     r = episode.record
     n = _MotionBlocks([m for _, m in r["mode_log"]])
     assert n == len(r["motions"]) and 1 <= n <= 2
+    # the wrist force was watched while the leaf moved, and never stopped it
+    guard = r["force_guard"]
+    assert guard["limit_N"] == 10.0 and 0.1 < guard["peak_N"] < 10.0 and not guard["stops"]
     # the leaf settles back when released, without hitting the fruit
     rel = r["release_outcome"]
     assert not rel["fruit_collision"] and not rel["plant_hazard"]
@@ -196,3 +199,24 @@ def test_the_episode_capture_as_bags_replays_to_the_run_action(episode, tmp_path
     assert "no_return_free_range: 2.0" in (tmp_path / ros2.stem / "scenario.yaml").read_text()
     plan = json.loads((tmp_path / ros2.stem / "plan.json").read_text())
     assert plan["shape_hypotheses"] == episode.record["shape_hypotheses"]["initial"]
+
+
+def test_the_force_guard_stops_a_motion_that_loads_the_leaf_past_its_limit(episode):
+    """The same episode with ``planner.max_pull_force`` below what the
+    chosen motion needs: the wrist force (the flange weld's reaction in
+    simulation) stops it part way; the leaf is observed, carried back along
+    what was executed and released, and the petiole is loaded less than by
+    the whole motion."""
+    s = LoadScenario(filename=DEFAULT_SCENARIO_FILE, scenario_name="Defaults")
+    s.planner.max_pull_force = 0.5 * episode.record["force_guard"]["peak_N"]
+    r = RunSimEpisode(s).record
+    assert r["status"] == "done", r["message"]
+    assert "force guard" in r["message"]
+    stops = r["force_guard"]["stops"]
+    assert len(stops) == 1 and stops[0]["motion"] == 1
+    assert s.planner.max_pull_force < stops[0]["rise_N"] < 2.0 * s.planner.max_pull_force
+    modes = [m for _, m in r["mode_log"]]
+    assert modes.count("pull") == 1 and modes[-3:] == ["release", "retreat", "done"]
+    out = r["outcome"]
+    assert not (out["leaf_damage"] or out["plant_hazard"] or out["fruit_collision"])
+    assert out["max_petiole_force"] < episode.record["outcome"]["max_petiole_force"]

@@ -172,3 +172,27 @@ def test_the_robot_still_keeps_its_margins_from_the_fruit_and_the_branch(robot):
         stem.branch_distance = sdf          # the same solid as the completed branch
         why = _Plan(robot, stem, max_brush_displacement=bound).reason
         assert why.startswith("robot-branch"), why
+
+
+def _Blade(offset_y: float, half: float = 0.02) -> np.ndarray:
+    """A blade parallel to the grasped one (the pads close along the
+    grasp's y, world -y here) ``offset_y`` m off it, points every 2 mm."""
+    a, b = np.meshgrid(np.arange(-half, half + 1e-9, 0.002), np.arange(-half, half + 1e-9, 0.002))
+    p_G = np.c_[a.ravel(), np.full(a.size, offset_y), b.ravel()]
+    return P_WG + p_G @ R_WG.T
+
+
+def test_a_leaf_where_the_pads_close_is_counted_and_refuses_the_grasp(robot):
+    from lmap_drake.planning.approach import LeafBetweenPads
+    half = 0.5 * PlannerConfig().pregrasp_opening
+    behind = _Blade(0.010)                   # 1 cm behind the grasped blade
+    n = LeafBetweenPads(behind, P_WG, R_WG, half)
+    # the pads' 2.2 x 3.8 cm footprint at 2 mm spacing
+    assert 100 <= n <= 12 * 20
+    assert LeafBetweenPads(_Blade(0.002), P_WG, R_WG, half) == 0    # flush / same blade
+    assert LeafBetweenPads(_Blade(half + 0.004), P_WG, R_WG, half) == 0   # beyond the pads
+    assert LeafBetweenPads(_Blade(0.010) + R_WG[:, 0] * 0.05, P_WG, R_WG, half) == 0  # aside
+    c = _Plan(robot, _Ctx(robot, leaf=_Blade(0.0), other=behind))
+    assert not c.feasible and c.reason.startswith("another leaf between the pads")
+    c = _Plan(robot, _Ctx(robot, leaf=_Blade(0.0), other=_Blade(0.002)))
+    assert not c.reason.startswith("another leaf between the pads")

@@ -113,6 +113,15 @@ def _run(station, q_cmd, opening, t_end):
     return sim
 
 
+def test_wrist_force_is_the_arms_tcp_force_estimate(fake_station, hw_scenario):
+    station, clients = fake_station
+    clients.ur.receive.tcp_force = np.array([1.5, -2.0, 3.25, 0.1, 0.2, 0.3])
+    sim = _run(station, hw_scenario.robot.initial_q, 0.085, 0.05)
+    f = station.GetOutputPort("ur5.wrist_force").Eval(
+        station.GetMyContextFromRoot(sim.get_context()))
+    assert np.allclose(f, [1.5, -2.0, 3.25])      # the force part, as read
+
+
 def test_commands_reach_the_fake_devices(fake_station, hw_scenario, gripper_server):
     station, clients = fake_station
     q_cmd = np.array(hw_scenario.robot.initial_q) + [0.003, 0, 0, 0, 0, 0]

@@ -69,6 +69,19 @@ def test_held_command_keeps_arm_still(scenario):
     assert state.shape == (12,) and np.abs(state[6:]).max() < 1e-2
 
 
+def test_wrist_force_reads_the_tools_weight_at_rest(scenario):
+    sim, station, ctx = _closed_loop(
+        scenario, ConstantVectorSource(scenario.robot.initial_q), 0.085)
+    sim.AdvanceTo(0.3)
+    plant = station.GetSubsystemByName("plant")
+    tool = plant.GetModelInstanceByName("robotiq_2f85")
+    mass = sum(plant.get_body(b).default_mass() for b in plant.GetBodyIndices(tool))
+    f = station.GetOutputPort("ur5.wrist_force").Eval(ctx)
+    # the tool hangs from the flange: its weight, straight down (world z up)
+    assert mass > 0.5
+    assert np.allclose(f, [0.0, 0.0, -9.81 * mass], atol=0.02 * 9.81 * mass)
+
+
 def test_gripper_opens_and_closes(scenario):
     sim, station, ctx = _closed_loop(
         scenario, ConstantVectorSource(scenario.robot.initial_q), 0.0)

@@ -25,11 +25,15 @@ def plans():
 
 
 def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None,
-         return_speed_scale=1.0):
+         return_speed_scale=1.0, wrist_force=None, max_pull_force=10.0):
+    """``wrist_force(status, t)``: the station's wrist force (3, N) fixed
+    on the port before each 0.1 s step (None: the port is left
+    unconnected)."""
     first, cont = plans
     s = Scenario()
     s.planner.max_replans = max_replans
     s.planner.return_speed_scale = return_speed_scale
+    s.planner.max_pull_force = max_pull_force
     b = DiagramBuilder()
     log = []
     c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
@@ -51,6 +55,9 @@ def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None
     asked, traj_ends = [], []
     answers = list(answers)
     while sim.get_context().get_time() < 60.0:
+        if wrist_force is not None:
+            c.GetInputPort("ur5.wrist_force").FixValue(
+                cc, wrist_force(c.Status(cc), sim.get_context().get_time()))
         if follow:
             w = c.GetInputPort("gripper.state_measured").Eval(cc)[0]
             cmd = float(c.GetOutputPort("gripper.position").Eval(cc)[0])
@@ -134,3 +141,69 @@ def test_closing_never_asks_the_gripper_to_open(plans):
     assert len(closing) > 5 and "pull" in [m for m, _ in log]
     assert all(b <= a + 1e-9 for a, b in zip(closing, closing[1:])), closing
     assert closing[-1] <= Scenario().planner.grasp_close_width + 1e-9
+
+
+def _RisingInPull(rate: float):
+    """A wrist force that reads the tool's weight, then rises ``rate`` N/s
+    from the start of the first pull (the leaf loaded as it moves) and is
+    the weight again once the leaf is carried back."""
+    start = []
+
+    def force(st, t):
+        if st.mode == "pull" and not start:
+            start.append(t)
+        loaded = start and st.mode in ("pull", "hold", "observe", "confirm_wait")
+        return np.array([rate * (t - start[0]) if loaded else 0.0, 0.0, -9.1])
+    return force
+
+
+def test_the_force_guard_stops_the_pull_and_returns_what_was_executed(plans):
+    st, asked, log = _Run(plans, [True, True], wrist_force=_RisingInPull(20.0))
+    modes = [m for _, m in st.mode_log]
+    assert len(st.force_stops) == 1 and st.force_stops[0]["rise_N"] > 10.0
+    assert st.force_stops[0]["rise_N"] < 10.0 + 20.0 * 0.15   # stopped within a step or two
+    # stopped before the planned motion ended: the executed part (what is
+    # carried back) is shorter and ends short of the planned end
+    executed, planned = st.motion_paths[0], st.pull_path
+    assert len(executed) < len(planned)
+    assert np.linalg.norm(np.asarray(executed[-1]) - np.asarray(planned[-1])) > 1e-3
+    assert modes[modes.index("pull") + 1] == "hold"
+    # no continuation after a stop (the operator was asked once: the plan)
+    assert asked == [False] and not st.continuations
+    assert modes[-3:] == ["release", "retreat", "done"]
+    assert "force guard" in st.message and "10 N" in st.message
+
+
+def test_the_executed_part_ends_where_the_arm_stopped(plans):
+    from lmap_drake.systems.arm_sequence import ExecutedPart
+    path = [np.full(6, 0.1 * k) for k in range(1, 11)]
+    part = ExecutedPart(path, np.full(6, 0.42))
+    assert len(part) == 4 and np.allclose(part[-1], 0.42) and np.allclose(part[-2], 0.3)
+    assert len(ExecutedPart([], np.zeros(6))) == 1
+
+
+def test_a_load_below_the_limit_or_a_guard_off_never_stops(plans):
+    for rate, limit in [(2.0, 10.0), (20.0, 0.0)]:
+        st, asked, _ = _Run(plans, [True, True], wrist_force=_RisingInPull(rate),
+                            max_pull_force=limit)
+        assert not st.force_stops and asked == [False, True]
+        assert st.force_peak > 0.5       # measured all the same
+
+
+def test_a_retreat_that_drags_a_leaf_goes_back_and_aborts(plans):
+    """A leaf caught on the open gripper: the wrist force rises as the arm
+    backs out; the arm goes back to where it released the leaf (the
+    grasp pose) and the episode aborts there, saying why."""
+    start = []
+
+    def force(st, t):
+        if st.mode == "retreat" and not start:
+            start.append(t)
+        return np.array([0.0, 40.0 * (t - start[0]) if start else 0.0, -9.1])
+    st, asked, _ = _Run(plans, [True, False], wrist_force=force)
+    modes = [m for _, m in st.mode_log]
+    assert modes[-3:] == ["retreat", "back_off", "aborted"]
+    assert [s["motion"] for s in st.force_stops] == ["retreat"]
+    assert "caught on the gripper" in st.message and "free the leaf" in st.message
+    assert np.allclose(st.q_hold, st.grasp_path[-1])      # back where it let go
+    assert st.gripper_cmd >= st.pregrasp_opening - 1e-9   # still open

@@ -422,9 +422,11 @@ def test_getactualq_reports_a_twins_measured_arm_from_shared_memory():
         assert np.abs(np.asarray(receive.getActualQ()) - blocked).max() < 1e-9
         assert _SamePose(receive.getActualTCPPose(), TransformToPose(TcpTransform(blocked)))
         assert np.abs(np.asarray(receive.getTargetQ()) - goal).max() < 1e-3
-        # the twin's arm gets free and follows: so does getActualQ
-        emu.shared.WriteMeasured(goal, np.zeros(6))
+        # the twin's arm gets free and follows: so does getActualQ; its
+        # wrist force is the force part of getActualTCPForce
+        emu.shared.WriteMeasured(goal, np.zeros(6), [2.5, -1.0, 4.0])
         assert _Wait(lambda: np.abs(np.asarray(receive.getActualQ()) - goal).max() < 1e-9)
+        assert _Wait(lambda: np.allclose(receive.getActualTCPForce(), [2.5, -1.0, 4.0, 0, 0, 0]))
         # a protective stop reaches the twin through the shared state too
         emu.ProtectiveStop()
         assert _Wait(lambda: emu.shared.ReadServo()[1])
