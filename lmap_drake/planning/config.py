@@ -65,11 +65,12 @@ class PlannerConfig:
     force as the retreat begins: nothing is held there, so a rise means a
     leaf caught on the gripper (one sprung back around its body while the
     leaf was held); the arm then goes back to where it released the leaf
-    (which unloads the caught one) and the episode aborts. 3 N: twice the
-    largest rise measured on that segment without a caught leaf (1.4 N),
-    and low because a caught leaf loads fast there (about 50 N/s at the
-    10 cm/s approach speed; at the 10 N pull limit the blade tore before
-    the arm stopped). A station without the port (a replay) has no guard.
+    (which unloads the caught one) and the episode aborts. That way out
+    moves at the pull's pace: at the approach's 10 cm/s the tool's own
+    inertia read 3 N as it started, and a caught leaf loaded its petiole
+    about 50 N/s (stopped at a 10 N limit, the blade had torn). At 3 cm/s
+    the clean ways out read at most 0.3 N (the tool's inertia); 3 N is ten
+    times that. A station without the port (a replay) has no guard.
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the

@@ -86,16 +86,23 @@ class ArmMotions:
                 raise Refused(" ".join(str(err).split())) from err
         return traj
 
-    def ApproachTiming(self, q0: np.ndarray, waypoints: list) -> dict:
+    def ApproachTiming(self, q0: np.ndarray, waypoints: list, speed: float | None = None
+                       ) -> dict:
         """``TimePath`` arguments for the final approach (pre-grasp <->
-        grasp, from ``q0``): each step at the TCP speed
-        ``planner.approach_speed`` (its length from the TCP poses: the steps
-        ``StraightenStep`` inserted near a wrist singularity are shorter)
-        unless a joint would exceed 0.5 of its velocity limit, then as fast
-        as that allows."""
+        grasp, from ``q0``): each step at the TCP speed ``speed`` (m/s;
+        None: ``planner.approach_speed``; its length from the TCP poses: the
+        steps ``StraightenStep`` inserted near a wrist singularity are
+        shorter) unless a joint would exceed 0.5 of its velocity limit,
+        then as fast as that allows."""
         p = [self._robot.TcpPose(q, 0.0).translation() for q in [q0] + list(waypoints)]
         steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
-        return dict(fraction=0.5, min_segment=np.maximum(0.05, steps / self._approach_speed))
+        v = self._approach_speed if speed is None else float(speed)
+        return dict(fraction=0.5, min_segment=np.maximum(0.05, steps / v))
+
+    @property
+    def pull_speed(self) -> float:
+        """m/s: the TCP's pace moving a held leaf."""
+        return self._pull_speed
 
     def MotionDuration(self, actions: list) -> float:
         """Seconds to move the TCP along ``actions`` at the pull speed, and to
