@@ -53,13 +53,14 @@ class PlannerConfig:
     grasped; when it has risen more than this, the motion stops where it
     is, the view is taken, no further motion is planned, and the leaf is
     carried back along what was executed and released (the target's record
-    says so). In the FEM world the rise reads 0.8-1.0 of the grasped leaf's
-    petiole load and follows it within one sample
-    (docs/explanation/planner-parameters.md, "The force guard"); 10 N, two thirds of the 15 N
-    plant-hazard limit, leaves room for the stop's lag (the load rose 15
-    N/s in the fastest overload measured) and the deformation model's
-    misses (a merged leaf instance, the wrong leaf between the pads), while
-    the safe pulls measured stayed below 8 N. ``max_retreat_force`` (N;
+    says so). In the FEM world the rise reads 0.75-1.0 of the grasped
+    leaf's petiole load and follows it within one sample
+    (docs/explanation/planner-parameters.md, "The force guard"). 8 N: the
+    lowest load at which a held blade was measured to tear (a 30 deg twist,
+    strain 1.101 at a 12.0 N petiole load, far below the 15 N hazard
+    limit) times the rise's lowest ratio to the load (0.75) is 9 N, less
+    one control step of a load rising 15 N/s (the fastest overload
+    measured). ``max_retreat_force`` (N;
     0 = off) guards the way back out of the plant after the release (grasp
     -> pre-grasp, the open gripper backing out), measured from the wrist
     force as the retreat begins: nothing is held there, so a rise means a
@@ -363,7 +364,7 @@ class PlannerConfig:
     speed_scale: float = 1.0
     approach_speed: float = 0.1
     return_speed_scale: float = 1.0
-    max_pull_force: float = 10.0   # N: the force guard on a held leaf's motion (0 = off)
+    max_pull_force: float = 8.0    # N: the force guard on a held leaf's motion (0 = off)
     max_retreat_force: float = 3.0  # N: the force guard backing out of the plant (0 = off)
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
