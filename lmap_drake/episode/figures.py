@@ -122,12 +122,61 @@ def _EqualAxes(ax) -> None:
     ax.set_box_aspect((1, 1, 1))
 
 
+def SaveForceFigure(trace: list, pull_limit: float, retreat_limit: float, stops: list,
+                    path: Path) -> bool:
+    """``wrist_force.png``: the force guard's reading over the episode, the
+    wrist force's rise (N) above its value when each guarded motion began,
+    while held leaves moved (``pull``) and backing out of the plant
+    (``retreat``), with the limits and the stops. False (nothing written)
+    without a reading."""
+    if not trace:
+        return False
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = np.array([x[0] for x in trace], float)
+    rise = np.array([x[1] for x in trace], float)
+    phase = np.array([x[2] for x in trace])
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    for name, color, limit in (("pull", "tab:blue", pull_limit),
+                               ("retreat", "tab:orange", retreat_limit)):
+        m = phase == name
+        if m.any():
+            # one line per guarded motion: a gap of more than 0.1 s splits them
+            idx = np.flatnonzero(m)
+            runs = np.split(idx, np.flatnonzero(np.diff(t[idx]) > 0.1) + 1)
+            for k, run in enumerate(runs):
+                ax.plot(t[run], rise[run], color=color, lw=1.5,
+                        label=f"{name} (limit {limit:g} N)" if k == 0 else None)
+        if limit > 0 and m.any():
+            ax.axhline(limit, color=color, ls="--", lw=1)
+    for s in stops:
+        ax.axvline(float(s["t"]), color="red", lw=1)
+        ax.annotate(f"stop {float(s['rise_N']):.1f} N", (float(s["t"]), float(s["rise_N"])),
+                    color="red", fontsize=8, xytext=(4, 4), textcoords="offset points")
+    ax.set_xlabel("simulated / episode time (s)")
+    ax.set_ylabel("wrist force rise (N)")
+    ax.set_title("force guard: the wrist force above its value when each guarded motion began")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+    plt.close(fig)
+    return True
+
+
 def SaveEpisodeFigures(result, out: Path) -> list[str]:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     files = []
+    st0 = result.status
+    planner = result.world.scenario.planner
+    if SaveForceFigure(getattr(st0, "force_trace", []), planner.max_pull_force,
+                       planner.max_retreat_force, getattr(st0, "force_stops", []),
+                       out / "wrist_force.png"):
+        files.append("wrist_force.png")
     segmenter = _EpisodeSegmenter(result)
     for tag, images in (("before", result.images_before), ("after", result.images_after)):
         if images is None or images["rgb_image"].width() == 0 or (

@@ -150,7 +150,8 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
                                                          for u in st.targets]),
                         "retreat_limit_N": scenario.planner.max_retreat_force,
                         "retreat_peak_N": st.retreat_peak,
-                        "stops": list(st.force_stops)},
+                        "stops": list(st.force_stops),
+                        "trace": [list(x) for x in st.force_trace]},
         # The planner's own visibility model (voxels of the estimated fruit):
         # seen initially, at most (fruit alone) and after the chosen action.
         "predicted_visibility": None if plan is None or not plan.seen_max else {

@@ -297,6 +297,7 @@ class ArmSequence:
             return False
         rise = float(np.linalg.norm(np.asarray(f, float) - st.force_zero))
         st.force_peak = max(st.force_peak, rise)
+        st.force_trace.append((round(t, 3), round(rise, 3), "pull"))
         if limit <= 0.0 or rise <= limit:
             return False
         q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()
@@ -571,6 +572,7 @@ class ArmSequence:
             return False
         rise = float(np.linalg.norm(f - st.retreat_zero))
         st.retreat_peak = max(st.retreat_peak, rise)
+        st.force_trace.append((round(t, 3), round(rise, 3), "retreat"))
         if rise <= limit:
             return False
         q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()

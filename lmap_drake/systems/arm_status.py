@@ -93,6 +93,8 @@ class ControllerStatus:
     retreat_out: list = dc.field(default_factory=list)   # the retreat's way out of the plant
     retreat_zero: np.ndarray | None = None   # the wrist force (N) when the retreat began
     retreat_peak: float = 0.0   # N: the largest rise on the ways out of the plant
+    # (t s, rise N, "pull" | "retreat") at every guarded update: the picture
+    force_trace: list = dc.field(default_factory=list)
 
     def __deepcopy__(self, memo):
         # Plans and estimates are read-only records: share them.
@@ -108,6 +110,7 @@ class ControllerStatus:
         out.targets = list(self.targets)
         out.motion_paths = list(self.motion_paths)
         out.force_stops = list(self.force_stops)
+        out.force_trace = list(self.force_trace)
         return out
 
     @property

@@ -88,3 +88,18 @@ def test_plant_figure_labels_each_fruit_once_with_every_reveal_and_apart():
     assert abs(a[1][2] - a[0][2]) >= 0.045 - 1e-9
     np.testing.assert_allclose(a[0], [0.5, 0.0, 0.35])
     np.testing.assert_allclose(a[2], [0.5, 0.4, 0.35])
+
+
+def test_the_force_guards_reading_is_drawn_with_its_limits_and_stops(tmp_path):
+    from lmap_drake.episode.figures import SaveForceFigure
+    trace = ([(3.0 + 0.02 * k, 0.1 * k, "pull") for k in range(60)]
+             + [(9.0 + 0.02 * k, 0.01 * k, "retreat") for k in range(30)])
+    path = tmp_path / "wrist_force.png"
+    assert SaveForceFigure(trace, 8.0, 3.0, [{"t": 4.18, "rise_N": 5.9, "motion": 1}], path)
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    assert img.shape[0] > 200 and img.shape[1] > 500
+    # the pull line (matplotlib's blue), the retreat's (orange) and the stop (red) are drawn
+    for rgb in ((31, 119, 180), (255, 127, 14), (255, 0, 0)):
+        assert (np.abs(img - rgb).sum(axis=-1) < 30).sum() > 20, rgb
+    assert not SaveForceFigure([], 8.0, 3.0, [], tmp_path / "none.png")
+    assert not (tmp_path / "none.png").exists()
