@@ -578,7 +578,8 @@ class ArmSequence:
         q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()
         done = ExecutedPart(st.retreat_out, q_now)
         back = done[:-1][::-1] or [st.retreat_out[0]]
-        self._start_path(st, t, back, 0.3)
+        self._start_path(st, t, back, **self.motions.ApproachTiming(
+            q_now, back, self.motions.pull_speed))
         st.segments, st.retreat_out, st.retreat_zero = [], [], None
         why = (f"force guard: backing out of the plant, the wrist force rose {rise:.1f} N "
                f"(planner.max_retreat_force {limit:g} N): a leaf is caught on the gripper")
