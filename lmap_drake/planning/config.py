@@ -49,8 +49,10 @@ class PlannerConfig:
 
     ``max_pull_force`` (N; 0 = off): the force guard. While the held leaf
     is moved (the action and its continuations), the station's wrist force
-    (``ur5.wrist_force``) is compared with its value when the leaf was
-    grasped; when it has risen more than this, the motion stops where it
+    (``ur5.wrist_force``) is compared with its value at the pre-grasp pose
+    (before the open gripper reaches into the plant, so a grasp that
+    already presses the leaf or a neighbour counts); when it has risen more
+    than this, the motion stops where it
     is, the view is taken, no further motion is planned, and the leaf is
     carried back along what was executed and released (the target's record
     says so). In the FEM world the rise reads 0.75-1.0 of the grasped

@@ -221,6 +221,11 @@ class ArmSequence:
 
     def _Pregrasp(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if self._traj_done(st, t):
+            # the force guard's zero: at the pre-grasp pose, at rest, before
+            # the open gripper reaches into the plant (a grasp that already
+            # presses the leaf, or a neighbour, counts against the limit)
+            f = inputs.wrist_force()
+            st.force_zero = None if f is None else np.asarray(f, float).copy()
             path = st.segments.pop(0)
             self._start_path(st, t, path, **self.motions.ApproachTiming(st.q_hold, path))
             self._enter(st, "approach", t)
@@ -271,8 +276,9 @@ class ArmSequence:
 
     def _GraspWait(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if st.grasp_acknowledged or not self._options.grasp_ack_required:
-            f = inputs.wrist_force()
-            st.force_zero = None if f is None else np.asarray(f, float).copy()
+            if st.force_zero is None:
+                f = inputs.wrist_force()
+                st.force_zero = None if f is None else np.asarray(f, float).copy()
             st.force_peak, st.force_stop = 0.0, ""
             self._start_path(st, t, st.pull_path, 0.3, self._pull_duration(st))
             st.motion_paths = [st.pull_path]
@@ -288,7 +294,8 @@ class ArmSequence:
         """``planner.max_pull_force``: True (and the motion stopped where
         it is commanded now, the executed part kept as the motion's path,
         then ``hold``) when the wrist force has risen more than the limit
-        above its value at the grasp."""
+        above its value at the pre-grasp pose (before the open gripper
+        reached into the plant)."""
         limit = float(self._planner.max_pull_force)
         if st.force_zero is None or st.trajectory is None:
             return False
@@ -303,9 +310,9 @@ class ArmSequence:
         q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()
         st.motion_paths = st.motion_paths[:-1] + [ExecutedPart(st.motion_paths[-1], q_now)]
         st.trajectory, st.q_hold = None, q_now.copy()
-        st.force_stop = (f"force guard: the wrist force rose {rise:.1f} N above its value at "
-                         f"the grasp (planner.max_pull_force {limit:g} N); the motion stopped "
-                         "there")
+        st.force_stop = (f"force guard: the wrist force rose {rise:.1f} N above its value "
+                         f"before the grasp (planner.max_pull_force {limit:g} N); the motion "
+                         "stopped there")
         st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
                                             "motion": len(st.motion_paths)}]
         self._enter(st, "hold", t, st.force_stop)

@@ -84,7 +84,7 @@ class ControllerStatus:
     t_target: float = 0.0               # when the current target's plan was requested
     captures_plan: int = 0              # captures when it was planned (its view: this - 1)
     # the force guard (planner.max_pull_force): the wrist force (N, station
-    # frame) when the leaf was grasped, the largest rise above it while
+    # frame) at the pre-grasp pose, the largest rise above it while
     # moving the held leaf (N), and why the guard stopped a motion ("": never)
     force_zero: np.ndarray | None = None
     force_peak: float = 0.0
