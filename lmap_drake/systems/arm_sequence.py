@@ -78,6 +78,12 @@ class ArmInputs(Protocol):
     def wrist_force(self) -> np.ndarray | None: ...  # (3,) N, or None without a sensor
 
 
+# The force guard's zero is read at the pre-grasp pose once every joint is
+# slower than this (rad/s), or MAX_SETTLE_TIME (s) after the move ended.
+SETTLED_JOINT_SPEED = 0.01
+MAX_SETTLE_TIME = 1.0
+
+
 def ExecutedPart(path: list, q_now: np.ndarray) -> list:
     """The part of joint ``path`` (waypoints from its start) executed up to
     ``q_now`` (a configuration on it): the waypoints before the one nearest
@@ -223,9 +229,16 @@ class ArmSequence:
         if self._traj_done(st, t):
             # the force guard's zero: at the pre-grasp pose, at rest, before
             # the open gripper reaches into the plant (a grasp that already
-            # presses the leaf, or a neighbour, counts against the limit)
+            # presses the leaf, or a neighbour, counts against the limit).
+            # The arm settles first: as a fast move ends, the tool's inertia
+            # still reads several newtons (12.6 N in the default scene).
             f = inputs.wrist_force()
-            st.force_zero = None if f is None else np.asarray(f, float).copy()
+            if f is not None:
+                settling = t - st.trajectory.end_time() if st.trajectory is not None else 1e9
+                moving = float(np.abs(inputs.measured_state()[6:]).max()) > SETTLED_JOINT_SPEED
+                if moving and settling < MAX_SETTLE_TIME:
+                    return
+                st.force_zero = np.asarray(inputs.wrist_force(), float).copy()
             path = st.segments.pop(0)
             self._start_path(st, t, path, **self.motions.ApproachTiming(st.q_hold, path))
             self._enter(st, "approach", t)

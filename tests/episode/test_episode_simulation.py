@@ -214,7 +214,8 @@ def test_the_force_guard_stops_a_motion_that_loads_the_leaf_past_its_limit(episo
     assert "force guard" in r["message"]
     stops = r["force_guard"]["stops"]
     assert len(stops) == 1 and stops[0]["motion"] == 1
-    assert s.planner.max_pull_force < stops[0]["rise_N"] < 2.0 * s.planner.max_pull_force
+    limit = s.planner.max_pull_force      # (the record rounds the rise to 0.01 N)
+    assert limit - 0.01 < stops[0]["rise_N"] < 2.0 * limit
     modes = [m for _, m in r["mode_log"]]
     assert modes.count("pull") == 1 and modes[-3:] == ["release", "retreat", "done"]
     out = r["outcome"]
