@@ -125,10 +125,10 @@ def _EqualAxes(ax) -> None:
 def SaveForceFigure(trace: list, pull_limit: float, retreat_limit: float, stops: list,
                     path: Path) -> bool:
     """``wrist_force.png``: the force guard's reading over the episode, the
-    wrist force's rise (N) above its value when each guarded motion began,
-    while held leaves moved (``pull``) and backing out of the plant
-    (``retreat``), with the limits and the stops. False (nothing written)
-    without a reading."""
+    wrist force's rise (N) while held leaves moved (``pull``: above its value
+    at the pre-grasp pose) and backing out of the plant (``retreat``: above
+    its value as the retreat began), with the limits and the stops. False
+    (nothing written) without a reading."""
     if not trace:
         return False
     import matplotlib
@@ -156,7 +156,8 @@ def SaveForceFigure(trace: list, pull_limit: float, retreat_limit: float, stops:
                     color="red", fontsize=8, xytext=(4, 4), textcoords="offset points")
     ax.set_xlabel("simulated / episode time (s)")
     ax.set_ylabel("wrist force rise (N)")
-    ax.set_title("force guard: the wrist force above its value when each guarded motion began")
+    ax.set_title("force guard: the wrist force above its value before the grasp (pull) "
+                 "and the retreat")
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -142,8 +142,8 @@ def RunEpisode(scenario: Scenario, world, progress: Callable[[str], None] | None
             for p in st.plans if p.chosen is not None][:len(st.motion_paths)],
         "replans": list(st.replan_log),
         # the force guard (planner.max_pull_force, max_retreat_force): the
-        # largest rise of the wrist force above its value at each grasp
-        # while the leaf moved, and on the ways back out of the plant (N),
+        # largest rise of the wrist force above its value at each pre-grasp
+        # pose while the leaf moved, and on the ways back out of the plant (N),
         # and every stop it made (when, the rise, which motion)
         "force_guard": {"limit_N": scenario.planner.max_pull_force,
                         "peak_N": max([st.force_peak] + [u.get("force_peak_N", 0.0)

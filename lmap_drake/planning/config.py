@@ -60,9 +60,9 @@ class PlannerConfig:
     (docs/explanation/planner-parameters.md, "The force guard"). 8 N: the
     lowest load at which a held blade was measured to tear (a 30 deg twist,
     strain 1.101 at a 12.0 N petiole load, far below the 15 N hazard
-    limit) times the rise's lowest ratio to the load (0.75) is 9 N, less
-    one control step of a load rising 15 N/s (the fastest overload
-    measured). ``max_retreat_force`` (N;
+    limit) times the rise's lowest ratio to the load (0.75) is 9 N; 8 N
+    leaves a newton for the stop's lag (the fastest overload measured rose
+    about 27 N/s: 0.5 N per 0.02 s control step). ``max_retreat_force`` (N;
     0 = off) guards the way back out of the plant after the release (grasp
     -> pre-grasp, the open gripper backing out), measured from the wrist
     force as the retreat begins: nothing is held there, so a rise means a

@@ -18,7 +18,7 @@ Exported ports (both modes):
   hardware: the arm's TCP force estimate, base frame). Its value at rest
   is the tool's weight (or, on hardware, the arm's offset): a user zeroes
   it (the controller's force guard, ``planner.max_pull_force``, measures
-  from its value when the pull starts). Optional for a station: without
+  from its value at the pre-grasp pose). Optional for a station: without
   it, the guard is off.
 
 The camera pose ``X_WC`` is the scenario's ``cameras.camera0.X_PB`` (eye-to-hand,

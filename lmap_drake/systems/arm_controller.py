@@ -19,7 +19,8 @@ Input ports:
   (3: opening m, rate m/s, object flag: 1 the gripper stopped on an object,
   NaN unknown), ``views_fused`` (1: views Perception has fused).
 - ``ur5.wrist_force`` (3, N; optional): the station's wrist force, read
-  while the held leaf moves (the force guard, ``planner.max_pull_force``);
+  at the pre-grasp pose (the zero), while the held leaf moves and while the
+  gripper backs out of the plant (the force guard, ``systems.arm_guard``);
   unconnected, there is no guard.
 
 Output ports:

@@ -55,6 +55,8 @@ import numpy as np
 from lmap_drake.planning.result import PlanResult
 from lmap_drake.planning.motion import MotionError
 from lmap_drake.planning.robot_model import RobotModel
+from lmap_drake.systems.arm_guard import (BackOffDone, PullGuard, RetreatGuard,
+                                          ZeroAtPregrasp)
 from lmap_drake.systems.arm_motion import ArmMotions, Refused
 from lmap_drake.systems.arm_status import (STALL_WINDOW, ControllerOptions, ControllerStatus,
                                            GripperCommand)
@@ -76,22 +78,6 @@ class ArmInputs(Protocol):
     def gripper_state(self) -> np.ndarray: ...      # (opening m, rate m/s, object flag)
     def measured_state(self) -> np.ndarray: ...     # (12,): q rad, v rad/s
     def wrist_force(self) -> np.ndarray | None: ...  # (3,) N, or None without a sensor
-
-
-# The force guard's zero is read at the pre-grasp pose once every joint is
-# slower than this (rad/s), or MAX_SETTLE_TIME (s) after the move ended.
-SETTLED_JOINT_SPEED = 0.01
-MAX_SETTLE_TIME = 1.0
-
-
-def ExecutedPart(path: list, q_now: np.ndarray) -> list:
-    """The part of joint ``path`` (waypoints from its start) executed up to
-    ``q_now`` (a configuration on it): the waypoints before the one nearest
-    ``q_now``, then ``q_now``."""
-    if not path:
-        return [np.asarray(q_now, float)]
-    k = int(np.argmin([np.linalg.norm(np.asarray(q, float) - q_now) for q in path]))
-    return [np.asarray(q, float) for q in path[:k]] + [np.asarray(q_now, float)]
 
 
 class StageFailure(Exception):
@@ -227,18 +213,8 @@ class ArmSequence:
 
     def _Pregrasp(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if self._traj_done(st, t):
-            # the force guard's zero: at the pre-grasp pose, at rest, before
-            # the open gripper reaches into the plant (a grasp that already
-            # presses the leaf, or a neighbour, counts against the limit).
-            # The arm settles first: as a fast move ends, the tool's inertia
-            # still reads several newtons (12.6 N in the default scene).
-            f = inputs.wrist_force()
-            if f is not None:
-                settling = t - st.trajectory.end_time() if st.trajectory is not None else 1e9
-                moving = float(np.abs(inputs.measured_state()[6:]).max()) > SETTLED_JOINT_SPEED
-                if moving and settling < MAX_SETTLE_TIME:
-                    return
-                st.force_zero = np.asarray(inputs.wrist_force(), float).copy()
+            if not ZeroAtPregrasp(inputs, st, t):
+                return                       # the arm settles before the zero is read
             path = st.segments.pop(0)
             self._start_path(st, t, path, **self.motions.ApproachTiming(st.q_hold, path))
             self._enter(st, "approach", t)
@@ -298,38 +274,10 @@ class ArmSequence:
             self._enter(st, "pull", t, st.plan.chosen.action.Describe())
 
     def _Pull(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
-        if self._ForceGuard(inputs, st, t):
+        if PullGuard(self, inputs, st, t):
             return
         if self._traj_done(st, t):
             self._enter(st, "hold", t)
-
-    def _ForceGuard(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> bool:
-        """``planner.max_pull_force``: True (and the motion stopped where
-        it is commanded now, the executed part kept as the motion's path,
-        then ``hold``) when the wrist force has risen more than the limit
-        above its value at the pre-grasp pose (before the open gripper
-        reached into the plant)."""
-        limit = float(self._planner.max_pull_force)
-        if st.force_zero is None or st.trajectory is None:
-            return False
-        f = inputs.wrist_force()
-        if f is None:
-            return False
-        rise = float(np.linalg.norm(np.asarray(f, float) - st.force_zero))
-        st.force_peak = max(st.force_peak, rise)
-        st.force_trace.append((round(t, 3), round(rise, 3), "pull"))
-        if limit <= 0.0 or rise <= limit:
-            return False
-        q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()
-        st.motion_paths = st.motion_paths[:-1] + [ExecutedPart(st.motion_paths[-1], q_now)]
-        st.trajectory, st.q_hold = None, q_now.copy()
-        st.force_stop = (f"force guard: the wrist force rose {rise:.1f} N above its value "
-                         f"before the grasp (planner.max_pull_force {limit:g} N); the motion "
-                         "stopped there")
-        st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
-                                            "motion": len(st.motion_paths)}]
-        self._enter(st, "hold", t, st.force_stop)
-        return True
 
     def _Hold(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if t - st.t_mode >= self._hold:
@@ -351,10 +299,11 @@ class ArmSequence:
             st.gripper_cmd = st.pregrasp_opening
             st.released, st.t_released = True, t
         elif st.released and t - st.t_released >= self._release_time / self._speed_scale:
-            self._StartRetreat(st, t)
+            f = inputs.wrist_force()         # the way out's zero, the arm at rest
+            self._StartRetreat(st, t, None if f is None else np.asarray(f, float).copy())
 
     def _Retreat(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
-        if st.retreat_out and self._RetreatGuard(inputs, st, t):
+        if st.retreat_out and RetreatGuard(self, inputs, st, t):
             return
         if not self._traj_done(st, t):
             return
@@ -557,64 +506,24 @@ class ArmSequence:
         self.progress(st.grasp_missed + "; opening and retreating")
         self._StartRetreat(st, t)
 
-    def _StartRetreat(self, st: ControllerStatus, t: float) -> None:
+    def _StartRetreat(self, st: ControllerStatus, t: float,
+                      force_zero: np.ndarray | None = None) -> None:
         """The approach in reverse (all of it checked at planning time):
         back out to the pre-grasp pose, through the ready and via poses,
         then the joint move to the episode's start pose. The way out to the
-        pre-grasp is guarded (``_RetreatGuard``)."""
+        pre-grasp is guarded (``arm_guard.RetreatGuard``; ``force_zero``:
+        the wrist force at rest before it, else read at its first step)."""
         out = st.grasp_path[::-1][1:] + [st.pregrasp_path[-1]]
         st.segments = [(st.pregrasp_path[::-1][1:], 0.5), ([self._q_start.copy()], 0.5)]
-        st.retreat_out, st.retreat_zero = [st.grasp_path[-1]] + out, None
-        # at the pull's pace: the tool's own inertia then stays far below the
-        # guard's limit (at the approach's 10 cm/s the start alone read 3 N)
-        # and a caught leaf loads slowly enough to be stopped early
+        st.retreat_out, st.retreat_zero = [st.grasp_path[-1]] + out, force_zero
+        # guarded, at the pull's pace: the tool's own inertia then stays far
+        # below the limit (at the approach's 10 cm/s the start alone read
+        # 3 N) and a caught leaf loads slowly enough to be stopped early
+        guarded = self._planner.max_retreat_force > 0
         self._start_path(st, t, out, **self.motions.ApproachTiming(
-            st.q_hold, out, self.motions.pull_speed))
+            st.q_hold, out, self.motions.pull_speed if guarded else None))
         self._enter(st, "retreat", t)
-
-    def _RetreatGuard(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> bool:
-        """``planner.max_retreat_force`` on the way out of the plant (grasp ->
-        pre-grasp, the open gripper backing out): a leaf the gripper's body
-        or pads drag (one sprung back around them while the leaf was held)
-        loads its petiole as the arm backs out. When the wrist force rises
-        more than the limit above its value as the retreat began, the arm
-        stops and goes back (``back_off``) to where it let the leaf go,
-        which unloads the dragged leaf, and the episode aborts there with
-        the gripper open: freeing the leaf is left to the operator. True
-        when it stopped."""
-        limit = float(self._planner.max_retreat_force)
-        f = inputs.wrist_force()
-        if f is None or limit <= 0.0 or st.trajectory is None:
-            return False
-        f = np.asarray(f, float)
-        if st.retreat_zero is None:
-            st.retreat_zero = f.copy()
-            return False
-        rise = float(np.linalg.norm(f - st.retreat_zero))
-        st.retreat_peak = max(st.retreat_peak, rise)
-        st.force_trace.append((round(t, 3), round(rise, 3), "retreat"))
-        if rise <= limit:
-            return False
-        q_now = st.trajectory.value(min(t, st.trajectory.end_time())).ravel()
-        done = ExecutedPart(st.retreat_out, q_now)
-        back = done[:-1][::-1] or [st.retreat_out[0]]
-        self._start_path(st, t, back, **self.motions.ApproachTiming(
-            q_now, back, self.motions.pull_speed))
-        st.segments, st.retreat_out, st.retreat_zero = [], [], None
-        why = (f"force guard: backing out of the plant, the wrist force rose {rise:.1f} N "
-               f"(planner.max_retreat_force {limit:g} N): a leaf is caught on the gripper")
-        st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
-                                            "motion": "retreat"}]
-        self._enter(st, "back_off", t, why + "; going back to where the leaf was released")
-        return True
 
     def _BackOff(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if self._traj_done(st, t):
-            st.trajectory = None
-            if self._multi:       # the fruit's record closes; no further fruit
-                self._EndTarget(st, t, "revealed, then the retreat was stopped: "
-                                + st.message.split("; going back")[0])
-            self._enter(st, "aborted", t, st.message.replace(
-                "; going back to where the leaf was released",
-                "; the arm went back to where the leaf was released and stopped there, "
-                "gripper open: free the leaf, then move the arm out"))
+            BackOffDone(self, st, t)

@@ -1,39 +1,34 @@
 """The digital twin (``lmap-drake twin``): the simulated plant world behind
 the hardware protocols, so that ``lmap-drake run --hardware`` with the real
 ``ur_rtde`` client runs a whole LMAP episode without a robot, and the plant
-world scores it.
+world scores it. The episode runs in another process (ur_rtde holds the GIL
+while it waits for its controller). The twin runs:
 
-What the twin runs (the episode runs in another process: ur_rtde holds the
-GIL while it waits for its controller):
-
-- the UR controller EMULATOR (``twin.ur_emulator``, in a child
-  process so its 500 Hz loop never waits for the simulation) on ``host``
-  (dashboard 29999, RTDE 30004, script 30003): the real ur_rtde client
-  connects to it; its servo model's joints are the simulated UR5's command,
-  and the simulated UR5's measured joints are what it reports as
-  ``actual_q`` (``getActualQ``: a blocked simulated arm shows), both
-  through shared memory every 20 ms simulated step;
-- the Robotiq URCap socket (``twin.robotiq_server``, ``gripper_port``)
-  over a register model whose fingers are the simulated 2F-85's (they stall
-  on the FEM leaf);
+- the UR controller EMULATOR (``twin.ur_emulator``, a child process, so its
+  500 Hz loop never waits for the simulation) on ``host`` (dashboard 29999,
+  RTDE 30004, script 30003) for the real ur_rtde client: its servo model's
+  joints are the simulated UR5's command; the simulated UR5's measured
+  joints and wrist force are what it reports (``getActualQ``: a blocked
+  arm shows; ``getActualTCPForce``), through shared memory every 20 ms;
+- the Robotiq URCap socket (``twin.robotiq_server``, ``gripper_port``) over
+  a register model whose fingers are the simulated 2F-85's (they stall on
+  the FEM leaf);
 - camera frames rendered from the plant world (``twin.camera_server``,
   ``camera_port``), with the scenario's camera model;
 - the grasp as in simulation: when the pads close on the leaf the station is
   rebuilt with the leaf fixed between them, and undone when they open.
 
-The plant world advances at ``rate`` simulated seconds per wall second
-(default 0.5; it cannot run in real time on 2 cores while it holds the
-leaf); the camera tells the episode runner that pace so both share one
-clock. A frame is rendered again only when the arm, the fingers or the leaf
-moved, at most every ``frame_period`` simulated s, and every
-``moving_frame_period`` while the arm or the fingers move (the episode
-captures its views at rest); while the leaf is held the plant steps
+The plant world advances at ``rate`` simulated s per wall s (default 0.5;
+not real time on 2 cores while it holds the leaf); the camera tells the
+episode runner that pace so both share one clock. A frame is rendered again
+only when the arm, the fingers or the leaf moved, at most every
+``frame_period`` simulated s, and every ``moving_frame_period`` while the
+arm or the fingers move; while the leaf is held the plant steps
 ``held_time_step``. Ground-truth samples are taken every
-``outcome.sample_period`` as in simulation; ``Finish`` writes
-``outcome.json`` (up to the release, and ``release_outcome`` after it) and
-``twin_log.json`` (events, pacing: ``pace``, ``max_lag_s`` and ``timing``,
-wall s by phase and kind of work and the process's CPU s; the emulator's
-loop statistics).
+``outcome.sample_period``; ``Finish`` writes ``outcome.json`` (up to the
+release, ``release_outcome`` after it) and ``twin_log.json`` (events,
+pacing: ``pace``, ``max_lag_s``, ``timing`` (wall s by phase and kind of
+work, the process's CPU s), the emulator's loop statistics).
 """
 from __future__ import annotations
 
@@ -258,9 +253,8 @@ class Twin:
         self.events: list[dict] = []
         self.frames: list[dict] = []           # t, visibility of every rendered frame
         self.trace: list[dict] = []            # every 0.1 simulated s: commands and the world
-        self.lag_max = 0.0
+        self.lag_max, self._payload_force = 0.0, None   # (N: the tool's weight, at the start)
         self.paced = {"simulated_s": 0.0, "wall_s": 0.0}   # from the first motion on
-        self._payload_force = None     # N: the wrist force at the start (the tool's weight)
         # wall s by phase (leaf held or not) and kind of work, from the first motion on
         # (and ``cpu_s``: the process's CPU seconds, every thread)
         self.timing = {p: dict.fromkeys(("simulated_s", "advance", "render", "other", "idle",
@@ -318,19 +312,16 @@ class Twin:
         return self
 
     def _Measure(self) -> np.ndarray:
-        """The simulated arm's joints to the emulator (its ``getActualQ``)
-        and its wrist force, less its value at the start (the tool's weight:
-        a UR compensates its payload), as ``getActualTCPForce``; returns its
+        """The simulated arm's joints to the emulator (``getActualQ``) and its
+        wrist force less the tool's weight (read at the start: a UR
+        compensates its payload) as ``getActualTCPForce``; returns its
         joint speeds (rad/s)."""
-        station, ctx = self.world.station, self.world.station_context
-        state = station.GetOutputPort("ur5.state_estimated").Eval(ctx)
-        f = np.zeros(3)
-        if station.HasOutputPort("ur5.wrist_force"):
-            f = np.asarray(station.GetOutputPort("ur5.wrist_force").Eval(ctx), float)
-            if self._payload_force is None:
-                self._payload_force = f.copy()
-            f = f - self._payload_force
-        self.emulator.Exchange(state[:6], state[6:], f)
+        port, ctx = self.world.station.GetOutputPort, self.world.station_context
+        state = port("ur5.state_estimated").Eval(ctx)
+        f = np.asarray(port("ur5.wrist_force").Eval(ctx), float)
+        if self._payload_force is None:
+            self._payload_force = f.copy()
+        self.emulator.Exchange(state[:6], state[6:], f - self._payload_force)
         return state[6:]
 
     def _FrameRequest(self):

@@ -1441,8 +1441,9 @@ class SharedArmState:
     twin's (``multiprocessing.shared_memory``: no pipe round trip per
     step). The emulator writes, every controller cycle, its servo model's
     joints (rad: the command the simulated arm tracks) and its stop flags;
-    the twin writes the simulated arm's measured joints (rad, rad/s), which
-    the emulator then reports as ``actual_q`` / ``actual_qd``. Each side's
+    the twin writes the simulated arm's measured joints (rad, rad/s) and
+    wrist force (N), which the emulator then reports as ``actual_q`` /
+    ``actual_qd`` and ``actual_TCP_force`` (its force part). Each side's
     block starts with a sequence counter, odd while it is being written
     (a seqlock: a reader retries a torn read). ``name=None`` creates the
     block (its owner unlinks it on ``Close``); a name attaches to it."""

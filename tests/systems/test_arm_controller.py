@@ -25,10 +25,11 @@ def plans():
 
 
 def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None,
-         return_speed_scale=1.0, wrist_force=None, max_pull_force=10.0):
+         return_speed_scale=1.0, wrist_force=None, max_pull_force=10.0, state=None):
     """``wrist_force(status, t)``: the station's wrist force (3, N) fixed
     on the port before each 0.1 s step (None: the port is left
-    unconnected)."""
+    unconnected); ``state(status, t)``: the measured joints (12), likewise
+    (None: the start pose at rest)."""
     first, cont = plans
     s = Scenario()
     s.planner.max_replans = max_replans
@@ -55,6 +56,9 @@ def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None
     asked, traj_ends = [], []
     answers = list(answers)
     while sim.get_context().get_time() < 60.0:
+        if state is not None:
+            c.GetInputPort("ur5.state_estimated").FixValue(
+                cc, state(c.Status(cc), sim.get_context().get_time()))
         if wrist_force is not None:
             c.GetInputPort("ur5.wrist_force").FixValue(
                 cc, wrist_force(c.Status(cc), sim.get_context().get_time()))
@@ -175,10 +179,12 @@ def test_the_force_guard_stops_the_pull_and_returns_what_was_executed(plans):
 
 
 def test_the_executed_part_ends_where_the_arm_stopped(plans):
-    from lmap_drake.systems.arm_sequence import ExecutedPart
+    from lmap_drake.systems.arm_guard import ExecutedPart
     path = [np.full(6, 0.1 * k) for k in range(1, 11)]
-    part = ExecutedPart(path, np.full(6, 0.42))
-    assert len(part) == 4 and np.allclose(part[-1], 0.42) and np.allclose(part[-2], 0.3)
+    part = ExecutedPart(path, np.full(6, 0.42))       # past 0.4: kept
+    assert len(part) == 5 and np.allclose(part[-1], 0.42) and np.allclose(part[-2], 0.4)
+    part = ExecutedPart(path, np.full(6, 0.38))       # short of 0.4: not kept
+    assert len(part) == 4 and np.allclose(part[-2], 0.3)
     assert len(ExecutedPart([], np.zeros(6))) == 1
 
 
@@ -207,3 +213,47 @@ def test_a_retreat_that_drags_a_leaf_goes_back_and_aborts(plans):
     assert "caught on the gripper" in st.message and "free the leaf" in st.message
     assert np.allclose(st.q_hold, st.grasp_path[-1])      # back where it let go
     assert st.gripper_cmd >= st.pregrasp_opening - 1e-9   # still open
+
+
+def test_a_grasp_that_already_loads_the_leaf_counts_against_the_limit(plans):
+    """The zero is read at the pre-grasp pose: closing the pads on the leaf
+    (pressing it, or a neighbour) adds 6 N before the pull; the pull's own
+    10 N/s then reaches the 10 N limit within about 0.4 s, not 1 s."""
+    pull = []
+
+    def force(st, t):
+        if st.mode == "pull" and not pull:
+            pull.append(t)
+        loaded = st.mode in ("close_gripper", "grasp_wait", "pull", "hold", "observe")
+        rise = (6.0 if loaded else 0.0) + (10.0 * (t - pull[0]) if pull and loaded else 0.0)
+        return np.array([0.0, rise, -9.1])
+    st, _, _ = _Run(plans, [True, True], wrist_force=force)
+    assert len(st.force_stops) == 1
+    assert st.force_stops[0]["t"] - pull[0] < 0.6
+
+
+def test_the_zero_waits_for_the_arm_to_settle_at_the_pre_grasp_pose(plans):
+    """As the fast move to the pre-grasp pose ends, the arm still moves and
+    the tool's inertia reads 12 N: the zero is read only once the joints
+    are still, so a gentle pull (2 N/s) is not stopped."""
+    ended = []
+    q0 = Scenario().robot.initial_q
+
+    def moving(st, t):
+        # (the ports are fixed for 0.1 s steps: moving from a step before
+        # the move's end)
+        if st.mode == "pregrasp" and st.trajectory is not None and not ended:
+            ended.append(st.trajectory.end_time())
+        return bool(ended) and ended[0] - 0.1 <= t < ended[0] + 0.35
+
+    def state(st, t):
+        return np.r_[q0, np.full(6, 0.05 if moving(st, t) else 0.0)]
+
+    rising = _RisingInPull(2.0)
+
+    def force(st, t):
+        return rising(st, t) + [0.0, 12.0 if moving(st, t) else 0.0, 0.0]
+    st, _, _ = _Run(plans, [True, True], wrist_force=force, state=state)
+    assert ended and not st.force_stops
+    modes = dict((m, tt) for tt, m in reversed(st.mode_log))
+    assert modes["approach"] - ended[0] >= 0.3       # it waited for the arm

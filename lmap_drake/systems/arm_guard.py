@@ -1,0 +1,131 @@
+"""The force guard of the episode's state machine (``arm_sequence``): the
+station's wrist force (``ur5.wrist_force``, N) watched while a held leaf
+moves (``planner.max_pull_force``) and while the open gripper backs out of
+the plant after the release (``planner.max_retreat_force``). Why the limits
+have their values: docs/explanation/planner-parameters.md, "The force
+guard stops what the model did not predict".
+
+The functions act on the ``ControllerStatus`` ``st`` through the
+``ArmSequence`` ``seq`` (its planner config, motions, mode changes) and
+the ``ArmInputs`` ``inputs``; each returns whether it changed the mode.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# The pull's zero is read at the pre-grasp pose once every joint is slower
+# than this (rad/s), or MAX_SETTLE_TIME (s) after the move there ended: as
+# a fast move ends the tool's own inertia still reads several newtons
+# (12.6 N in the default scene).
+SETTLED_JOINT_SPEED = 0.01
+MAX_SETTLE_TIME = 1.0
+
+
+def ExecutedPart(path: list, q_now: np.ndarray) -> list:
+    """The part of joint ``path`` (waypoints from its start) executed up to
+    ``q_now`` (a configuration on it): the waypoints up to the one nearest
+    ``q_now`` (that one too when ``q_now`` lies past it, nearer the next
+    than it is), then ``q_now``."""
+    q_now = np.asarray(q_now, float)
+    if not path:
+        return [q_now]
+    P = [np.asarray(q, float) for q in path]
+    k = int(np.argmin([np.linalg.norm(q - q_now) for q in P]))
+    passed = k + 1 < len(P) and (np.linalg.norm(q_now - P[k + 1])
+                                 <= np.linalg.norm(P[k] - P[k + 1]))
+    return P[:k + 1 if passed else k] + [q_now]
+
+
+def ZeroAtPregrasp(inputs, st, t: float) -> bool:
+    """At the pre-grasp pose, before the open gripper reaches into the
+    plant: the pull's zero (``st.force_zero``), read once the arm has
+    settled (a grasp that already presses the leaf, or a neighbour, then
+    counts against the limit). False while it waits for the arm."""
+    f = inputs.wrist_force()
+    if f is None:
+        return True
+    settling = t - st.trajectory.end_time() if st.trajectory is not None else np.inf
+    moving = float(np.abs(inputs.measured_state()[6:]).max()) > SETTLED_JOINT_SPEED
+    if moving and settling < MAX_SETTLE_TIME:
+        return False
+    st.force_zero = np.asarray(f, float).copy()
+    return True
+
+
+def PullGuard(seq, inputs, st, t: float) -> bool:
+    """``planner.max_pull_force``: True when the wrist force has risen more
+    than the limit above ``st.force_zero``; the arm then holds where it is
+    (measured), the executed part becomes the motion's path (what is
+    carried back), and the mode is ``hold`` (then observe, no further
+    motion, release)."""
+    limit = float(seq._planner.max_pull_force)
+    if st.force_zero is None or st.trajectory is None:
+        return False
+    f = inputs.wrist_force()
+    if f is None:
+        return False
+    rise = float(np.linalg.norm(np.asarray(f, float) - st.force_zero))
+    st.force_peak = max(st.force_peak, rise)
+    st.force_trace.append((round(t, 3), round(rise, 3), "pull"))
+    if limit <= 0.0 or rise <= limit:
+        return False
+    q_now = np.asarray(inputs.measured_state()[:6], float).copy()
+    st.motion_paths = st.motion_paths[:-1] + [ExecutedPart(st.motion_paths[-1], q_now)]
+    st.trajectory, st.q_hold = None, q_now
+    st.force_stop = (f"force guard: the wrist force rose {rise:.1f} N above its value "
+                     f"before the grasp (planner.max_pull_force {limit:g} N); the motion "
+                     "stopped there")
+    st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
+                                        "motion": len(st.motion_paths)}]
+    seq._enter(st, "hold", t, st.force_stop)
+    return True
+
+
+def RetreatGuard(seq, inputs, st, t: float) -> bool:
+    """``planner.max_retreat_force`` on the way out of the plant (grasp ->
+    pre-grasp, the open gripper backing out): a leaf the gripper's body or
+    pads drag (one sprung back around them while the leaf was held) loads
+    its petiole as the arm backs out. When the wrist force rises more than
+    the limit above ``st.retreat_zero`` (read at rest before the retreat,
+    or at its first step), the arm goes back (``back_off``) to where it let
+    the leaf go, which unloads the dragged leaf. True when it stopped."""
+    limit = float(seq._planner.max_retreat_force)
+    f = inputs.wrist_force()
+    if f is None or limit <= 0.0 or st.trajectory is None:
+        return False
+    f = np.asarray(f, float)
+    if st.retreat_zero is None:
+        st.retreat_zero = f.copy()
+        return False
+    rise = float(np.linalg.norm(f - st.retreat_zero))
+    st.retreat_peak = max(st.retreat_peak, rise)
+    st.force_trace.append((round(t, 3), round(rise, 3), "retreat"))
+    if rise <= limit:
+        return False
+    q_now = np.asarray(inputs.measured_state()[:6], float).copy()
+    back = ExecutedPart(st.retreat_out, q_now)[:-1][::-1] or [st.retreat_out[0]]
+    st.trajectory = None
+    st.q_hold = q_now
+    seq._start_path(st, t, back, **seq.motions.ApproachTiming(q_now, back,
+                                                              seq.motions.pull_speed))
+    st.segments, st.retreat_out, st.retreat_zero = [], [], None
+    why = (f"force guard: backing out of the plant, the wrist force rose {rise:.1f} N "
+           f"(planner.max_retreat_force {limit:g} N): a leaf is caught on the gripper")
+    st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
+                                        "motion": "retreat"}]
+    seq._enter(st, "back_off", t, why + "; going back to where the leaf was released")
+    return True
+
+
+def BackOffDone(seq, st, t: float) -> None:
+    """The arm is back where it released the leaf (or, after a missed
+    grasp, where the pads closed on nothing): the target's record closes
+    (several fruits) and the episode aborts there, gripper open."""
+    st.trajectory = None
+    why = st.message.split("; going back")[0]
+    if seq._multi:
+        seq._EndTarget(st, t, (st.grasp_missed + "; then " if st.grasp_missed
+                               else "revealed, then ") + "the retreat was stopped: " + why)
+    st.grasp_missed = ""
+    seq._enter(st, "aborted", t, why + "; the arm went back to where the leaf was released "
+               "and stopped there, gripper open: free the leaf, then move the arm out")
