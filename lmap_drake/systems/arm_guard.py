@@ -36,6 +36,16 @@ def ExecutedPart(path: list, q_now: np.ndarray) -> list:
     return P[:k + 1 if passed else k] + [q_now]
 
 
+def ExecutedFraction(planned: list, executed: list) -> float:
+    """The executed part's share of a planned joint path (lengths in joint
+    space, rad), in [0, 1]: how much of the motion is carried back."""
+    def length(path):
+        P = np.asarray(path, float).reshape(len(path), -1)
+        return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()) if len(P) > 1 else 0.0
+    total = length(planned)
+    return 1.0 if total <= 0.0 else float(np.clip(length(executed) / total, 0.0, 1.0))
+
+
 def ZeroAtPregrasp(inputs, st, t: float) -> bool:
     """At the pre-grasp pose, before the open gripper reaches into the
     plant: the pull's zero (``st.force_zero``), read once the arm has
@@ -76,7 +86,8 @@ def PullGuard(seq, inputs, st, t: float) -> bool:
                      f"before the grasp (planner.max_pull_force {limit:g} N); the motion "
                      "stopped there")
     st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
-                                        "motion": len(st.motion_paths)}]
+                                        "motion": len(st.motion_paths),
+                                        "target": len(st.targets)}]
     seq._enter(st, "hold", t, st.force_stop)
     return True
 
@@ -112,7 +123,7 @@ def RetreatGuard(seq, inputs, st, t: float) -> bool:
     why = (f"force guard: backing out of the plant, the wrist force rose {rise:.1f} N "
            f"(planner.max_retreat_force {limit:g} N): a leaf is caught on the gripper")
     st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
-                                        "motion": "retreat"}]
+                                        "motion": "retreat", "target": len(st.targets)}]
     seq._enter(st, "back_off", t, why + "; going back to where the leaf was released")
     return True
 

@@ -55,8 +55,8 @@ import numpy as np
 from lmap_drake.planning.result import PlanResult
 from lmap_drake.planning.motion import MotionError
 from lmap_drake.planning.robot_model import RobotModel
-from lmap_drake.systems.arm_guard import (BackOffDone, PullGuard, RetreatGuard,
-                                          ZeroAtPregrasp)
+from lmap_drake.systems.arm_guard import (BackOffDone, ExecutedFraction, PullGuard,
+                                          RetreatGuard, ZeroAtPregrasp)
 from lmap_drake.systems.arm_motion import ArmMotions, Refused
 from lmap_drake.systems.arm_status import (STALL_WINDOW, ControllerOptions, ControllerStatus,
                                            GripperCommand)
@@ -438,9 +438,12 @@ class ArmSequence:
             self._enter(st, "done", t, f"{n} motion(s) executed; {message}")
             return
         back = [q for path in st.motion_paths[::-1] for q in path[::-1]][1:]
+        duration = self._pull_duration(st, all_motions=True)
+        if st.force_stop:       # the last motion was stopped part way
+            duration -= self._pull_duration(st) * (
+                1.0 - ExecutedFraction(st.pull_path, st.motion_paths[-1]))
         self._start_path(st, t, back + [st.grasp_path[-1]], 0.3,
-                         self._pull_duration(st, all_motions=True)
-                         / self._planner.return_speed_scale)
+                         duration / self._planner.return_speed_scale)
         self._enter(st, "release", t, f"{n} motion(s) executed; {message}; "
                     "returning the leaf, then releasing it")
 

@@ -186,6 +186,9 @@ def test_the_executed_part_ends_where_the_arm_stopped(plans):
     part = ExecutedPart(path, np.full(6, 0.38))       # short of 0.4: not kept
     assert len(part) == 4 and np.allclose(part[-2], 0.3)
     assert len(ExecutedPart([], np.zeros(6))) == 1
+    from lmap_drake.systems.arm_guard import ExecutedFraction
+    assert ExecutedFraction(path, ExecutedPart(path, np.full(6, 0.55))) == pytest.approx(0.5)
+    assert ExecutedFraction(path, path) == 1.0 and ExecutedFraction([path[0]], []) == 1.0
 
 
 def test_a_load_below_the_limit_or_a_guard_off_never_stops(plans):
