@@ -257,7 +257,7 @@ def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only:
         if isinstance(got, ApproachPlan):
             n = LeafBetweenPads(getattr(ctx, "other_leaves_W", np.zeros((0, 3))), grasp.p_WG,
                                 grasp.R_WG, 0.5 * (got.opening or cfg.pregrasp_opening),
-                                min(cfg.max_brush_displacement, 0.25 * PAD_LEN))
+                                min(cfg.max_brush_displacement, 0.5 * PAD_LEN))
             if n >= BETWEEN_PADS_MIN_POINTS:
                 return None, (f"another leaf between the pads ({n} of its points where "
                               "the pads close)")

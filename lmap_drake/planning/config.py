@@ -69,11 +69,14 @@ class PlannerConfig:
     leaf caught on the gripper (one sprung back around its body while the
     leaf was held); the arm then goes back to where it released the leaf
     (which unloads the caught one) and the episode aborts. That way out
-    moves at the pull's pace: at the approach's 10 cm/s the tool's own
-    inertia read 3 N as it started, and a caught leaf loaded its petiole
-    about 50 N/s (stopped at a 10 N limit, the blade had torn). At 3 cm/s
-    the clean ways out read at most 0.3 N (the tool's inertia); 3 N is ten
-    times that. A station without the port (a replay) has no guard.
+    always moves at the pull's pace: at the approach's 10 cm/s the tool's
+    own inertia read 3 N as it started, and a caught leaf loaded its
+    petiole about 50 N/s. At 3 cm/s the clean ways out read at most 0.3 N
+    in simulation, so 3 N works there; it is off by default because on
+    the hardware path (the digital twin) the gripper reported itself open
+    before it had let the leaf go, the arm backed out still holding it,
+    and the guard stopped the retreat (rightly, but every episode).
+    A station without the port (a replay) has no guard.
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the
@@ -367,7 +370,7 @@ class PlannerConfig:
     approach_speed: float = 0.1
     return_speed_scale: float = 1.0
     max_pull_force: float = 8.0    # N: the force guard on a held leaf's motion (0 = off)
-    max_retreat_force: float = 3.0  # N: the force guard backing out of the plant (0 = off)
+    max_retreat_force: float = 0.0  # N: the force guard backing out of the plant (0 = off)
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])

@@ -519,12 +519,12 @@ class ArmSequence:
         out = st.grasp_path[::-1][1:] + [st.pregrasp_path[-1]]
         st.segments = [(st.pregrasp_path[::-1][1:], 0.5), ([self._q_start.copy()], 0.5)]
         st.retreat_out, st.retreat_zero = [st.grasp_path[-1]] + out, force_zero
-        # guarded, at the pull's pace: the tool's own inertia then stays far
-        # below the limit (at the approach's 10 cm/s the start alone read
-        # 3 N) and a caught leaf loads slowly enough to be stopped early
-        guarded = self._planner.max_retreat_force > 0
+        # at the pull's pace: a leaf caught on the open gripper (one sprung
+        # back around it while the leaf was held) is dragged slowly (337 N
+        # at a petiole at the approach's 10 cm/s, 9.1 N at 3 cm/s), and the
+        # tool's own inertia stays far below the retreat guard's limit
         self._start_path(st, t, out, **self.motions.ApproachTiming(
-            st.q_hold, out, self.motions.pull_speed if guarded else None))
+            st.q_hold, out, self.motions.pull_speed))
         self._enter(st, "retreat", t)
 
     def _BackOff(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:

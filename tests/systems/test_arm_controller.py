@@ -25,7 +25,8 @@ def plans():
 
 
 def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None,
-         return_speed_scale=1.0, wrist_force=None, max_pull_force=10.0, state=None):
+         return_speed_scale=1.0, wrist_force=None, max_pull_force=10.0, state=None,
+         max_retreat_force=3.0):
     """``wrist_force(status, t)``: the station's wrist force (3, N) fixed
     on the port before each 0.1 s step (None: the port is left
     unconnected); ``state(status, t)``: the measured joints (12), likewise
@@ -35,6 +36,7 @@ def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None
     s.planner.max_replans = max_replans
     s.planner.return_speed_scale = return_speed_scale
     s.planner.max_pull_force = max_pull_force
+    s.planner.max_retreat_force = max_retreat_force
     b = DiagramBuilder()
     log = []
     c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
