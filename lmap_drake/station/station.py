@@ -61,7 +61,7 @@ class WristForceSensor(LeafSystem):
 
     def __init__(self, plant: MultibodyPlant, joint):
         super().__init__()
-        self._plant, self._joint = plant, joint
+        self._joint = joint
         self._reactions = self.DeclareAbstractInputPort(
             "reaction_forces", plant.get_reaction_forces_output_port().Allocate())
         self._poses = self.DeclareAbstractInputPort(
