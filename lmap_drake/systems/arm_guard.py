@@ -62,6 +62,19 @@ def ZeroAtPregrasp(inputs, st, t: float) -> bool:
     return True
 
 
+def _Rise(st, f, zero: np.ndarray, t: float, phase: str) -> float:
+    """The wrist force's rise above ``zero`` (N), logged in the trace."""
+    rise = float(np.linalg.norm(np.asarray(f, float) - zero))
+    st.force_trace.append((round(t, 3), round(rise, 3), phase))
+    return rise
+
+
+def _RecordStop(st, t: float, rise: float, motion) -> None:
+    """One stop of the guard in ``st.force_stops``."""
+    st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
+                                        "motion": motion, "target": len(st.targets)}]
+
+
 def PullGuard(seq, inputs, st, t: float) -> bool:
     """``planner.max_pull_force``: True when the wrist force has risen more
     than the limit above ``st.force_zero``; the arm then holds where it is
@@ -74,9 +87,8 @@ def PullGuard(seq, inputs, st, t: float) -> bool:
     f = inputs.wrist_force()
     if f is None:
         return False
-    rise = float(np.linalg.norm(np.asarray(f, float) - st.force_zero))
+    rise = _Rise(st, f, st.force_zero, t, "pull")
     st.force_peak = max(st.force_peak, rise)
-    st.force_trace.append((round(t, 3), round(rise, 3), "pull"))
     if limit <= 0.0 or rise <= limit:
         return False
     q_now = np.asarray(inputs.measured_state()[:6], float).copy()
@@ -85,9 +97,7 @@ def PullGuard(seq, inputs, st, t: float) -> bool:
     st.force_stop = (f"force guard: the wrist force rose {rise:.1f} N above its value "
                      f"before the grasp (planner.max_pull_force {limit:g} N); the motion "
                      "stopped there")
-    st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
-                                        "motion": len(st.motion_paths),
-                                        "target": len(st.targets)}]
+    _RecordStop(st, t, rise, len(st.motion_paths))
     seq._enter(st, "hold", t, st.force_stop)
     return True
 
@@ -108,9 +118,8 @@ def RetreatGuard(seq, inputs, st, t: float) -> bool:
     if st.retreat_zero is None:
         st.retreat_zero = f.copy()
         return False
-    rise = float(np.linalg.norm(f - st.retreat_zero))
+    rise = _Rise(st, f, st.retreat_zero, t, "retreat")
     st.retreat_peak = max(st.retreat_peak, rise)
-    st.force_trace.append((round(t, 3), round(rise, 3), "retreat"))
     if rise <= limit:
         return False
     q_now = np.asarray(inputs.measured_state()[:6], float).copy()
@@ -122,8 +131,7 @@ def RetreatGuard(seq, inputs, st, t: float) -> bool:
     st.segments, st.retreat_out, st.retreat_zero = [], [], None
     why = (f"force guard: backing out of the plant, the wrist force rose {rise:.1f} N "
            f"(planner.max_retreat_force {limit:g} N): a leaf is caught on the gripper")
-    st.force_stops = st.force_stops + [{"t": round(t, 3), "rise_N": round(rise, 2),
-                                        "motion": "retreat", "target": len(st.targets)}]
+    _RecordStop(st, t, rise, "retreat")
     seq._enter(st, "back_off", t, why + "; going back to where the leaf was released")
     return True
 
