@@ -3,11 +3,12 @@ perception and evaluation.
 
 A render label is ``class_id * 100 + instance`` (instance 0..99); anything
 outside [100, 500) is background (Drake's reserved empty/don't-care labels
-included). A neighbouring plant (the greenhouse's next row, not the plant
-being worked on) is ``NEIGHBOUR + class_id`` (``EncodeNeighbourLabel``):
-background to ``DecodeLabels`` (the label oracle, scoring, occluders), its
-branch / leaf class to ``NeighbourClassMap`` (segmenter training, and the
-pixels evaluation leaves out).
+included). A neighbouring plant (the greenhouse's next plants in the row
+and behind it, not the plant being worked on) is ``NEIGHBOUR + class_id``
+(``EncodeNeighbourLabel``): background to ``DecodeLabels`` (scoring,
+occluders), its branch / leaf class to ``NeighbourClassMap`` (segmenter
+training, and the pixels evaluation leaves out) and to the label oracle
+(``OracleLabels``, ``perception.label_neighbours``).
 """
 from __future__ import annotations
 
@@ -44,6 +45,28 @@ def DecodeLabels(label_image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     valid = (lab >= _STRIDE) & (lab < (ROBOT + 1) * _STRIDE)
     cls = np.where(valid, lab // _STRIDE, BACKGROUND)
     inst = np.where(valid, lab % _STRIDE, -1)
+    return cls, inst
+
+
+# The label oracle's instance ids of the neighbouring plants' pixels start
+# here (the worked plant's are 0..99).
+NEIGHBOUR_INSTANCE = _STRIDE
+
+
+def OracleLabels(label_image: np.ndarray, neighbours: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """``DecodeLabels``; with ``neighbours`` the neighbouring plants'
+    pixels are their class (branch / leaf) too, each 8-connected region of
+    them one instance from ``NEIGHBOUR_INSTANCE`` on (the render does not
+    tell their leaves apart): what a perfect segmenter sees."""
+    cls, inst = DecodeLabels(label_image)
+    if neighbours:
+        from scipy import ndimage
+        nb = NeighbourClassMap(label_image)
+        for c in (BRANCH, LEAF):
+            lab, _ = ndimage.label(nb == c, structure=np.ones((3, 3)))
+            m = lab > 0
+            cls[m], inst[m] = c, NEIGHBOUR_INSTANCE + lab[m] - 1
     return cls, inst
 
 

@@ -30,6 +30,26 @@ def test_neighbour_labels_are_background_to_decode_and_classes_to_neighbour_map(
         EncodeNeighbourLabel(FRUIT)
 
 
+def test_oracle_labels_see_the_neighbouring_row_only_when_asked():
+    """``OracleLabels(neighbours=True)``: the neighbouring plants' leaf and
+    branch pixels take their class, each 8-connected region its own
+    instance from NEIGHBOUR_INSTANCE on; the worked plant's pixels are
+    unchanged; without it, ``DecodeLabels``."""
+    from lmap_drake.labels import (BRANCH, NEIGHBOUR_INSTANCE, EncodeNeighbourLabel,
+                                   OracleLabels)
+    nl, nb = EncodeNeighbourLabel(LEAF), EncodeNeighbourLabel(BRANCH)
+    img = np.array([[nl, nl, 0, nl, EncodeLabel(LEAF, 4)],
+                    [nb, 0, 0, 0, EncodeLabel(FRUIT, 1)]], np.int16)
+    cls, inst = OracleLabels(img)
+    assert (cls == DecodeLabels(img)[0]).all() and (inst == DecodeLabels(img)[1]).all()
+    cls, inst = OracleLabels(img, neighbours=True)
+    assert cls.tolist() == [[LEAF, LEAF, BACKGROUND, LEAF, LEAF], [BRANCH, 0, 0, 0, FRUIT]]
+    assert inst[0, 0] == inst[0, 1] >= NEIGHBOUR_INSTANCE      # one region
+    assert inst[0, 3] >= NEIGHBOUR_INSTANCE and inst[0, 3] != inst[0, 0]   # another
+    assert inst[1, 0] >= NEIGHBOUR_INSTANCE
+    assert inst[0, 4] == 4 and inst[1, 4] == 1 and inst[0, 2] == -1
+
+
 def test_leaf_boundary_band_lies_where_two_leaves_meet_and_nowhere_else():
     from lmap_drake.labels import LeafBoundaryMask
     ids = np.full((20, 30), -1)

@@ -33,6 +33,10 @@ class PerceptionConfig:
     # render's leaf ids; segnet: its boundary head): flush blades that one
     # DBSCAN cluster joins (perception/leaf_boundaries.py). false: the ablation.
     leaf_boundaries: bool = True
+    # label: the greenhouse's neighbouring plants as leaf / branch (what the
+    # camera sees, and what an arm must keep clear of in a real row) or, false,
+    # as background (labels.OracleLabels; docs/how-to/greenhouse-suite.md)
+    label_neighbours: bool = True
     # m, voxel of the downsampled class clouds (per instance) and of view fusion
     voxel_size: float = 0.003
     # Statistical outlier removal (open3d): neighbours and std-dev ratio.

@@ -41,7 +41,8 @@ import numpy as np
 from scipy import ndimage
 
 from lmap_drake.errors import WeightsError
-from lmap_drake.labels import BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT, DecodeLabels, LeafBoundaryMask
+from lmap_drake.labels import (BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT,
+                               LeafBoundaryMask, OracleLabels)
 from lmap_drake.perception.fruit_fragments import JoinFruitFragments
 from lmap_drake.perception.leaf_boundaries import SplitRegionsAtNecks
 from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
@@ -168,12 +169,13 @@ class LabelSegmenter(Segmenter):
     background)."""
     name = "label"
     needs_label = True
+    neighbours = True       # the neighbouring plants as plant (perception.label_neighbours)
 
     def Segment(self, rgb, depth, label=None) -> Segmentation:
         if label is None:
             raise SegmenterError("the 'label' segmenter needs camera0.label_image "
                                  "(simulation only); connect it or choose color_depth")
-        cls, inst = DecodeLabels(np.asarray(getattr(label, "data", label)))
+        cls, inst = OracleLabels(np.asarray(getattr(label, "data", label)), self.neighbours)
         cls = np.where(cls == ROBOT, BACKGROUND, cls).astype(np.int64)
         inst = np.where(cls == BACKGROUND, -1, inst).astype(np.int64)
         return Segmentation(cls, inst, [], InstanceConfidence(cls, inst, 1.0),
@@ -478,7 +480,9 @@ def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
     """The backend named by ``cfg.segmenter`` (a ``PerceptionConfig``)."""
     name = cfg.segmenter
     if name == "label":
-        return LabelSegmenter()
+        seg = LabelSegmenter()
+        seg.neighbours = bool(getattr(cfg, "label_neighbours", True))
+        return seg
     if name == "color_depth":
         params = ColorDepthParams(depth_cut=cfg.depth_cut)
         for f in ("branch_max_width", "detect_green_fruit"):

@@ -30,6 +30,27 @@ def test_label_backend_is_exact_and_robot_is_background(views):
         LabelSegmenter().Segment(v.rgb, v.depth, None)
 
 
+def test_label_backend_sees_the_neighbouring_plants_unless_told_not_to(views):
+    """The oracle labels what the camera sees: the greenhouse's neighbouring
+    plants are leaf / branch by default (an arm must keep clear of them in a
+    real row), background with ``perception.label_neighbours: false``."""
+    from lmap_drake.labels import NEIGHBOUR_INSTANCE, EncodeNeighbourLabel
+    label = np.zeros((4, 6), np.int32)
+    label[:2, :2] = EncodeNeighbourLabel(LEAF)
+    label[3, 5] = EncodeNeighbourLabel(BRANCH)
+    label[2, 3] = EncodeLabel(FRUIT, 0)
+    depth = np.ones((4, 6))
+    K = views["red"].K
+    seen = MakeSegmenter(PerceptionConfig(segmenter="label"), K).Segment(None, depth, label)
+    assert (seen.class_map[:2, :2] == LEAF).all() and seen.class_map[3, 5] == BRANCH
+    assert (seen.instance_map[:2, :2] >= NEIGHBOUR_INSTANCE).all()
+    hidden = MakeSegmenter(PerceptionConfig(segmenter="label", label_neighbours=False),
+                           K).Segment(None, depth, label)
+    assert (hidden.class_map[:2, :2] == 0).all() and hidden.class_map[3, 5] == 0
+    for seg in (seen, hidden):
+        assert seg.class_map[2, 3] == FRUIT and seg.instance_map[2, 3] == 0
+
+
 @pytest.mark.parametrize("color", ["red", "yellow", "orange"])
 def test_color_depth_backend_meets_iou_targets(views, color):
     v = views[color]
