@@ -166,10 +166,13 @@ def InstancesFromComponents(class_map: np.ndarray, depth: np.ndarray | None = No
 
 class LabelSegmenter(Segmenter):
     """Exact segmentation from the simulator's label image (robot pixels are
-    background)."""
+    background; the greenhouse's neighbouring plants leaf / branch with
+    ``neighbours``, ``perception.label_neighbours``, else background)."""
     name = "label"
     needs_label = True
-    neighbours = True       # the neighbouring plants as plant (perception.label_neighbours)
+
+    def __init__(self, neighbours: bool = True):
+        self.neighbours = bool(neighbours)
 
     def Segment(self, rgb, depth, label=None) -> Segmentation:
         if label is None:
@@ -480,9 +483,7 @@ def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
     """The backend named by ``cfg.segmenter`` (a ``PerceptionConfig``)."""
     name = cfg.segmenter
     if name == "label":
-        seg = LabelSegmenter()
-        seg.neighbours = bool(getattr(cfg, "label_neighbours", True))
-        return seg
+        return LabelSegmenter(getattr(cfg, "label_neighbours", True))
     if name == "color_depth":
         params = ColorDepthParams(depth_cut=cfg.depth_cut)
         for f in ("branch_max_width", "detect_green_fruit"):

@@ -61,8 +61,9 @@ family (``hypotheses_seconds`` in the JSON).
 Speed (issue 59 item 4: a fit <= 0.5 s, fit + set <= 1.5 s per fruit on one
 core; *not reached*: four runs of the same code on this machine, 1 torch
 thread, family and tuning set, gave a fit 0.77-0.97 s and fit + set
-1.35-1.66 s per fruit, so the 1.5 s is borderline and the 0.5 s is not met). Exact-arithmetic changes only (the same losses,
-gradients and meshes up to float rounding): the fit and the set send only
+1.35-1.66 s per fruit, so the 1.5 s is borderline and the 0.5 s is not
+met). Exact-arithmetic changes only (the same losses, gradients and meshes
+up to float rounding): the fit and the set send only
 the negatives inside the surface through the backward pass (the others have
 no gradient: relu(-d)), the set checks only its real active negatives, not
 the zero padding, and meshes are refined in a 2-cell band (the same meshes
