@@ -536,5 +536,7 @@ def FruitInstanceTruth(seg: Segmentation, truth: np.ndarray, min_pixels: int = 5
 
 
 def TruthClassMap(label) -> np.ndarray:
-    """Ground-truth class map from a render label image (robot = background)."""
-    return LabelSegmenter().Segment(None, None, label).class_map
+    """Ground-truth class map from a render label image (robot and the
+    neighbouring plants = background: evaluations leave the neighbours'
+    pixels out, training adds them from ``labels.NeighbourClassMap``)."""
+    return LabelSegmenter(neighbours=False).Segment(None, None, label).class_map

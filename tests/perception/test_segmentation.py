@@ -49,6 +49,8 @@ def test_label_backend_sees_the_neighbouring_plants_unless_told_not_to(views):
     assert (hidden.class_map[:2, :2] == 0).all() and hidden.class_map[3, 5] == 0
     for seg in (seen, hidden):
         assert seg.class_map[2, 3] == FRUIT and seg.instance_map[2, 3] == 0
+    # the evaluations' truth leaves the neighbours out, whatever the oracle sees
+    assert (TruthClassMap(label) == hidden.class_map).all()
 
 
 @pytest.mark.parametrize("color", ["red", "yellow", "orange"])
