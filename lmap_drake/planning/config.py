@@ -72,10 +72,13 @@ class PlannerConfig:
     always moves at the pull's pace: at the approach's 10 cm/s the tool's
     own inertia read 3 N as it started, and a caught leaf loaded its
     petiole about 50 N/s. At 3 cm/s the clean ways out read at most 0.3 N
-    in simulation, so 3 N works there; it is off by default because on
-    the hardware path (the digital twin) the gripper reported itself open
-    before it had let the leaf go, the arm backed out still holding it,
-    and the guard stopped the retreat (rightly, but every episode).
+    in simulation, so 3 N works there. The default is 8 N, the pull's
+    limit: at 3 N it stopped every episode on the hardware path (the
+    digital twin, whose gripper reported itself open before its fingers
+    let the leaf go, so the arm backed out still holding it); at 8 N the
+    twin's episodes finish, and a leaf caught on the gripper in
+    ``gh_random_8585_001`` (segnet) was stopped at 17.5 N at its petiole
+    instead of 860 N with the guard off.
     A station without the port (a replay) has no guard.
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
@@ -370,7 +373,7 @@ class PlannerConfig:
     approach_speed: float = 0.1
     return_speed_scale: float = 1.0
     max_pull_force: float = 8.0    # N: the force guard on a held leaf's motion (0 = off)
-    max_retreat_force: float = 0.0  # N: the force guard backing out of the plant (0 = off)
+    max_retreat_force: float = 8.0  # N: the force guard backing out of the plant (0 = off)
     release_and_retreat: bool = True
     action_families: list[str] = dc.field(default_factory=lambda: ["pull", "arc", "twist"])
     continuation_families: list[str] = dc.field(default_factory=lambda: ["arc", "twist"])
