@@ -483,7 +483,7 @@ def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
     """The backend named by ``cfg.segmenter`` (a ``PerceptionConfig``)."""
     name = cfg.segmenter
     if name == "label":
-        return LabelSegmenter(getattr(cfg, "label_neighbours", True))
+        return LabelSegmenter(cfg.label_neighbours)
     if name == "color_depth":
         params = ColorDepthParams(depth_cut=cfg.depth_cut)
         for f in ("branch_max_width", "detect_green_fruit"):

@@ -76,9 +76,10 @@ class PlannerConfig:
     limit: at 3 N it stopped every episode on the hardware path (the
     digital twin, whose gripper reported itself open before its fingers
     let the leaf go, so the arm backed out still holding it); at 8 N the
-    twin's episodes finish, and a leaf caught on the gripper in
-    ``gh_random_8585_001`` (segnet) was stopped at 17.5 N at its petiole
-    instead of 860 N with the guard off.
+    twin's episodes finish, and the way out that dragged a caught leaf in
+    ``gh_random_8585_001`` (segnet) to 860 N at its petiole with the guard
+    off stopped early: that leaf's worst load stayed the 17.5 N it took
+    at the grasp.
     A station without the port (a replay) has no guard.
 
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
