@@ -145,6 +145,28 @@ def _CanopyMesh(model) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
             trimesh.util.concatenate([BranchTube(b, sections=6) for b in model.branches]))
 
 
+# The neighbouring plants, (along, toward the camera) from the plant's base
+# (m): three in the next row behind, two beside it in its own row.
+NEIGHBOUR_ROW = ((-0.5, -0.75), (0.0, -0.8), (0.5, -0.75), (-0.45, 0.0), (0.45, 0.0))
+
+
+def RowFrame(base: np.ndarray, p_WC: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(along the row, toward the camera): horizontal unit vectors (W) of
+    the row through ``base`` seen from ``p_WC``; (row, toward, z) is
+    right-handed."""
+    to_cam = np.asarray(p_WC, float) - np.asarray(base, float)
+    d = np.array([to_cam[0], to_cam[1], 0.0])
+    d /= max(np.linalg.norm(d), 1e-9)
+    return np.cross(d, [0, 0, 1.0]), d
+
+
+def NeighbourBases(base: np.ndarray, p_WC: np.ndarray) -> np.ndarray:
+    """(5, 3) the neighbouring plants' bases (W, m) for a plant at ``base``
+    seen from ``p_WC`` (``NEIGHBOUR_ROW``)."""
+    row, d = RowFrame(base, p_WC)
+    return np.array([np.asarray(base, float) + a * row + t * d for a, t in NEIGHBOUR_ROW])
+
+
 def AddGreenhouseDressing(plant, base: np.ndarray, p_WC: np.ndarray,
                           canopy: tuple[trimesh.Trimesh, trimesh.Trimesh] | None) -> None:
     """Static greenhouse dressing around a plant at ``base`` seen from
@@ -153,10 +175,7 @@ def AddGreenhouseDressing(plant, base: np.ndarray, p_WC: np.ndarray,
     behind and, with ``canopy`` (a plant's leaf and stem meshes, W), a
     neighbouring row of shifted, turned copies of it beside and further back
     (neighbour labels: ``EncodeNeighbourLabel``)."""
-    to_cam = p_WC - base
-    d = np.array([to_cam[0], to_cam[1], 0.0])
-    d /= max(np.linalg.norm(d), 1e-9)
-    row = np.cross(d, [0, 0, 1.0])            # along the row (row, d, z right-handed)
+    row, d = RowFrame(base, p_WC)
     R = RotationMatrix(np.c_[row, d, [0, 0, 1.0]])
 
     def at(along, toward, z):                 # a point in row coordinates
@@ -179,8 +198,7 @@ def AddGreenhouseDressing(plant, base: np.ndarray, p_WC: np.ndarray,
                 Box(0.03, 0.03, 3.0), RAIL_COLOR)
     if canopy is not None:
         rng = np.random.default_rng(0)
-        for k, (along, back) in enumerate(((-0.5, -0.75), (0.0, -0.8), (0.5, -0.75),
-                                           (-0.45, 0.0), (0.45, 0.0))):
+        for k, (along, back) in enumerate(NEIGHBOUR_ROW):
             c = np.clip(np.array([ROW_COLOR.r(), ROW_COLOR.g(), ROW_COLOR.b()])
                         * rng.uniform(0.8, 1.2), 0, 1)
             turn = RotationMatrix.MakeZRotation(rng.uniform(0, 2 * np.pi))

@@ -21,15 +21,28 @@ from lmap_drake.plants.greenhouse_model import FRUIT_COLORS
 from lmap_drake.station.config import DefaultCameraConfig
 
 # Every greenhouse scene: every fruit revealed in turn, the arm in the aisle
-# (as the multi-fruit suite, plants.suite.MULTI_SCENE_EXTRA), and segnet with
-# the weights trained for the greenhouse's look (models/segnet/segnet_greenhouse.json;
-# they lose 0.01-0.03 IoU on the one-leaf world, whose default stays segnet.pt).
-GREENHOUSE_SCENE_EXTRA = """planner: {targets: all}
-perception: {segnet_weights: models/segnet/segnet_greenhouse.pt}
+# clear of the row's canopy, and segnet with the weights trained for the
+# greenhouse's look (models/segnet/segnet_greenhouse.json; they lose 0.01-0.03
+# IoU on the one-leaf world, whose default stays segnet.pt).
+# The arm's base stands GREENHOUSE_AISLE_OFFSET in front of the row line,
+# 40 cm along the row from the worked plant, as the multi-fruit suite's
+# (plants.suite.MULTI_SCENE_EXTRA) stands 25 cm in front. That suite has no
+# neighbouring plants; here the row's next plant stands 45 cm along it
+# (greenhouse_scene.AddGreenhouseDressing), 5 cm from the base's line, and
+# at 25 cm in front the base stood inside that plant's leaves: leaf tips
+# reach 0.15-0.31 m from their stem (28 plants: this suite and two random
+# sets), and the upper arm pushed them on nearly every approach (the
+# planner refused them all for `gh_green_heavy`'s hidden fruit).
+# 45 cm keeps the base (radius 7.5 cm) 6 cm clear of the widest canopy
+# measured, sqrt(0.45^2 + 0.05^2) - 0.075 - 0.31. See
+# docs/explanation/plant-world.md ("Where the arm stands").
+GREENHOUSE_AISLE_OFFSET = 0.45   # m, base in front of the row line
+GREENHOUSE_SCENE_EXTRA = f"""planner: {{targets: all}}
+perception: {{segnet_weights: models/segnet/segnet_greenhouse.pt}}
 robot:
   X_WB:
-    translation: [0.1, -0.25, 0.0]
-    rotation: !Rpy { deg: [0.0, 0.0, 180.0] }
+    translation: [0.1, {-GREENHOUSE_AISLE_OFFSET}, 0.0]
+    rotation: !Rpy {{ deg: [0.0, 0.0, 180.0] }}
 """
 
 

@@ -15,7 +15,7 @@ from lmap_drake.paths import DIAGRAMS_DIR
 from lmap_drake.plants.config import GreenhouseFruitConfig, PlantSceneConfig
 from lmap_drake.plants.greenhouse import MAX_FEM_LEAVES, GenerateGreenhousePlant
 from lmap_drake.plants.greenhouse_model import GreenhouseConfigError
-from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant
+from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant, NeighbourBases, _CanopyMesh
 from lmap_drake.plants.greenhouse_suite import GreenhouseSuite, RandomGreenhouseSuite
 from lmap_drake.plants.multi import OCCLUDER_MIN
 from lmap_drake.plants.multi_geometry import SurfaceDistance
@@ -24,6 +24,7 @@ from lmap_drake.scenario import LoadScenario
 from lmap_drake.station.config import DefaultCameraConfig
 
 P_WC = DefaultCameraConfig().X_PB.GetDeterministicValue().translation()
+UR5_BASE_RADIUS = 0.075   # m, the UR5's base and shoulder (models/ur5)
 
 
 def _cfg(**g):
@@ -184,6 +185,15 @@ def test_every_suite_scene_loads_and_builds():
             if s.plant_scene.greenhouse.fruits[i].cover_leaves:
                 assert any(j < len(model.leaves) for j in f.occluders), (name, i)
             kinds.add(len([j for j in f.occluders if j < len(model.leaves)]) >= 2)
+        # the arm's base (radius UR5_BASE_RADIUS) stands clear of every
+        # plant of the row, each as wide as this one (its copies)
+        base = np.asarray(s.plant_scene.p_W_branch_base, float)
+        leaves, _ = _CanopyMesh(model)
+        reach = np.linalg.norm((leaves.vertices - base)[:, :2], axis=1).max()
+        p_WB = s.robot.X_WB.GetDeterministicValue().translation()
+        for q in np.vstack([base, NeighbourBases(base, model.p_WC)]):
+            gap = np.linalg.norm((p_WB - q)[:2]) - UR5_BASE_RADIUS - reach
+            assert gap > 0.0, (name, q, gap)
     assert kinds == {True, False}     # some targets under two FEM leaves, some under one
 
 
