@@ -82,6 +82,19 @@ class PlannerConfig:
     at the grasp.
     A station without the port (a replay) has no guard.
 
+    ``release_opening`` (m; 0 = the approach's opening): how far the pads
+    open to let the held leaf go, once it is carried back to where it was
+    grasped; never wider than the approach's opening. 1 cm: each pad moves
+    5 mm, less than the largest push the FEM brush study measured harmless
+    (0.8 cm, ``max_brush_displacement``). Opening to the approach's
+    3.5 cm moved each pad 1.7 cm into a leaf that had come to lie beside
+    it while the held one was away: in ``gh_fruit_behind_stem`` (label
+    oracle, the arm 45 cm in front of the row) a hidden occluder was
+    pressed at 5.7 N to a blade strain of 1.23 during the release; at 1 cm
+    that episode is safe with the same reveal
+    (docs/explanation/planner-parameters.md, "The release opens the pads
+    only as far as it must").
+
     ``action_families``: 'pull' (the paper's straight pulls: ``distances``
     along the ``num_directions`` fixed directions) and 'arc' (ours: the
     grasped leaf swung about its estimated petiole attachment by each of
@@ -350,6 +363,7 @@ class PlannerConfig:
     early_stop_fraction: float = 0.95
     pregrasp_distance: float = 0.05  # m: the pre-grasp sits this far back from the grasp (TCP z)
     pregrasp_opening: float = 0.035  # m, pad opening on the approach (narrower if the pads hit)
+    release_opening: float = 0.01    # m, pad opening that lets the leaf go (0 = the approach's)
     ready_distances: list[float] = dc.field(default_factory=lambda: [0.08, 0.02])
     grasp_close_width: float = 0.0     # the closing ramp's end: fully closed, so the pads meet a real 0.2-0.5 mm leaf
     gripper_close_speed: float = 0.05  # m/s: the commanded opening closes on the leaf this fast
@@ -445,6 +459,7 @@ _RULES = {
     "early_stop_fraction": "(0,1]",
     "pregrasp_distance": ">0",
     "pregrasp_opening": "(0,0.085]",
+    "release_opening": "[0,0.085]",
     "ready_distances": "+x>=0",
     "grasp_close_width": "[0,0.085]",
     "gripper_close_speed": ">0",

@@ -59,7 +59,7 @@ from lmap_drake.systems.arm_guard import (BackOffDone, ExecutedFraction, PullGua
                                           RetreatGuard, ZeroAtPregrasp)
 from lmap_drake.systems.arm_motion import ArmMotions, Refused
 from lmap_drake.systems.arm_status import (STALL_WINDOW, ControllerOptions, ControllerStatus,
-                                           GripperCommand)
+                                           GripperCommand, ReleaseOpening)
 from lmap_drake.types import SceneEstimate
 
 
@@ -296,7 +296,7 @@ class ArmSequence:
     def _Release(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
         if not st.released and self._traj_done(st, t):
             st.trajectory = None
-            st.gripper_cmd = st.pregrasp_opening
+            st.gripper_cmd = ReleaseOpening(self._planner, st.pregrasp_opening)
             st.released, st.t_released = True, t
         elif st.released and t - st.t_released >= self._release_time / self._speed_scale:
             f = inputs.wrist_force()         # the way out's zero, the arm at rest

@@ -129,3 +129,12 @@ def GripperCommand(st: ControllerStatus, t: float) -> float:
         return st.gripper_cmd
     t0, w0, w1, speed = st.gripper_ramp
     return max(w1, w0 - speed * (t - t0))
+
+
+def ReleaseOpening(planner, approach_opening: float) -> float:
+    """The opening (m) the pads open to when they let the held leaf go:
+    ``planner.release_opening`` (0: ``approach_opening``, the opening the
+    grasp was approached with), never wider than ``approach_opening``.
+    Each pad moves out half of it, pushing whatever lies beside it."""
+    w = float(planner.release_opening)
+    return float(approach_opening) if w <= 0.0 else min(w, float(approach_opening))

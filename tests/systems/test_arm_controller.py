@@ -26,7 +26,7 @@ def plans():
 
 def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None,
          return_speed_scale=1.0, wrist_force=None, max_pull_force=10.0, state=None,
-         max_retreat_force=3.0):
+         max_retreat_force=3.0, release_opening=None):
     """``wrist_force(status, t)``: the station's wrist force (3, N) fixed
     on the port before each 0.1 s step (None: the port is left
     unconnected); ``state(status, t)``: the measured joints (12), likewise
@@ -37,6 +37,8 @@ def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None
     s.planner.return_speed_scale = return_speed_scale
     s.planner.max_pull_force = max_pull_force
     s.planner.max_retreat_force = max_retreat_force
+    if release_opening is not None:
+        s.planner.release_opening = release_opening
     b = DiagramBuilder()
     log = []
     c = b.AddNamedSystem("arm_controller", ArmController(s, options=ControllerOptions(
@@ -217,7 +219,28 @@ def test_a_retreat_that_drags_a_leaf_goes_back_and_aborts(plans):
     assert [s["motion"] for s in st.force_stops] == ["retreat"]
     assert "caught on the gripper" in st.message and "free the leaf" in st.message
     assert np.allclose(st.q_hold, st.grasp_path[-1])      # back where it let go
-    assert st.gripper_cmd >= st.pregrasp_opening - 1e-9   # still open
+    # still open as far as the release opened it (planner.release_opening)
+    assert st.gripper_cmd == pytest.approx(Scenario().planner.release_opening)
+
+
+def test_the_pads_open_only_as_far_as_the_release_opening(plans):
+    """At the release the pads open to ``planner.release_opening`` (1 cm),
+    not to the approach's 3.5 cm: each pad moves 5 mm, so a leaf that came
+    to lie beside a pad while the held one was moved is pushed that far,
+    not 1.7 cm; 0 opens them to the approach's opening, as before."""
+    seen = {}
+
+    def force(st, t):
+        if st.mode in ("release", "retreat"):
+            seen.setdefault(st.mode, st.gripper_cmd)
+        return np.array([0.0, 0.0, -9.1])
+    for w in (None, 0.0):
+        seen.clear()
+        st, _, _ = _Run(plans, [True, False], wrist_force=force, release_opening=w)
+        assert st.mode == "done"
+        want = st.pregrasp_opening if w == 0.0 else Scenario().planner.release_opening
+        assert seen["retreat"] == pytest.approx(want)
+        assert want == pytest.approx(0.01 if w is None else 0.035)
 
 
 def test_a_grasp_that_already_loads_the_leaf_counts_against_the_limit(plans):
