@@ -82,9 +82,11 @@ class PlannerConfig:
     at the grasp.
     A station without the port (a replay) has no guard.
 
-    ``release_opening`` (m; 0 = the approach's opening): how far the pads
-    open to let the held leaf go, once it is carried back to where it was
-    grasped; never wider than the approach's opening. 1 cm: each pad moves
+    ``release_opening`` (m; 0 = the approach's opening): how far past the
+    opening measured on the leaf the pads open to let it go, once it is
+    carried back to where it was grasped; never wider than the approach's
+    opening. The way out waits (at most 2 s) until the gripper reports that
+    opening (``systems.arm_status.PadsOpened``). 1 cm: each pad moves
     5 mm, less than the largest push the FEM brush study measured harmless
     (0.8 cm, ``max_brush_displacement``). Opening to the approach's
     3.5 cm moved each pad 1.7 cm into a leaf that had come to lie beside
@@ -363,7 +365,7 @@ class PlannerConfig:
     early_stop_fraction: float = 0.95
     pregrasp_distance: float = 0.05  # m: the pre-grasp sits this far back from the grasp (TCP z)
     pregrasp_opening: float = 0.035  # m, pad opening on the approach (narrower if the pads hit)
-    release_opening: float = 0.01    # m, pad opening that lets the leaf go (0 = the approach's)
+    release_opening: float = 0.01    # m the pads open past the leaf to let go (0: the approach's)
     ready_distances: list[float] = dc.field(default_factory=lambda: [0.08, 0.02])
     grasp_close_width: float = 0.0     # the closing ramp's end: fully closed, so the pads meet a real 0.2-0.5 mm leaf
     gripper_close_speed: float = 0.05  # m/s: the commanded opening closes on the leaf this fast

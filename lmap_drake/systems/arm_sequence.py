@@ -59,7 +59,7 @@ from lmap_drake.systems.arm_guard import (BackOffDone, ExecutedFraction, PullGua
                                           RetreatGuard, ZeroAtPregrasp)
 from lmap_drake.systems.arm_motion import ArmMotions, Refused
 from lmap_drake.systems.arm_status import (STALL_WINDOW, ControllerOptions, ControllerStatus,
-                                           GripperCommand, ReleaseOpening)
+                                           GripperCommand, PadsOpened, ReleaseOpening)
 from lmap_drake.types import SceneEstimate
 
 
@@ -294,11 +294,13 @@ class ArmSequence:
                 self._StartRelease(st, t, "shape re-estimated on the fused views")
 
     def _Release(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
+        width = inputs.gripper_state()[0]
         if not st.released and self._traj_done(st, t):
             st.trajectory = None
-            st.gripper_cmd = ReleaseOpening(self._planner, st.pregrasp_opening)
+            st.gripper_cmd = ReleaseOpening(self._planner, st.pregrasp_opening, width)
             st.released, st.t_released = True, t
-        elif st.released and t - st.t_released >= self._release_time / self._speed_scale:
+        elif st.released and t - st.t_released >= self._release_time / self._speed_scale \
+                and PadsOpened(width, st.gripper_cmd, t - st.t_released):
             f = inputs.wrist_force()         # the way out's zero, the arm at rest
             self._StartRetreat(st, t, None if f is None else np.asarray(f, float).copy())
 

@@ -131,10 +131,32 @@ def GripperCommand(st: ControllerStatus, t: float) -> float:
     return max(w1, w0 - speed * (t - t0))
 
 
-def ReleaseOpening(planner, approach_opening: float) -> float:
+def ReleaseOpening(planner, approach_opening: float, held_width: float = 0.0) -> float:
     """The opening (m) the pads open to when they let the held leaf go:
-    ``planner.release_opening`` (0: ``approach_opening``, the opening the
-    grasp was approached with), never wider than ``approach_opening``.
-    Each pad moves out half of it, pushing whatever lies beside it."""
+    ``planner.release_opening`` past ``held_width`` (m, the measured
+    opening on the leaf), so each pad moves half of it away from the leaf,
+    pushing whatever lies beside it no farther; never wider than
+    ``approach_opening``, the opening the grasp was approached with
+    (``release_opening`` 0: that opening)."""
     w = float(planner.release_opening)
-    return float(approach_opening) if w <= 0.0 else min(w, float(approach_opening))
+    held = float(held_width) if np.isfinite(held_width) else 0.0
+    return float(approach_opening) if w <= 0.0 else min(max(held, 0.0) + w,
+                                                        float(approach_opening))
+
+
+# The way out waits until the pads report the release opening (within
+# PADS_OPEN_TOLERANCE), at most PADS_OPEN_TIMEOUT after the release: on
+# the digital twin under load the arm began backing out before its pads
+# had opened and dragged the leaf still between them (the retreat guard
+# stopped it at 10.5 N). A gripper that reports no opening (NaN) is not
+# waited for beyond the release time.
+PADS_OPEN_TOLERANCE = 0.001   # m
+PADS_OPEN_TIMEOUT = 2.0       # s
+
+
+def PadsOpened(width: float, commanded: float, since_release: float) -> bool:
+    """Whether the way out may begin: the measured opening ``width`` (m)
+    is within ``PADS_OPEN_TOLERANCE`` of ``commanded``, or unknown, or
+    ``since_release`` (s) has reached ``PADS_OPEN_TIMEOUT``."""
+    return (not np.isfinite(width) or width >= commanded - PADS_OPEN_TOLERANCE
+            or since_release >= PADS_OPEN_TIMEOUT)

@@ -26,7 +26,7 @@ def plans():
 
 def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None,
          return_speed_scale=1.0, wrist_force=None, max_pull_force=10.0, state=None,
-         max_retreat_force=3.0, release_opening=None):
+         max_retreat_force=3.0, release_opening=None, open_on_release=True):
     """``wrist_force(status, t)``: the station's wrist force (3, N) fixed
     on the port before each 0.1 s step (None: the port is left
     unconnected); ``state(status, t)``: the measured joints (12), likewise
@@ -70,6 +70,10 @@ def _Run(plans, answers, max_replans=1, gripper=(0.003, 0.0, 1.0), grip_log=None
             w = c.GetInputPort("gripper.state_measured").Eval(cc)[0]
             cmd = float(c.GetOutputPort("gripper.position").Eval(cc)[0])
             c.GetInputPort("gripper.state_measured").FixValue(cc, follow(w, cmd))
+        elif c.Status(cc).released and open_on_release:
+            # the fixed gripper opens when told to let the leaf go
+            cmd = float(c.GetOutputPort("gripper.position").Eval(cc)[0])
+            c.GetInputPort("gripper.state_measured").FixValue(cc, [cmd, 0.0, 0.0])
         sim.AdvanceTo(sim.get_context().get_time() + 0.1)
         st = c.Status(cc)
         if grip_log is not None:
@@ -219,15 +223,20 @@ def test_a_retreat_that_drags_a_leaf_goes_back_and_aborts(plans):
     assert [s["motion"] for s in st.force_stops] == ["retreat"]
     assert "caught on the gripper" in st.message and "free the leaf" in st.message
     assert np.allclose(st.q_hold, st.grasp_path[-1])      # back where it let go
-    # still open as far as the release opened it (planner.release_opening)
-    assert st.gripper_cmd == pytest.approx(Scenario().planner.release_opening)
+    # still open as far as the release opened it: planner.release_opening
+    # past the opening measured on the leaf (the fake gripper's 3 mm)
+    assert st.gripper_cmd == pytest.approx(0.003 + Scenario().planner.release_opening)
 
 
 def test_the_pads_open_only_as_far_as_the_release_opening(plans):
-    """At the release the pads open to ``planner.release_opening`` (1 cm),
-    not to the approach's 3.5 cm: each pad moves 5 mm, so a leaf that came
-    to lie beside a pad while the held one was moved is pushed that far,
-    not 1.7 cm; 0 opens them to the approach's opening, as before."""
+    """At the release the pads open ``planner.release_opening`` (1 cm) past
+    the opening measured on the leaf (the fake gripper's 3 mm), not to the
+    approach's 3.5 cm: each pad moves 5 mm, so a leaf that came to lie
+    beside a pad while the held one was moved is pushed that far, not
+    1.7 cm; 0 opens them to the approach's opening, as before. The way
+    out waits for the pads to report the opening (``PadsOpened``): a
+    gripper that never does is waited for ``PADS_OPEN_TIMEOUT``."""
+    from lmap_drake.systems.arm_status import PADS_OPEN_TIMEOUT
     seen = {}
 
     def force(st, t):
@@ -238,9 +247,25 @@ def test_the_pads_open_only_as_far_as_the_release_opening(plans):
         seen.clear()
         st, _, _ = _Run(plans, [True, False], wrist_force=force, release_opening=w)
         assert st.mode == "done"
-        want = st.pregrasp_opening if w == 0.0 else Scenario().planner.release_opening
+        want = st.pregrasp_opening if w == 0.0 else 0.003 + Scenario().planner.release_opening
         assert seen["retreat"] == pytest.approx(want)
-        assert want == pytest.approx(0.01 if w is None else 0.035)
+        assert want == pytest.approx(0.013 if w is None else 0.035)
+    waits = []
+    for opens in (True, False):
+        st, _, _ = _Run(plans, [True, False], open_on_release=opens)
+        log = st.mode_log
+        t_rel = next(t for t, m in log if m == "release")
+        t_out = next(t for t, m in log if m == "retreat")
+        waits.append(t_out - t_rel)
+    assert waits[1] - waits[0] >= PADS_OPEN_TIMEOUT - 0.5 - 0.21
+
+
+def test_the_way_out_waits_for_the_pads_to_open():
+    from lmap_drake.systems.arm_status import PADS_OPEN_TIMEOUT, PadsOpened
+    assert not PadsOpened(0.003, 0.013, 0.6)          # still on the leaf
+    assert PadsOpened(0.0125, 0.013, 0.6)             # open (within 1 mm)
+    assert PadsOpened(0.003, 0.013, PADS_OPEN_TIMEOUT)  # gave up waiting
+    assert PadsOpened(float("nan"), 0.013, 0.6)       # no measured opening
 
 
 def test_a_grasp_that_already_loads_the_leaf_counts_against_the_limit(plans):
