@@ -87,8 +87,8 @@ class PlannerConfig:
     carried back to where it was grasped; never wider than the approach's
     opening. The way out waits (at most 2 s) until the gripper reports that
     opening (``systems.arm_status.PadsOpened``). 1 cm: each pad moves
-    5 mm, less than the largest push the FEM brush study measured harmless
-    (0.8 cm, ``max_brush_displacement``). Opening to the approach's
+    5 mm, less than the FEM brush study's largest push measured harmless
+    (0.8 cm). Opening to the approach's
     3.5 cm moved each pad 1.7 cm into a leaf that had come to lie beside
     it while the held one was away: in ``gh_fruit_behind_stem`` (label
     oracle, the arm 45 cm in front of the row) a hidden occluder was
@@ -531,6 +531,11 @@ def ValidatePlannerConfig(cfg: PlannerConfig, prefix: str = "planner") -> None:
          f"must be angles in (0, 180) degrees, got {list(cfg.twist_angles_deg)}")
     need(all(0 < d < 0.1 for d in cfg.deeper_grasp_insets), "deeper_grasp_insets",
          f"must be insets in (0, 0.1) m, got {list(cfg.deeper_grasp_insets)}")
+    # below 3 mm the pads would stay within a digital twin's 2 mm release
+    # band and within the way out's 1 mm wait tolerance of the leaf
+    need(cfg.release_opening == 0.0 or cfg.release_opening >= 0.003, "release_opening",
+         f"must be 0 (the approach's opening) or at least 0.003 m past the leaf, "
+         f"got {cfg.release_opening:g}")
     fa = cfg.force_action
     need(len(fa) in (0, 3) and (not fa or (float(fa[0]).is_integer() and
                                            float(fa[1]).is_integer() and fa[2] > 0)),

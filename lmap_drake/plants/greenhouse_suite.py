@@ -30,10 +30,11 @@ from lmap_drake.station.config import DefaultCameraConfig
 # neighbouring plants; here the row's next plant stands 45 cm along it
 # (greenhouse_scene.AddGreenhouseDressing), 5 cm from the base's line, and
 # at 25 cm in front the base stood inside that plant's leaves: leaf tips
-# reach 0.15-0.31 m from their stem (28 plants: this suite and two random
-# sets), and the upper arm pushed them on nearly every approach (the
-# planner refused them all for `gh_green_heavy`'s hidden fruit).
-# 45 cm keeps the base (radius 7.5 cm) 6 cm clear of the widest canopy
+# reach 0.15-0.31 m from their stem (28 plants: this suite and random
+# seeds 5353 and 6363), and the upper arm pushed them on nearly every
+# approach (the planner refused them all for `gh_green_heavy`'s hidden
+# fruit).
+# 45 cm keeps the base (radius 7.5 cm) about 7 cm clear of the widest canopy
 # measured, sqrt(0.45^2 + 0.05^2) - 0.075 - 0.31. See
 # docs/explanation/plant-world.md ("Where the arm stands").
 GREENHOUSE_AISLE_OFFSET = 0.45   # m, base in front of the row line

@@ -21,7 +21,9 @@ from the held leaf, planned on the newest view) is evaluated while re-plans
 are left; when it has an action, that motion runs from the held pose (after
 the operator's yes with ``confirm``; a no releases the leaf). Release: the
 arm carries the held leaf back along every executed motion to where it was
-grasped, then the gripper opens (no spring-back); retreat: the approach in
+grasped, then the gripper opens ``planner.release_opening`` past the
+leaf (no spring-back) and the way out waits for the pads (``PadsOpened``,
+at most 2 s); retreat: the approach in
 reverse (grasp -> pre-grasp -> ready -> via), then the start pose. The
 status, its modes and the options are in ``arm_status``; the joint paths
 and their timing in ``arm_motion``.
@@ -294,6 +296,9 @@ class ArmSequence:
                 self._StartRelease(st, t, "shape re-estimated on the fused views")
 
     def _Release(self, inputs: ArmInputs, st: ControllerStatus, t: float) -> None:
+        """Once the leaf is carried back: open the pads ``ReleaseOpening``
+        (m) past the measured opening; then, after the release time and
+        once the pads report that opening (``PadsOpened``), back out."""
         width = inputs.gripper_state()[0]
         if not st.released and self._traj_done(st, t):
             st.trajectory = None

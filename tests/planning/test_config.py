@@ -19,6 +19,8 @@ def test_the_defaults_are_valid():
      "got ['pull', 'pull']"),
     ({"force_action": [1, 2, 0.04], "method": "random"}, "planner.force_action",
      "picks an LMAP candidate: it needs planner.method 'lmap'"),
+    ({"release_opening": 0.002}, "planner.release_opening",
+     "must be 0 (the approach's opening) or at least 0.003 m past the leaf, got 0.002"),
 ])
 def test_a_bad_value_names_its_key(change, key, detail):
     with pytest.raises(PlannerConfigError) as err:

@@ -12,6 +12,7 @@ from pydrake.systems.framework import DiagramBuilder
 from lmap_drake.planning.continuation import PlanContinuation
 from lmap_drake.scenario import Scenario
 from lmap_drake.systems.arm_controller import ArmController, ControllerOptions
+from lmap_drake.systems.arm_status import PADS_OPEN_TIMEOUT, PadsOpened, ReleaseOpening
 from lmap_drake.types import SemanticScene
 from tests.systems.test_planning_system import HeldAfterShortPull, _scene
 
@@ -236,7 +237,6 @@ def test_the_pads_open_only_as_far_as_the_release_opening(plans):
     1.7 cm; 0 opens them to the approach's opening, as before. The way
     out waits for the pads to report the opening (``PadsOpened``): a
     gripper that never does is waited for ``PADS_OPEN_TIMEOUT``."""
-    from lmap_drake.systems.arm_status import PADS_OPEN_TIMEOUT
     seen = {}
 
     def force(st, t):
@@ -257,11 +257,20 @@ def test_the_pads_open_only_as_far_as_the_release_opening(plans):
         t_rel = next(t for t, m in log if m == "release")
         t_out = next(t for t, m in log if m == "retreat")
         waits.append(t_out - t_rel)
-    assert waits[1] - waits[0] >= PADS_OPEN_TIMEOUT - 0.5 - 0.21
+    assert PADS_OPEN_TIMEOUT - 0.5 - 0.21 <= waits[1] - waits[0] <= PADS_OPEN_TIMEOUT - 0.5 + 0.21
+
+
+def test_the_release_opening_counts_from_the_leaf_and_stays_within_the_approach():
+    cfg = Scenario().planner                                  # release_opening 1 cm
+    assert ReleaseOpening(cfg, 0.035, 0.004) == pytest.approx(0.014)
+    assert ReleaseOpening(cfg, 0.035, 0.030) == pytest.approx(0.035)   # never wider
+    assert ReleaseOpening(cfg, 0.035, float("nan")) == pytest.approx(0.010)
+    assert ReleaseOpening(cfg, 0.035, -0.001) == pytest.approx(0.010)
+    cfg.release_opening = 0.0
+    assert ReleaseOpening(cfg, 0.035, 0.004) == pytest.approx(0.035)   # the old behaviour
 
 
 def test_the_way_out_waits_for_the_pads_to_open():
-    from lmap_drake.systems.arm_status import PADS_OPEN_TIMEOUT, PadsOpened
     assert not PadsOpened(0.003, 0.013, 0.6)          # still on the leaf
     assert PadsOpened(0.0125, 0.013, 0.6)             # open (within 1 mm)
     assert PadsOpened(0.003, 0.013, PADS_OPEN_TIMEOUT)  # gave up waiting
