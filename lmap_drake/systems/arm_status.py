@@ -146,10 +146,11 @@ def ReleaseOpening(planner, approach_opening: float, held_width: float = 0.0) ->
 
 # The way out waits until the pads report the release opening (within
 # PADS_OPEN_TOLERANCE), at most PADS_OPEN_TIMEOUT after the release: on
-# the digital twin under load the arm began backing out before its pads
-# had opened and dragged the leaf still between them (the retreat guard
-# stopped it at 10.5 N). A gripper that reports no opening (NaN) is not
-# waited for beyond the release time.
+# the digital twin under load an episode backed out with the leaf still
+# between the pads (the retreat guard stopped it at 10.5 N); whether the
+# pads' lag caused it is not established (docs/explanation/
+# planner-parameters.md, the release). A gripper that reports no opening
+# (NaN) is not waited for beyond the release time.
 PADS_OPEN_TOLERANCE = 0.001   # m
 PADS_OPEN_TIMEOUT = 2.0       # s
 
