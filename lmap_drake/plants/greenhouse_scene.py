@@ -96,7 +96,7 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     if g.dressing:
         AddGreenhouseDressing(plant, np.asarray(cfg.p_W_branch_base, float),
                               np.asarray(model.p_WC, float),
-                              _CanopyMesh(model) if g.neighbour_row else None)
+                              CanopyMesh(model) if g.neighbour_row else None)
     if not with_leaves:
         return handles
     K = len(model.leaves)
@@ -137,7 +137,7 @@ def AddGreenhousePlant(plant: MultibodyPlant, scene_graph, model, cfg: PlantScen
     return handles
 
 
-def _CanopyMesh(model) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
+def CanopyMesh(model) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
     """The plant's leaves and its stems, one mesh each (W): the neighbouring
     row's plants."""
     leaves = [s.surface_W for s in model.static_leaves] + [lf.Surface() for lf in model.leaves]

@@ -15,7 +15,7 @@ from lmap_drake.paths import DIAGRAMS_DIR
 from lmap_drake.plants.config import GreenhouseFruitConfig, PlantSceneConfig
 from lmap_drake.plants.greenhouse import MAX_FEM_LEAVES, GenerateGreenhousePlant
 from lmap_drake.plants.greenhouse_model import GreenhouseConfigError
-from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant, NeighbourBases, _CanopyMesh
+from lmap_drake.plants.greenhouse_scene import AddGreenhousePlant, CanopyMesh, NeighbourBases
 from lmap_drake.plants.greenhouse_suite import GreenhouseSuite, RandomGreenhouseSuite
 from lmap_drake.plants.multi import OCCLUDER_MIN
 from lmap_drake.plants.multi_geometry import SurfaceDistance
@@ -188,7 +188,7 @@ def test_every_suite_scene_loads_and_builds():
         # the arm's base (radius UR5_BASE_RADIUS) stands clear of every
         # plant of the row, each as wide as this one (its copies)
         base = np.asarray(s.plant_scene.p_W_branch_base, float)
-        leaves, _ = _CanopyMesh(model)
+        leaves, _ = CanopyMesh(model)
         reach = np.linalg.norm((leaves.vertices - base)[:, :2], axis=1).max()
         p_WB = s.robot.X_WB.GetDeterministicValue().translation()
         for q in np.vstack([base, NeighbourBases(base, model.p_WC)]):
