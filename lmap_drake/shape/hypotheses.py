@@ -125,6 +125,26 @@ tuning set 0.496 / 53.1 / 0.830 / 8.10, coverage 0.59 -> 0.490 / 48.3 /
 no faster. Not kept: 9 % per fruit leaves the fit at 0.74 s, the fit's
 300 small sequential steps do not gain from it, and results would then
 depend on whether a lab's CPU has bfloat16 kernels.
+
+A fit that converges instead of 300 Adam steps (2026-11-29, a prototype
+not on main): Levenberg-Marquardt on the same 39 unknowns and the same
+losses (per-row input gradients from one backward pass give every row's
+Jacobian through the chain rule; the negatives' hinge as its iteratively
+reweighted quadratic; active sets refreshed every 5 iterations and after a
+stall; the start and rotation hold of the Adam fit). It settles in 6-10
+iterations, at a lower loss than Adam's 300 steps, and the fit took 0.39 s
+per fruit on the family (Adam 1.11 s; the LM run shared the machine with
+a two-worker evaluation, so the ratio is if anything larger). But the
+settled minimum is not the better shape: with nothing but the losses the
+axis of round fruits rolls freely (family angle 23.4 deg on average, up to
+77 deg); with weak priors on the rotation and log scale away from the
+start (weights 0.1 / 0.1) the family read 0.24 / 20.5 / 0.40 / 7.4 (Adam
+in the same week 0.25 / 26.5 / 0.42 / 5.6) and the tuning set 0.54 / 55.9
+/ 0.91 / 8.3 (Adam 0.49 / 52.5 / 0.82 / 7.4); prior weights 0.02-0.5 and
+a longer hold gave 0.52-0.64 cm Chamfer and 8.0-11.8 deg there. Adam's 300
+damped steps from the template's mean act as a prior that the losses alone
+do not state; a converging fit needs that prior written down and chosen on
+principle, which was not done.
 """
 from __future__ import annotations
 
