@@ -219,21 +219,39 @@ BETWEEN_PADS_MIN_POINTS = 5
 
 
 def LeafBetweenPads(other_leaves_W: np.ndarray, p_WG: np.ndarray, R_WG: np.ndarray,
-                    half_open: float, pushed_ahead: float = 0.0) -> int:
+                    half_open: float, pushed_ahead: float = 0.0, hidden_reach: float = 0.0,
+                    p_WC: np.ndarray | None = None) -> int:
     """How many of ``other_leaves_W`` (m, world) lie in the volume the pads
     close through at the grasp pose (``p_WG``, ``R_WG``: y the closing
     axis, z the approach): within the pads' footprint (x, z), at most
     ``half_open`` (m) from the grasped blade along y and more than
     ``BETWEEN_PADS_OFF_BLADE`` off it. Points within ``pushed_ahead`` (m)
     of the pads' tips are left out: a leaf across the tips is pushed ahead
-    of them (the approach's brush check bounds that push), not pinched."""
+    of them (the approach's brush check bounds that push), not pinched.
+
+    ``hidden_reach`` (m, with the camera's position ``p_WC``): points behind
+    the grasped blade as the camera sees it, at a depth the pads close
+    through, count up to this far beyond the footprint too: that leaf goes
+    on under the held blade, where the camera cannot see it, and may pass
+    between the pads (``planner.hidden_leaf_reach``)."""
     pts = np.asarray(other_leaves_W, float).reshape(-1, 3)
     if not len(pts):
         return 0
-    p_G = (pts - np.asarray(p_WG, float)) @ np.asarray(R_WG, float)
-    inside = ((np.abs(p_G[:, 0]) <= 0.5 * PAD_WIDTH)
-              & (p_G[:, 2] >= -0.5 * PAD_LEN) & (p_G[:, 2] <= 0.5 * PAD_LEN - pushed_ahead)
-              & (np.abs(p_G[:, 1]) <= half_open) & (np.abs(p_G[:, 1]) > BETWEEN_PADS_OFF_BLADE))
+    p_WG = np.asarray(p_WG, float)
+    p_G = (pts - p_WG) @ np.asarray(R_WG, float)
+    depth = (np.abs(p_G[:, 1]) <= half_open) & (np.abs(p_G[:, 1]) > BETWEEN_PADS_OFF_BLADE)
+
+    def Footprint(reach: float) -> np.ndarray:
+        return ((np.abs(p_G[:, 0]) <= 0.5 * PAD_WIDTH + reach)
+                & (p_G[:, 2] >= -0.5 * PAD_LEN - reach)
+                & (p_G[:, 2] <= 0.5 * PAD_LEN - pushed_ahead + reach))
+
+    inside = depth & Footprint(0.0)
+    if hidden_reach > 0.0 and p_WC is not None:
+        to_camera = np.asarray(p_WC, float) - p_WG
+        to_camera /= max(float(np.linalg.norm(to_camera)), 1e-12)
+        behind = (pts - p_WG) @ to_camera < -BETWEEN_PADS_OFF_BLADE
+        inside |= depth & behind & Footprint(hidden_reach)
     return int(inside.sum())
 
 
@@ -255,12 +273,19 @@ def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only:
     for ready in cfg.ready_distances:
         got = _Approach(ctx, cfg, grasp, ready, memo, verdict_only)
         if isinstance(got, ApproachPlan):
-            n = LeafBetweenPads(getattr(ctx, "other_leaves_W", np.zeros((0, 3))), grasp.p_WG,
-                                grasp.R_WG, 0.5 * (got.opening or cfg.pregrasp_opening),
-                                min(cfg.max_brush_displacement, 0.5 * PAD_LEN))
+            half = 0.5 * (got.opening or cfg.pregrasp_opening)
+            ahead = min(cfg.max_brush_displacement, 0.5 * PAD_LEN)
+            others = getattr(ctx, "other_leaves_W", np.zeros((0, 3)))
+            n = LeafBetweenPads(others, grasp.p_WG, grasp.R_WG, half, ahead)
             if n >= BETWEEN_PADS_MIN_POINTS:
                 return None, (f"another leaf between the pads ({n} of its points where "
                               "the pads close)")
+            n = LeafBetweenPads(others, grasp.p_WG, grasp.R_WG, half, ahead,
+                                cfg.hidden_leaf_reach, getattr(ctx, "p_WC", None))
+            if n >= BETWEEN_PADS_MIN_POINTS:
+                return None, (f"another leaf may pass between the pads under the held one "
+                              f"({n} of its points behind it, within "
+                              f"planner.hidden_leaf_reach of the pads)")
             return got, ""
         why = got
         if not why.startswith("IK failed (staging)") and "on the way to the pre-grasp" not in why:

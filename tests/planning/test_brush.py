@@ -32,10 +32,10 @@ def robot():
     return RobotModel(RobotConfig().X_WB.GetDeterministicValue())
 
 
-def _Ctx(robot, leaf=NONE, other=NONE, fruit_sdf=None, branch=None):
+def _Ctx(robot, leaf=NONE, other=NONE, fruit_sdf=None, branch=None, p_WC=None):
     """A planning context with the given leaf points (W): a branch 25 cm
-    to the side unless ``branch`` is given."""
-    return SimpleNamespace(robot=robot, q_current=np.array(RobotConfig().initial_q),
+    to the side unless ``branch`` is given; no camera unless ``p_WC``."""
+    return SimpleNamespace(robot=robot, q_current=np.array(RobotConfig().initial_q), p_WC=p_WC,
                            leaf_W=leaf, other_leaves_W=other, fruit_sdf=fruit_sdf,
                            branch_distance=None, fruit_box=None, branch_box=None,
                            branch_all_W=(np.array([P_WG + [0, 0.25, 0]]) if branch is None
@@ -196,3 +196,29 @@ def test_a_leaf_where_the_pads_close_is_counted_and_refuses_the_grasp(robot):
     assert not c.feasible and c.reason.startswith("another leaf between the pads")
     c = _Plan(robot, _Ctx(robot, leaf=_Blade(0.0), other=_Blade(0.002)))
     assert not c.reason.startswith("another leaf between the pads")
+
+
+def test_a_leaf_behind_the_held_one_beside_the_pads_may_pass_between_them(robot):
+    """A leaf seen behind the grasped blade (as the camera sees it) at a
+    depth the pads close through, within ``hidden_leaf_reach`` of their
+    footprint, goes on under the held blade out of sight: refused."""
+    from lmap_drake.planning.approach import LeafBetweenPads
+    half = 0.5 * PlannerConfig().pregrasp_opening
+    p_WC = P_WG + 0.5 * R_WG[:, 1]         # the camera on the blade's front (G's +y)
+    aside = R_WG[:, 0] * 0.035             # 1.5-5.5 cm from the TCP along x: beside the pads
+    behind, front = _Blade(-0.010) + aside, _Blade(0.010) + aside
+    assert LeafBetweenPads(behind, P_WG, R_WG, half) == 0
+    n = LeafBetweenPads(behind, P_WG, R_WG, half, hidden_reach=0.02, p_WC=p_WC)
+    assert n >= 7 * 20                     # x 1.5-3.1 cm at 2 mm spacing, the blade's 4 cm along z
+    # in front of the held blade it would be seen where the pads close: not counted
+    assert LeafBetweenPads(front, P_WG, R_WG, half, hidden_reach=0.02, p_WC=p_WC) == 0
+    # farther aside than the reach, or deeper than the pads open: not counted
+    assert LeafBetweenPads(behind + aside, P_WG, R_WG, half, hidden_reach=0.02, p_WC=p_WC) == 0
+    assert LeafBetweenPads(_Blade(-(half + 0.004)) + aside, P_WG, R_WG, half,
+                           hidden_reach=0.02, p_WC=p_WC) == 0
+    held = _Blade(0.0)
+    c = _Plan(robot, _Ctx(robot, leaf=held, other=behind, p_WC=p_WC))
+    assert not c.feasible and c.reason.startswith("another leaf may pass between the pads"), c.reason
+    for ctx, cfg in ((_Ctx(robot, leaf=held, other=behind, p_WC=p_WC), {"hidden_leaf_reach": 0.0}),
+                     (_Ctx(robot, leaf=held, other=front, p_WC=p_WC), {})):
+        assert not _Plan(robot, ctx, **cfg).reason.startswith("another leaf"), cfg
