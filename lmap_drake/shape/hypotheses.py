@@ -37,7 +37,8 @@ and highest kept volume, named the 90 % interval: with K <= 10 hypotheses
 the 5th and 95th percentiles are the extremes), the centre (per world axis)
 and the axis (the largest angle between a kept hypothesis's axis and the
 estimate's). More of the fruit in view (the re-estimate after the action)
-leaves fewer hypotheses that fit, and a narrower interval.
+rules out the smaller shapes (the interval's lower end rises); with the
+back still unseen, deeper shapes still fit, so the width need not shrink.
 
 Measured (``scripts/eval_shape.py``, heavy occlusion, exact labels, 1
 torch thread on a shared 2-core machine; coverage = the fraction of cases
@@ -109,7 +110,8 @@ refreshes, about 0.05 s); 60 hypothesis steps: tuning-set coverage 0.73 /
 0.64 -> 0.45 / 0.45 (seeds 0 / 1); a hand-written backward pass over the
 rows with a gradient: slower than autograd at these sizes; the decoder's
 latent weights split once per decoder (4 % a step): it moved
-``test_the_set_covers_the_true_volume_and_narrows_with_more_points`` past
+the hypothesis test's width bound (then
+``test_the_set_covers_the_true_volume_and_narrows_with_more_points``) past
 its bound (interval ratio 0.66 -> 0.83; the old code gives 0.65-1.08 over
 optimiser seeds 0-4), so the decoder is as it was. A bfloat16 copy of the
 decoder for every pass of the fit and the set (this CPU multiplies

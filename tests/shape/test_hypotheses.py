@@ -1,7 +1,7 @@
 """lmap_drake.shape.hypotheses: the set of plausible fruit shapes from one
 partial view, fitted in one batched optimisation (a known template shape
-seen from one side: its volume lies in the set's interval; seen from all
-sides, the interval narrows)."""
+seen from one side: its volume lies in the set's interval; with its whole
+front seen, the smaller shapes drop out)."""
 import json
 
 import numpy as np
@@ -36,9 +36,14 @@ def _set(dec, mean, obs):
     return est, FitHypotheses(dec, mean, obs, CAM, [(free, 1.0)], P, est)
 
 
-def test_the_set_covers_the_true_volume_and_narrows_with_more_points(template):
+def test_the_set_covers_the_true_volume_and_more_of_the_front_rules_out_smaller_shapes(template):
     """The template's mean shape 15 % larger than the start, half hidden;
-    then its whole front in view."""
+    then its whole front in view. Both sets hold the true volume; with the
+    whole front seen the smaller shapes no longer fit, so the interval's
+    lower end rises. Its width need not shrink: the back is still unseen,
+    and deeper shapes still fit (over optimiser seeds 0-5, 2026-11-29: the
+    lower end rose 1.32-1.52x, the width changed 0.68-1.06x; an earlier
+    bound on the width held on one seed and one CPU only)."""
     dec, mean, lat = template
     gt, _ = _gt(dec, mean, s=1.15)
     v_true = abs(MeshVolume(gt.vertices_W, gt.faces)) * 1e6
@@ -52,8 +57,8 @@ def test_the_set_covers_the_true_volume_and_narrows_with_more_points(template):
     assert np.all(part.center_interval_W[0] <= part.center_interval_W[1])
     _, whole = _set(dec, mean, _visible_points(gt, n=1500))
     lo2, hi2 = whole.volume_interval_cm3
-    assert hi2 - lo2 < 0.7 * (hi - lo), ((lo, hi), (lo2, hi2))
-    assert lo2 <= v_true * 1.1 and hi2 >= v_true * 0.9
+    assert lo2 <= v_true <= hi2, (lo2, v_true, hi2)
+    assert lo2 > 1.2 * lo, ((lo, hi), (lo2, hi2))
 
 
 def test_starts_are_diverse_in_scale_axis_and_latent(template):
