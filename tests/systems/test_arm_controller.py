@@ -319,3 +319,35 @@ def test_the_zero_waits_for_the_arm_to_settle_at_the_pre_grasp_pose(plans):
     assert ended and not st.force_stops
     modes = dict((m, tt) for tt, m in reversed(st.mode_log))
     assert modes["approach"] - ended[0] >= 0.3       # it waited for the arm
+
+
+def test_the_retreat_guard_ignores_a_one_sample_spike_and_stops_on_a_lasting_rise():
+    """The retreat guard acts on the median of the last
+    ``RETREAT_WINDOW`` rises: the tool's inertia under a burst of commands
+    reads as one sample, a caught leaf as a rise that lasts."""
+    from types import SimpleNamespace
+    from lmap_drake.systems.arm_guard import RETREAT_WINDOW, RetreatGuard
+    entered = []
+    seq = SimpleNamespace(_planner=SimpleNamespace(max_retreat_force=8.0),
+                          _start_path=lambda *a, **k: None, _enter=lambda st, m, t, why: entered.append(m),
+                          motions=SimpleNamespace(ApproachTiming=lambda *a: {}, pull_speed=0.05))
+    force = [np.zeros(3)]
+    inputs = SimpleNamespace(wrist_force=lambda: force[0], measured_state=lambda: np.zeros(12))
+    st = SimpleNamespace(trajectory=object(), retreat_zero=None, force_trace=[], retreat_peak=0.0,
+                         retreat_out=[np.zeros(6), np.ones(6)], segments=[], force_stops=[],
+                         targets=[], q_hold=None)
+    t = 0.0
+    assert not RetreatGuard(seq, inputs, st, t)          # the zero
+    for f in [2.0] * RETREAT_WINDOW + [16.7, 2.4, 2.4, 2.4]:
+        t += 0.02
+        force[0] = np.array([f, 0.0, 0.0])
+        assert not RetreatGuard(seq, inputs, st, t), f
+    assert st.retreat_peak > 16.0 and not entered        # the spike is logged, not acted on
+    stops = []
+    for _ in range(RETREAT_WINDOW):
+        t += 0.02
+        force[0] = np.array([12.0, 0.0, 0.0])
+        stops.append(RetreatGuard(seq, inputs, st, t))
+        if stops[-1]:
+            break
+    assert stops[-1] and len(stops) == RETREAT_WINDOW // 2 + 1 and entered == ["back_off"]
