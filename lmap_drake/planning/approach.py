@@ -234,9 +234,19 @@ def LeafBetweenPads(other_leaves_W: np.ndarray, p_WG: np.ndarray, R_WG: np.ndarr
     through, count up to this far beyond the footprint too: that leaf goes
     on under the held blade, where the camera cannot see it, and may pass
     between the pads (``planner.hidden_leaf_reach``)."""
+    return PadCounts(other_leaves_W, p_WG, R_WG, half_open, pushed_ahead, hidden_reach,
+                     p_WC)[1]
+
+
+def PadCounts(other_leaves_W: np.ndarray, p_WG: np.ndarray, R_WG: np.ndarray,
+              half_open: float, pushed_ahead: float = 0.0, hidden_reach: float = 0.0,
+              p_WC: np.ndarray | None = None) -> tuple[int, int]:
+    """(``LeafBetweenPads`` without ``hidden_reach``, with it): the points
+    seen where the pads close, and those plus the ones that may pass
+    under the held blade; one transform of the points for both."""
     pts = np.asarray(other_leaves_W, float).reshape(-1, 3)
     if not len(pts):
-        return 0
+        return 0, 0
     p_WG = np.asarray(p_WG, float)
     p_G = (pts - p_WG) @ np.asarray(R_WG, float)
     depth = (np.abs(p_G[:, 1]) <= half_open) & (np.abs(p_G[:, 1]) > BETWEEN_PADS_OFF_BLADE)
@@ -246,13 +256,14 @@ def LeafBetweenPads(other_leaves_W: np.ndarray, p_WG: np.ndarray, R_WG: np.ndarr
                 & (p_G[:, 2] >= -0.5 * PAD_LEN - reach)
                 & (p_G[:, 2] <= 0.5 * PAD_LEN - pushed_ahead + reach))
 
-    inside = depth & Footprint(0.0)
+    seen = depth & Footprint(0.0)
+    inside = seen
     if hidden_reach > 0.0 and p_WC is not None:
         to_camera = np.asarray(p_WC, float) - p_WG
         to_camera /= max(float(np.linalg.norm(to_camera)), 1e-12)
         behind = (pts - p_WG) @ to_camera < -BETWEEN_PADS_OFF_BLADE
-        inside |= depth & behind & Footprint(hidden_reach)
-    return int(inside.sum())
+        inside = seen | (depth & behind & Footprint(hidden_reach))
+    return int(seen.sum()), int(inside.sum())
 
 
 def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only: bool = False
@@ -276,12 +287,11 @@ def GraspApproach(ctx: PlanningContext, grasp, cfg: PlannerConfig, verdict_only:
             half = 0.5 * (got.opening or cfg.pregrasp_opening)
             ahead = min(cfg.max_brush_displacement, 0.5 * PAD_LEN)
             others = getattr(ctx, "other_leaves_W", np.zeros((0, 3)))
-            n = LeafBetweenPads(others, grasp.p_WG, grasp.R_WG, half, ahead)
-            if n >= BETWEEN_PADS_MIN_POINTS:
-                return None, (f"another leaf between the pads ({n} of its points where "
-                              "the pads close)")
-            n = LeafBetweenPads(others, grasp.p_WG, grasp.R_WG, half, ahead,
+            seen, n = PadCounts(others, grasp.p_WG, grasp.R_WG, half, ahead,
                                 cfg.hidden_leaf_reach, getattr(ctx, "p_WC", None))
+            if seen >= BETWEEN_PADS_MIN_POINTS:
+                return None, (f"another leaf between the pads ({seen} of its points where "
+                              "the pads close)")
             if n >= BETWEEN_PADS_MIN_POINTS:
                 return None, (f"another leaf may pass between the pads under the held one "
                               f"({n} of its points behind it, within "

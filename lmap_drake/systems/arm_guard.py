@@ -11,6 +11,8 @@ the ``ArmInputs`` ``inputs``; each returns whether it changed the mode.
 """
 from __future__ import annotations
 
+from itertools import islice
+
 import numpy as np
 
 # The pull's zero is read at the pre-grasp pose once every joint is slower
@@ -132,8 +134,10 @@ def RetreatGuard(seq, inputs, st, t: float) -> bool:
         return False
     rise = _Rise(st, f, st.retreat_zero, t, "retreat")
     st.retreat_peak = max(st.retreat_peak, rise)
-    recent = [r for _, r, phase in st.force_trace if phase == "retreat"][-RETREAT_WINDOW:]
-    rise = float(np.median(recent))
+    # (from the end: the trace holds the whole episode)
+    recent = islice((r for _, r, phase in reversed(st.force_trace) if phase == "retreat"),
+                    RETREAT_WINDOW)
+    rise = float(np.median(list(recent)))
     if rise <= limit:
         return False
     q_now = np.asarray(inputs.measured_state()[:6], float).copy()
