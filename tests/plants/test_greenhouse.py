@@ -221,3 +221,16 @@ def test_random_suite_is_deterministic():
     assert list(a) == ["gh_random_3_000"]
     assert a["gh_random_3_000"] == b["gh_random_3_000"]
     assert 15 <= a["gh_random_3_000"].greenhouse.num_leaves <= 60
+
+
+def test_a_plant_with_more_than_eight_leaves_hiding_fruits_gets_them_all_as_fem():
+    """A dense random plant (``make_suite.py --greenhouse --random 8 --seed
+    6464``, its fourth: 11 leaves hide a fruit): every one is FEM, so a
+    planner grasping any true occluder grasps a leaf that moves (at 8 FEM
+    leaves, 3 of those 8 plants ended at a grasp on a static occluder)."""
+    from lmap_drake.plants.greenhouse_suite import RandomGreenhouseSuite
+    cfg = RandomGreenhouseSuite(8, 6464)["gh_random_6464_003"]
+    model = GenerateGreenhousePlant(cfg, P_WC)
+    hiding = {j for f in model.fruits for j in f.occluders}
+    assert len(hiding) > 8
+    assert hiding <= set(range(len(model.leaves)))        # FEM leaves come first
