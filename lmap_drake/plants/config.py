@@ -268,7 +268,7 @@ class GreenhouseConfig:
     random nodes. FEM: the leaves hiding a target fruit from camera0, then
     those hiding the other fruits, then those within ``fem_radius`` (m) of
     a target, at most ``max_fem_leaves``; with ``fem_occluders`` that
-    budget is raised to every leaf hiding a fruit (up to 16: in a real plant
+    budget is raised to every leaf hiding any part of a fruit (up to 16: in a real plant
     every leaf a planner may grasp moves) (each
     about ``fem_target_tets`` tetrahedra, material from ``plant_scene.leaf``);
     every other leaf is static (welded, visual; with collision geometry if

@@ -70,12 +70,13 @@ def GenerateGreenhousePlant(cfg, p_WC) -> GreenhousePlantModel:
     _NodeLeaves(cfg, stems, per_stem, fruit_meshes, leaves, blocked, rng)
     colors += [None] * (len(leaves) - len(colors))
     surfs = [x.Surface() for x in leaves]
-    occluders, occ_single = [], []
+    occluders, occ_single, partial = [], [], []
     for i, f in enumerate(fruits):
         single = np.array([views[i].Occlusion([s]) for s in surfs])
         occ_single.append(single)
         occluders.append([j for j in np.argsort(-single) if single[j] >= OCCLUDER_MIN])
-    fem = _ChooseFem(g, targets, occluders, fruits, surfs, blocked)
+        partial.append([j for j in np.argsort(-single) if 0.0 < single[j] < OCCLUDER_MIN])
+    fem = _ChooseFem(g, targets, occluders, fruits, surfs, blocked, partial)
     order = fem + [j for j in range(len(leaves)) if j not in fem]
     new_index = {j: k for k, j in enumerate(order)}
     heights = np.array([x.attach_W[2] for x in leaves])
@@ -305,29 +306,34 @@ def _NodeLeaf(g, lc, node, stem, az, stem_radius, fruit_meshes, rng):
     return leaf, margin
 
 
-def _ChooseFem(g, targets, occluders, fruits, surfs, blocked) -> list[int]:
+def _ChooseFem(g, targets, occluders, fruits, surfs, blocked, partial=()) -> list[int]:
     """The FEM leaves: each target's occluders (most hiding first, the
     targets in turn), then the other fruits' occluders (a planner revealing
     every fruit moves those too: a static leaf cannot be grasped), then the
-    leaves within ``fem_radius`` of a target fruit's surface (nearest
-    first); at most ``max_fem_leaves``, raised with ``fem_occluders`` to
-    the number of leaves hiding a fruit (at most ``MAX_FEM_LEAVES``); never
-    a blocked leaf."""
+    leaves hiding less than ``OCCLUDER_MIN`` of a fruit (``partial``, per
+    fruit, most hiding first: the planner's fruit shapes are larger than the
+    true ones, so it may move such a leaf too), then the leaves within
+    ``fem_radius`` of a target fruit's surface (nearest first); at most
+    ``max_fem_leaves``, raised with ``fem_occluders`` to the number of
+    leaves hiding any part of a fruit (at most ``MAX_FEM_LEAVES``); never a
+    blocked leaf."""
     chosen: list[int] = []
     budget = g.max_fem_leaves
     if g.fem_occluders:
-        hiding = {int(j) for o in occluders for j in o if j not in blocked}
+        hiding = {int(j) for o in list(occluders) + list(partial) for j in o
+                  if j not in blocked}
         budget = max(budget, min(len(hiding), MAX_FEM_LEAVES))
 
     def take(j):
         if j not in chosen and j not in blocked and len(chosen) < budget:
             chosen.append(int(j))
     others = [i for i in range(len(fruits)) if i not in targets]
-    for group in (targets, others):
-        for rank in range(max([len(occluders[i]) for i in group] or [0])):
-            for i in group:
-                if rank < len(occluders[i]):
-                    take(occluders[i][rank])
+    for lists in (occluders, partial if g.fem_occluders else ()):
+        for group in ((targets, others) if len(lists) else ()):
+            for rank in range(max([len(lists[i]) for i in group] or [0])):
+                for i in group:
+                    if rank < len(lists[i]):
+                        take(lists[i][rank])
     near = []
     for i in targets:
         for j, s in enumerate(surfs):

@@ -234,3 +234,21 @@ def test_a_plant_with_more_than_eight_leaves_hiding_fruits_gets_them_all_as_fem(
     hiding = {j for f in model.fruits for j in f.occluders}
     assert len(hiding) > 8
     assert hiding <= set(range(len(model.leaves)))        # FEM leaves come first
+
+
+def test_leaves_hiding_a_sliver_of_a_fruit_are_fem_after_the_occluders():
+    """A leaf hiding less than ``OCCLUDER_MIN`` of a fruit may still be
+    grasped (the planner's fruit shapes are larger than the true ones): with
+    ``fem_occluders`` it is FEM, after every occluder; without, only the
+    budget's occluders are."""
+    import trimesh
+    from types import SimpleNamespace
+    from lmap_drake.plants.greenhouse import _ChooseFem
+    fruit = SimpleNamespace(mesh_W=trimesh.creation.icosphere(radius=0.03))
+    far = [SimpleNamespace(vertices=np.array([[1.0 + j, 0.0, 0.0]])) for j in range(6)]
+    occluders, partial = [[3, 1], [4]], [[0], [5, 3]]
+    g = SimpleNamespace(max_fem_leaves=2, fem_radius=0.06, fem_occluders=True)
+    chosen = _ChooseFem(g, [0], occluders, [fruit, fruit], far, set(), partial)
+    assert chosen == [3, 1, 4, 0, 5]       # occluders (targets first), then the slivers
+    g.fem_occluders = False
+    assert _ChooseFem(g, [0], occluders, [fruit, fruit], far, set(), partial) == [3, 1]
