@@ -14,6 +14,7 @@ from __future__ import annotations
 from itertools import islice
 
 import numpy as np
+from pydrake.trajectories import PiecewisePolynomial
 
 # The pull's zero is read at the pre-grasp pose once every joint is slower
 # than this (rad/s), or MAX_SETTLE_TIME (s) after the move there ended: as
@@ -33,6 +34,33 @@ MAX_SETTLE_TIME = 1.0
 # alone. A rise that lasts stops the arm two samples (40 ms, 4 mm at the
 # approach's 10 cm/s) later than before.
 RETREAT_WINDOW = 5
+
+# A stop eases the commanded joints to rest over STOP_TIME (s) from where
+# the command stands, at its speed: a command that jumped back to the
+# measured joints (behind the command by the servo's lag) read as a
+# one-step backward velocity in the station's desired state and jerked
+# the held leaf. gh_random_7575_002 (default segmenter): the pull guard
+# stopped an arc at 8.5 N with the petiole at 11.0 N and the blade strain
+# at 1.08; the jerk's one sample read 19.5 N and 1.16 (limits 15 N, 1.10),
+# then both settled at 11.8 N and 1.09. Two controller steps (20 ms
+# each): the shortest ease the command can follow; the leaf is taut when
+# the guard acts, and every mm further counts (eased over 0.1 s, 2 mm
+# further, that stop read 14.9 N and 1.12; over 0.04 s, 13.2 N and 1.10).
+STOP_TIME = 0.04
+
+
+def EaseToRest(trajectory, t: float, duration: float = STOP_TIME):
+    """(A trajectory from the command at ``t`` of ``trajectory`` (joint
+    positions rad, velocities rad/s) to rest ``duration`` s later, cubic,
+    the velocity falling to 0; where it ends, rad). The joints travel half
+    the command's speed times ``duration`` further."""
+    q = np.asarray(trajectory.value(t), float).ravel()
+    v = (np.asarray(trajectory.EvalDerivative(t, 1), float).ravel()
+         if t < trajectory.end_time() else np.zeros_like(q))
+    q_end = q + 0.5 * duration * v
+    ease = PiecewisePolynomial.CubicHermite([t, t + duration], np.c_[q, q_end],
+                                            np.c_[v, np.zeros_like(v)])
+    return ease, q_end
 
 
 def ExecutedPart(path: list, q_now: np.ndarray) -> list:
@@ -91,10 +119,10 @@ def _RecordStop(st, t: float, rise: float, motion) -> None:
 
 def PullGuard(seq, inputs, st, t: float) -> bool:
     """``planner.max_pull_force``: True when the wrist force has risen more
-    than the limit above ``st.force_zero``; the arm then holds where it is
-    (measured), the executed part becomes the motion's path (what is
-    carried back), and the mode is ``hold`` (then observe, no further
-    motion, release)."""
+    than the limit above ``st.force_zero``; the arm then comes to rest
+    (``EaseToRest``: a few mm further along), the executed part becomes the
+    motion's path (what is carried back), and the mode is ``hold`` (then
+    observe, no further motion, release)."""
     limit = float(seq._planner.max_pull_force)
     if st.force_zero is None or st.trajectory is None:
         return False
@@ -105,9 +133,9 @@ def PullGuard(seq, inputs, st, t: float) -> bool:
     st.force_peak = max(st.force_peak, rise)
     if limit <= 0.0 or rise <= limit:
         return False
-    q_now = np.asarray(inputs.measured_state()[:6], float).copy()
-    st.motion_paths = st.motion_paths[:-1] + [ExecutedPart(st.motion_paths[-1], q_now)]
-    st.trajectory, st.q_hold = None, q_now
+    st.trajectory, q_end = EaseToRest(st.trajectory, t)
+    st.motion_paths = st.motion_paths[:-1] + [ExecutedPart(st.motion_paths[-1], q_end)]
+    st.q_hold = q_end
     st.force_stop = (f"force guard: the wrist force rose {rise:.1f} N above its value "
                      f"before the grasp (planner.max_pull_force {limit:g} N); the motion "
                      "stopped there")

@@ -351,3 +351,28 @@ def test_the_retreat_guard_ignores_a_one_sample_spike_and_stops_on_a_lasting_ris
         if stops[-1]:
             break
     assert stops[-1] and len(stops) == RETREAT_WINDOW // 2 + 1 and entered == ["back_off"]
+
+
+def test_a_stop_eases_the_command_to_rest_from_where_it_stands():
+    """``EaseToRest``: no jump in the commanded joints or their speed at the
+    stop (a jump back to the measured joints read as a backward velocity
+    and jerked the held leaf), at rest ``STOP_TIME`` later, half the speed
+    times that further along."""
+    from pydrake.trajectories import PiecewisePolynomial
+    from lmap_drake.systems.arm_guard import STOP_TIME, EaseToRest
+    q0, q1 = np.zeros(6), np.linspace(0.1, 0.6, 6)
+    traj = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
+        [0.0, 1.0, 2.0], np.c_[q0, 0.5 * (q0 + q1), q1], np.zeros(6), np.zeros(6))
+    t = 0.7
+    ease, q_end = EaseToRest(traj, t)
+    v = traj.EvalDerivative(t, 1).ravel()
+    assert np.abs(v).max() > 0.1
+    assert np.allclose(ease.value(t).ravel(), traj.value(t).ravel())
+    assert np.allclose(ease.EvalDerivative(t, 1).ravel(), v)
+    assert ease.end_time() == pytest.approx(t + STOP_TIME)
+    assert np.allclose(ease.EvalDerivative(t + STOP_TIME, 1).ravel(), 0.0, atol=1e-9)
+    assert np.allclose(q_end, traj.value(t).ravel() + 0.5 * STOP_TIME * v)
+    assert np.allclose(ease.value(t + STOP_TIME).ravel(), q_end)
+    # past its end the trajectory stands still: the ease starts at rest there
+    _, q_rest = EaseToRest(traj, 2.5)
+    assert np.allclose(q_rest, q1)
