@@ -22,13 +22,16 @@ GRACE_S = 2.0
 
 
 def _StartTime(pid: int) -> str | None:
-    """The process's start time (``/proc/PID/stat`` field 22), None when gone."""
+    """The process's start time (``/proc/PID/stat`` field 22), None when gone
+    or dead (a zombie: killed, its exit not yet collected by its parent,
+    which for an orphan is PID 1; it holds nothing but its pid)."""
     try:
         with open(f"/proc/{pid}/stat") as f:
             stat = f.read()
     except OSError:
         return None
-    return stat[stat.rfind(")") + 2:].split()[19]
+    fields = stat[stat.rfind(")") + 2:].split()
+    return None if fields[0] in ("Z", "X") else fields[19]
 
 
 def _Children() -> dict[int, list[int]]:
@@ -64,10 +67,13 @@ def _Alive(recorded: dict[int, str]) -> list[int]:
     return [pid for pid, start in recorded.items() if _StartTime(pid) == start]
 
 
-def Reap(recorded: dict[int, str]) -> None:
+def Reap(recorded: dict[int, str], refresh=None) -> None:
     """SIGTERM, then after ``GRACE_S`` SIGKILL, to the recorded processes
-    still alive (same pid and start time)."""
+    still alive (same pid and start time); ``refresh()`` before each (it
+    may record what they spawned meanwhile: a node shutting down can)."""
     for sig, wait in ((signal.SIGTERM, GRACE_S), (signal.SIGKILL, 0.0)):
+        if refresh is not None:
+            refresh()
         for pid in _Alive(recorded):
             try:
                 os.kill(pid, sig)
@@ -92,9 +98,10 @@ def Watch(parent: int) -> None:
     while _StartTime(parent) == parent_start and parent_start is not None:
         record()
         time.sleep(POLL_S)
+    roots = []
     record()            # what the node spawned since the last look
-    recorded = {p: s for p, s in recorded.items() if p != parent}
-    Reap(recorded)
+    recorded.pop(parent, None)
+    Reap(recorded, record)
 
 
 def main(argv: list[str]) -> int:

@@ -69,3 +69,23 @@ def test_sigkilled_ray_eval_leaves_no_ray_process(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_dead_process_not_yet_collected_counts_as_gone():
+    """A zombie (exited, its parent has not waited for it; an orphan's
+    parent is PID 1, which may collect it late) holds nothing: neither the
+    reaper nor this test's check waits for it."""
+    child = subprocess.Popen(["true"])
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            with open(f"/proc/{child.pid}/stat") as f:
+                state = f.read().rsplit(")", 1)[1].split()[0]
+            if state == "Z":
+                break
+            time.sleep(0.05)
+        assert state == "Z"
+        assert _StartTime(child.pid) is None
+        assert _StartTime(os.getpid()) is not None
+    finally:
+        child.wait()
