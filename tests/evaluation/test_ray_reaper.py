@@ -14,7 +14,8 @@ import pytest
 from lmap_drake.evaluation.ray_reaper import Descendants, _StartTime
 
 pytest.importorskip("ray")
-pytestmark = pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc (Linux)")
+pytestmark = [pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc (Linux)"),
+              pytest.mark.realtime]      # 10 s after a SIGKILL: timed
 
 ROOT = Path(__file__).resolve().parents[2]
 
