@@ -42,7 +42,7 @@ LEAF_TRIES = 6
 # (gh_random_6464_003, 11 hiding leaves) went on to reveal its fruits,
 # safe, in 229 s. A leaf far from the arm sleeps (its FEM is not stepped),
 # so an idle FEM leaf costs little. No greenhouse suite plant has more
-# than 6 (their FEM sets did not change).
+# than 8 leaves hiding any part of a fruit.
 MAX_FEM_LEAVES = 16
 
 
@@ -328,8 +328,8 @@ def _ChooseFem(g, targets, occluders, fruits, surfs, blocked, partial=()) -> lis
         if j not in chosen and j not in blocked and len(chosen) < budget:
             chosen.append(int(j))
     others = [i for i in range(len(fruits)) if i not in targets]
-    for lists in (occluders, partial if g.fem_occluders else ()):
-        for group in ((targets, others) if len(lists) else ()):
+    for lists in [occluders] + ([partial] if g.fem_occluders and len(partial) else []):
+        for group in (targets, others):
             for rank in range(max([len(lists[i]) for i in group] or [0])):
                 for i in group:
                     if rank < len(lists[i]):
