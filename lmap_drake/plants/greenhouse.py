@@ -74,8 +74,9 @@ def GenerateGreenhousePlant(cfg, p_WC) -> GreenhousePlantModel:
     for i, f in enumerate(fruits):
         single = np.array([views[i].Occlusion([s]) for s in surfs])
         occ_single.append(single)
-        occluders.append([j for j in np.argsort(-single) if single[j] >= OCCLUDER_MIN])
-        partial.append([j for j in np.argsort(-single) if 0.0 < single[j] < OCCLUDER_MIN])
+        most_first = np.argsort(-single)
+        occluders.append([j for j in most_first if single[j] >= OCCLUDER_MIN])
+        partial.append([j for j in most_first if 0.0 < single[j] < OCCLUDER_MIN])
     fem = _ChooseFem(g, targets, occluders, fruits, surfs, blocked, partial)
     order = fem + [j for j in range(len(leaves)) if j not in fem]
     new_index = {j: k for k, j in enumerate(order)}
