@@ -33,6 +33,10 @@ class PerceptionConfig:
     # render's leaf ids; segnet: its boundary head): flush blades that one
     # DBSCAN cluster joins (perception/leaf_boundaries.py). false: the ablation.
     leaf_boundaries: bool = True
+    # segnet: a fruit instance lying in a leaf's surface (its border mostly
+    # leaf continuing its depth: a phantom) gets confidence 0, so it is no
+    # target but stays an obstacle (segmentation.VetoLeafPatches). false: the ablation.
+    fruit_leaf_patches: bool = True
     # label: the greenhouse's neighbouring plants as leaf / branch (what the
     # camera sees, and what an arm must keep clear of in a real row) or, false,
     # as background (labels.OracleLabels; docs/how-to/greenhouse-suite.md)

@@ -291,8 +291,10 @@ def LowConfidence(confidence: float | None, min_confidence: float) -> str:
     confidence: taken as a fruit)."""
     if confidence is None or not confidence < min_confidence:
         return ""
-    return (f"segmentation confidence {confidence:.2f} below planner.min_fruit_confidence "
-            f"{min_confidence:g}")
+    why = ("segmentation confidence 0 (its border continues a leaf's surface: a "
+           "patch of leaf, perception.fruit_leaf_patches)" if confidence == 0.0
+           else f"segmentation confidence {confidence:.2f}")
+    return f"{why} below planner.min_fruit_confidence {min_confidence:g}"
 
 
 def LargestFruitSkipped(scene: SceneEstimate, cfg) -> str:

@@ -364,6 +364,11 @@ def test_a_fruit_instance_below_the_confidence_bar_is_no_target_but_an_occluder(
     # the skipped fruit still hides the other one: B's visibility is as before
     _, occ_all = FruitOrder(plant, X_WC, _confidence_cfg(0.0))
     assert occ[1]["visible"] == occ_all[1]["visible"]
+    # confidence 0 is perception's leaf-patch veto, and the reason says so
+    plant = dc.replace(plant, semantic=dc.replace(sem, fruit_confidence={4: 0.0, 7: 0.93}))
+    order, occ = FruitOrder(plant, X_WC, _confidence_cfg(0.5))
+    assert 0 not in order and "a patch of leaf, perception.fruit_leaf_patches" in \
+        occ[0]["implausible"]
     # 0 takes every instance; no confidence given counts as a fruit
     assert set(FruitOrder(plant, X_WC, _confidence_cfg(0.0))[0]) == {0, 1}
     bare = dc.replace(plant, semantic=dc.replace(plant.semantic, fruit_confidence={}))
