@@ -441,6 +441,7 @@ def FruitPatchesInLeaves(cls: np.ndarray, depth: np.ndarray,
     lab, n = ndimage.label(fruit, structure=np.ones((3, 3)))
     edge = np.zeros(n + 1)      # outline pairs per region (4-neighbours not in it)
     on_leaf = np.zeros(n + 1)   # of those, with a leaf pixel
+    known = np.zeros(n + 1)     # of those, both depths valid
     smooth = np.zeros(n + 1)    # of those, the leaf continuing the depth
     H, W = cls.shape
     for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
@@ -453,12 +454,15 @@ def FruitPatchesInLeaves(cls: np.ndarray, depth: np.ndarray,
         at[:, -1 if dx > 0 else 0] &= dx == 0     # no neighbour past the image's edge
         at[-1 if dy > 0 else 0, :] &= dy == 0
         edge += np.bincount(lab[at], minlength=n + 1)
+        on_leaf += np.bincount(lab[at & nb_leaf], minlength=n + 1)
+        measured = at & nb_leaf & np.isfinite(nb_d) & np.isfinite(d)
+        known += np.bincount(lab[measured], minlength=n + 1)
         with np.errstate(invalid="ignore"):
-            leaf_at = at & nb_leaf & np.isfinite(nb_d) & np.isfinite(d)
-            on_leaf += np.bincount(lab[leaf_at], minlength=n + 1)
-            smooth += np.bincount(lab[leaf_at & (np.abs(nb_d - d) < step)], minlength=n + 1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        patch = (on_leaf >= border * edge) & (smooth >= continuity * on_leaf) & (on_leaf > 0)
+            smooth += np.bincount(lab[measured & (np.abs(nb_d - d) < step)], minlength=n + 1)
+    # the continuity over the border pairs with both depths (the camera
+    # drops returns along edges; a depth step is judged where it is seen)
+    patch = ((on_leaf >= border * edge) & (known > 0)
+             & (smooth >= continuity * np.maximum(known, 1)))
     patch[0] = False
     return patch[lab]
 
