@@ -191,3 +191,32 @@ def test_training_learns_the_boundary_channel_on_leaf_pixels():
     TrainSteps(net, lambda: RandomCrop(sample, rng, size=32, jitter=False), 80, 2, 1e-2, "t")
     on, off = seam_probability()
     assert on > 0.5 > off
+
+
+def test_a_confident_leaf_patch_is_vetoed_on_a_greenhouse_plant_and_no_true_fruit_is():
+    """On a greenhouse suite plant segnet calls a leaf patch fruit with a
+    confidence above the planner's bar; its border continues the leaf's
+    surface, so it is vetoed (confidence 0, flagged, pixels still fruit),
+    while every true fruit instance keeps its confidence."""
+    import dataclasses as dc
+    from lmap_drake.perception.segmentation import LEAF_PATCH_FLAG, FruitInstanceTruth
+    from lmap_drake.plants.plant_station import RenderStill
+    s = LoadScenario(filename=REPO_ROOT / "diagrams" / "greenhouse_suite.yaml",
+                     scenario_name="gh_lanceolate_leaves")
+    rgb, depth, label = RenderStill(s)
+    K_cam = Intrinsics.FromCameraConfig(s.cameras["camera0"])
+    truth = TruthClassMap(label)
+    rows = {}
+    for veto in (False, True):
+        seg = MakeSegmenter(dc.replace(s.perception, fruit_leaf_patches=veto), K_cam).Segment(
+            rgb, depth)
+        rows[veto] = (FruitInstanceTruth(seg, truth, min_pixels=100), seg.flags)
+    before, _ = rows[False]
+    after, flags = rows[True]
+    assert [r["pixels"] for r in before] == [r["pixels"] for r in after]  # pixels unchanged
+    phantoms = [i for i, r in enumerate(before) if r["fruit"] < 0.5 and r["confidence"] >= 0.75]
+    assert phantoms, "the plant's confident leaf patch is gone: pick another scene"
+    assert all(after[i]["confidence"] == 0.0 for i in phantoms)
+    assert any(f.startswith(LEAF_PATCH_FLAG) for f in flags)
+    true = [i for i, r in enumerate(before) if r["fruit"] >= 0.5]
+    assert true and all(after[i]["confidence"] == before[i]["confidence"] for i in true)
