@@ -61,14 +61,21 @@ def CompoundEnergyPerNode(before: float, after: float) -> float:
 PULL_LEVER_REFERENCE = 0.10
 
 
-def MaxPullDistance(cfg: PlannerConfig, p_WG: np.ndarray,
-                    hinge_W: np.ndarray | None) -> float:
-    """The longest straight pull (m) allowed from grasp ``p_WG``:
-    ``planner.max_pull_distance`` times (L / ``PULL_LEVER_REFERENCE``)^2, L
-    the grasp's distance to the estimated attachment ``hinge_W`` (the leaf
-    as a beam clamped at its petiole: a grasp moved by d bends the petiole
-    with a moment that grows as d / L^2). Without a hinge the cap is not
-    scaled; inf when ``max_pull_distance`` is 0 (no cap)."""
+# m: the longest straight pull the cap was measured on (380 pulls of 1.5-4.5
+# cm, ``PlannerConfig.max_pull_distance``); the (L / 10 cm)^2 scaling is not
+# extrapolated past it. Two 6 cm pulls it allowed at a 14 cm lever loaded
+# their petioles 19.4 and 21.1 N (random_multi_9393_002 and _004, external
+# peppers; docs/explanation/multi-fruit.md).
+MEASURED_PULL_MAX = 0.045
+
+
+def LeverPullDistance(cfg: PlannerConfig, p_WG: np.ndarray,
+                      hinge_W: np.ndarray | None) -> float:
+    """``planner.max_pull_distance`` times (L / ``PULL_LEVER_REFERENCE``)^2
+    (m), L the grasp ``p_WG``'s distance to the estimated attachment
+    ``hinge_W`` (the leaf as a beam clamped at its petiole: a grasp moved by
+    d bends the petiole with a moment that grows as d / L^2). Without a
+    hinge the cap is not scaled; inf when ``max_pull_distance`` is 0."""
     cap = cfg.max_pull_distance
     if cap <= 0:
         return float("inf")
@@ -76,6 +83,15 @@ def MaxPullDistance(cfg: PlannerConfig, p_WG: np.ndarray,
         lever = float(np.linalg.norm(np.asarray(p_WG, float) - np.asarray(hinge_W, float)))
         cap *= (lever / PULL_LEVER_REFERENCE) ** 2
     return cap
+
+
+def MaxPullDistance(cfg: PlannerConfig, p_WG: np.ndarray,
+                    hinge_W: np.ndarray | None) -> float:
+    """The longest straight pull (m) allowed from grasp ``p_WG``: the
+    lever's (``LeverPullDistance``), at most ``MEASURED_PULL_MAX``; inf
+    when ``max_pull_distance`` is 0 (no cap)."""
+    cap = LeverPullDistance(cfg, p_WG, hinge_W)
+    return cap if not np.isfinite(cap) else min(cap, MEASURED_PULL_MAX)
 
 
 # The widest arc (deg) allowed at ``planner.arc_lever_reference``.

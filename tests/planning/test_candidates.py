@@ -108,3 +108,23 @@ def test_grasp_alternatives_keep_the_pads_across_the_leaf():
         assert not np.allclose(A, R)
     # the 180-degree turn about the approach axis is among them
     assert any(np.allclose(A, R @ np.diag([-1.0, -1.0, 1.0])) for A in alts)
+
+
+def test_the_pull_cap_grows_with_the_lever_but_not_past_the_pulls_it_was_measured_on():
+    """``MaxPullDistance``: 3 cm at a 10 cm lever, scaled by the lever
+    squared, never past ``MEASURED_PULL_MAX``; the extra pull candidate
+    is the lever's limit where it lies under that ceiling, and none is
+    added where the ceiling holds instead (no 6 cm pull at any lever)."""
+    from lmap_drake.planning.candidates import PullDistances
+    from lmap_drake.planning.config import PlannerConfig
+    from lmap_drake.planning.energy import MEASURED_PULL_MAX, MaxPullDistance
+    cfg = PlannerConfig()
+    hinge = np.zeros(3)
+    grasp = lambda L: np.array([0.0, 0.0, -L])
+    assert MaxPullDistance(cfg, grasp(0.10), hinge) == pytest.approx(0.03)
+    assert MaxPullDistance(cfg, grasp(0.12), hinge) == pytest.approx(0.03 * 1.44)
+    assert MaxPullDistance(cfg, grasp(0.14), hinge) == MEASURED_PULL_MAX == 0.045
+    assert MaxPullDistance(cfg, grasp(0.30), hinge) == MEASURED_PULL_MAX
+    assert PullDistances(cfg, grasp(0.105), hinge) == [0.02, 0.033, 0.04, 0.06, 0.08]
+    assert PullDistances(cfg, grasp(0.14), hinge) == [0.02, 0.04, 0.06, 0.08]
+    assert MaxPullDistance(cfg, grasp(0.14), None) == pytest.approx(0.03)   # no hinge: unscaled
