@@ -35,7 +35,7 @@ class PerceptionConfig:
     leaf_boundaries: bool = True
     # segnet: a fruit instance lying in a leaf's surface (its border mostly
     # leaf continuing its depth: a phantom) gets confidence 0, so it is no
-    # target but stays an obstacle (segmentation.VetoLeafPatches). false: the ablation.
+    # target but stays an obstacle (leaf_patches.VetoLeafPatches). false: the ablation.
     fruit_leaf_patches: bool = True
     # label: the greenhouse's neighbouring plants as leaf / branch (what the
     # camera sees, and what an arm must keep clear of in a real row) or, false,

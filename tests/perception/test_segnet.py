@@ -199,7 +199,8 @@ def test_a_confident_leaf_patch_is_vetoed_on_a_greenhouse_plant_and_no_true_frui
     surface, so it is vetoed (confidence 0, flagged, pixels still fruit),
     while every true fruit instance keeps its confidence."""
     import dataclasses as dc
-    from lmap_drake.perception.segmentation import LEAF_PATCH_FLAG, FruitInstanceTruth
+    from lmap_drake.perception.leaf_patches import LEAF_PATCH_FLAG
+    from lmap_drake.perception.segmentation import FruitInstanceTruth
     from lmap_drake.plants.plant_station import RenderStill
     s = LoadScenario(filename=REPO_ROOT / "diagrams" / "greenhouse_suite.yaml",
                      scenario_name="gh_lanceolate_leaves")
