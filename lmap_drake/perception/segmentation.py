@@ -44,8 +44,8 @@ from lmap_drake.errors import WeightsError
 from lmap_drake.labels import (BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT,
                                LeafBoundaryMask, OracleLabels)
 from lmap_drake.perception.fruit_fragments import JoinFruitFragments
-from lmap_drake.perception.leaf_patches import FruitPatchesInLeaves, VetoLeafPatches
 from lmap_drake.perception.leaf_boundaries import SplitRegionsAtNecks
+from lmap_drake.perception.leaf_patches import FruitPatchesInLeaves, VetoLeafPatches
 from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
 
 SEGMENTERS = ("segnet", "color_depth", "label", "sam", "grounded_sam")

@@ -19,7 +19,7 @@ from lmap_drake.planning.approach import GraspApproach, GraspSurelyBlocked, IkAn
 from lmap_drake.planning.attachment import AttachLeaf, EstimateHinge, UnseenPetiole
 from lmap_drake.planning.config import PlannerConfig
 from lmap_drake.planning.context import PlanningContext, SurfacesOf
-from lmap_drake.planning.energy import LeverPullDistance, MaxPullDistance
+from lmap_drake.planning.energy import MEASURED_PULL_MAX, LeverPullDistance
 from lmap_drake.planning.result import Candidate, CandidateSet
 from lmap_drake.planning.visibility import VisibilityModel
 from lmap_drake.deformation.config import DeformationConfig
@@ -175,13 +175,13 @@ def PullDistances(cfg: PlannerConfig, p_WG: np.ndarray, hinge_W: np.ndarray | No
     """The straight pulls' distances (m) from grasp ``p_WG``:
     ``planner.distances`` and, when it falls between two of them and at
     least 5 mm from each, the longest pull the grasp's lever allows
-    (``LeverPullDistance``, floored to the millimetre; not where the
-    ``MaxPullDistance`` ceiling holds it instead). Without it a grasp
+    (``LeverPullDistance``, floored to the millimetre; not past
+    ``MEASURED_PULL_MAX``, the ceiling of ``MaxPullDistance``). Without it a grasp
     whose cap is 4.7 cm stopped at the 4 cm pull: in ``four_fruits`` 0.71 of
     its fruit predicted, 0.91 at the 6 cm the cap refused."""
     ds = sorted(float(d) for d in cfg.distances)
     cap = LeverPullDistance(cfg, p_WG, hinge_W)
-    if ds and np.isfinite(cap) and cap <= MaxPullDistance(cfg, p_WG, hinge_W):
+    if ds and np.isfinite(cap) and cap <= MEASURED_PULL_MAX:
         cap = float(np.floor(cap * 1000.0)) / 1000.0
         if ds[0] < cap < ds[-1] and min(abs(cap - d) for d in ds) >= 0.005:
             ds = sorted(ds + [cap])

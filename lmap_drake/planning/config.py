@@ -253,10 +253,10 @@ class PlannerConfig:
     cap none of the 166 left did, the largest 11.9 N (3.5 cm: 14.9 N, where
     the attachment estimate was 3 cm off). On the single-fruit suite's four
     hazard scenes the same cap keeps 97 of 144 such pulls, the largest
-    9.6 N. The scaling is not extrapolated past the
-    longest pull measured: the cap is at most 4.5 cm
-    (``energy.MEASURED_PULL_MAX``; two 6 cm pulls it allowed at a 14 cm
-    lever loaded their petioles 19.4 and 21.1 N).
+    9.6 N. The scaling is not extrapolated past the longest pull
+    measured: the cap is at most 4.5 cm (``energy.MEASURED_PULL_MAX``; two
+    6 cm pulls it allowed at a 14 cm lever loaded their petioles 19.4 and
+    21.1 N).
 
     ``arc_lever_reference`` (m): an arc about the estimated attachment may
     turn at most 45 deg x L / this, L the grasp's distance to the
