@@ -7,7 +7,7 @@ import numpy as np
 from scipy import ndimage
 
 from lmap_drake.labels import FRUIT, LEAF
-from lmap_drake.perception.points import ValidDepthMask
+from lmap_drake.perception.points import Neighbour, ValidDepthMask
 
 # A fruit region is a patch of leaf when at least ``LEAF_PATCH_BORDER`` of
 # its outline borders leaf pixels and at least ``LEAF_PATCH_CONTINUITY`` of
@@ -41,13 +41,10 @@ def FruitPatchesInLeaves(cls: np.ndarray, depth: np.ndarray,
     on_leaf = np.zeros(n + 1)   # of those, with a leaf pixel
     known = np.zeros(n + 1)     # of those, both depths valid
     smooth = np.zeros(n + 1)    # of those, the leaf continuing the depth
-    H, W = cls.shape
+    leaf = cls == LEAF
     for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        ys = slice(max(dy, 0), H + min(dy, 0)); yd = slice(max(-dy, 0), H + min(-dy, 0))
-        xs = slice(max(dx, 0), W + min(dx, 0)); xd = slice(max(-dx, 0), W + min(-dx, 0))
-        nb_fruit = np.zeros(cls.shape, bool); nb_fruit[yd, xd] = fruit[ys, xs]
-        nb_leaf = np.zeros(cls.shape, bool); nb_leaf[yd, xd] = cls[ys, xs] == LEAF
-        nb_d = np.full(cls.shape, np.nan); nb_d[yd, xd] = d[ys, xs]
+        nb_fruit, nb_leaf = Neighbour(fruit, dy, dx, False), Neighbour(leaf, dy, dx, False)
+        nb_d = Neighbour(d, dy, dx, np.nan)
         at = fruit & ~nb_fruit
         at[:, -1 if dx > 0 else 0] &= dx == 0     # no neighbour past the image's edge
         at[-1 if dy > 0 else 0, :] &= dy == 0

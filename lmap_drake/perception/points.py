@@ -70,6 +70,16 @@ def ValidDepthMask(depth: np.ndarray, depth_cut: float | None = None) -> np.ndar
     return valid
 
 
+def Neighbour(image: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
+    """``image`` (HxW) read at each pixel's neighbour (y + dy, x + dx);
+    ``fill`` where that neighbour lies outside the image."""
+    H, W = image.shape[:2]
+    out = np.full(image.shape, fill, dtype=np.result_type(image, np.asarray(fill)))
+    out[max(-dy, 0):H + min(-dy, 0), max(-dx, 0):W + min(-dx, 0)] = \
+        image[max(dy, 0):H + min(dy, 0), max(dx, 0):W + min(dx, 0)]
+    return out
+
+
 def FlyingPixelMask(depth: np.ndarray, jump: float) -> np.ndarray:
     """Pixels whose depth lies between two surfaces: among their 8
     neighbours one is nearer and one farther by more than ``jump`` m. A

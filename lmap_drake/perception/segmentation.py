@@ -46,7 +46,7 @@ from lmap_drake.labels import (BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT,
 from lmap_drake.perception.fruit_fragments import JoinFruitFragments
 from lmap_drake.perception.leaf_boundaries import SplitRegionsAtNecks
 from lmap_drake.perception.leaf_patches import FruitPatchesInLeaves, VetoLeafPatches
-from lmap_drake.perception.points import Intrinsics, PointsImage, ValidDepthMask
+from lmap_drake.perception.points import Intrinsics, Neighbour, PointsImage, ValidDepthMask
 
 SEGMENTERS = ("segnet", "color_depth", "label", "sam", "grounded_sam")
 CLASS_IDS = {"branch": BRANCH, "leaf": LEAF, "fruit": FRUIT}
@@ -350,18 +350,12 @@ class ColorDepthSegmenter(Segmenter):
         # Fill rims and discontinuity pixels from depth-continuous neighbours.
         todo = valid & (cls == BACKGROUND) & (plant | edges)
         tol = max(p.depth_edge, 1e-3)
-        H, W = d.shape
         for _ in range(p.fill_iterations):
             if not todo.any():
                 break
             new = cls.copy()
             for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1)):
-                src = np.zeros_like(cls)
-                srcd = np.full(d.shape, np.nan)
-                ys = slice(max(dy, 0), H + min(dy, 0)); yd = slice(max(-dy, 0), H + min(-dy, 0))
-                xs = slice(max(dx, 0), W + min(dx, 0)); xd = slice(max(-dx, 0), W + min(-dx, 0))
-                src[yd, xd] = cls[ys, xs]
-                srcd[yd, xd] = d[ys, xs]
+                src, srcd = Neighbour(cls, dy, dx, 0), Neighbour(d, dy, dx, np.nan)
                 with np.errstate(invalid="ignore"):
                     ok = todo & (new == BACKGROUND) & (src != BACKGROUND) & (np.abs(srcd - d) < tol)
                 new[ok] = src[ok]
@@ -393,17 +387,11 @@ def SnapFruitToDepthEdges(cls: np.ndarray, depth: np.ndarray, front: float = 0.0
     ahead = np.zeros(cls.shape, bool)
     with np.errstate(invalid="ignore"):
         ahead[fruit] = d[fruit] < np.asarray(med)[lab[fruit] - 1] - front
-    H, W = cls.shape
     for _ in range(iterations):
         leaf = cls == LEAF
         flip = np.zeros(cls.shape, bool)
         for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-            ys = slice(max(dy, 0), H + min(dy, 0)); yd = slice(max(-dy, 0), H + min(-dy, 0))
-            xs = slice(max(dx, 0), W + min(dx, 0)); xd = slice(max(-dx, 0), W + min(-dx, 0))
-            nb_leaf = np.zeros(cls.shape, bool)
-            nb_d = np.full(cls.shape, np.nan)
-            nb_leaf[yd, xd] = leaf[ys, xs]
-            nb_d[yd, xd] = d[ys, xs]
+            nb_leaf, nb_d = Neighbour(leaf, dy, dx, False), Neighbour(d, dy, dx, np.nan)
             with np.errstate(invalid="ignore"):
                 flip |= ahead & (cls == FRUIT) & nb_leaf & (np.abs(nb_d - d) < continuity)
         if not flip.any():

@@ -370,3 +370,13 @@ def test_fruit_instances_carry_the_mean_confidence_of_their_pixels():
     assert set(two.fruit_confidence) == got
     assert all(0.4 < c < 0.6 for c in two.fruit_confidence.values())
     assert len(two.fruit_points_W) == len(one.fruit_points_W)   # points unchanged
+
+
+def test_neighbour_reads_the_shifted_pixel_and_fills_past_the_edge():
+    from lmap_drake.perception.points import Neighbour
+    a = np.arange(12.0).reshape(3, 4)
+    right = Neighbour(a, 0, 1, np.nan)
+    assert np.array_equal(right[:, :3], a[:, 1:]) and np.isnan(right[:, 3]).all()
+    up = Neighbour(a.astype(int), -1, 0, -1)
+    assert np.array_equal(up[1:], a[:2].astype(int)) and (up[0] == -1).all()
+    assert Neighbour(a > 5, 1, -1, False).dtype == bool
