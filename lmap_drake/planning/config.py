@@ -319,6 +319,21 @@ class PlannerConfig:
     strained the blade past the tear limit, pressed by a pad's edge.
     docs/explanation/dense-canopy.md quotes the data and the measurements.
 
+    ``push_back_check``: a straight pull that moves the grasp away from the
+    camera (by s, its component along the camera-grasp ray) is also checked
+    with the observed leaf shifted back by s along that ray, whole: the
+    leaf-fruit check then applies to it as to the predicted leaf. A blade
+    pushed back at one point can slide back on its petiole instead of
+    bending as the graph predicts, and behind a leaf that hides a fruit
+    lies that fruit. In ``gh_random_5353_001`` (label oracle, the fruit's
+    estimate 0.13 cm Chamfer off) a 4 cm pull up, left and back (2.0 cm
+    back) was predicted to lift the blade's base over the fruit (+2.2 cm
+    up, clear by 17.8 mm); the FEM blade's base went 2.3 cm back and 0.5
+    cm up, onto the fruit (2.8 N). A stiffer virtual petiole in the graph
+    predicted it staying put (wrong too). Arcs and twists are turns about
+    the hinge and are not shifted. docs/explanation/dense-canopy.md
+    ("A leaf pushed back") has the measurements and what it costs.
+
     ``check_leaf_branch``: reject an action whose predicted leaf ends within
     ``collision_margin`` of the completed branch (stems and shoots) after
     moving toward it, as the paper's leaf-fruit check does for the fruit
@@ -441,6 +456,7 @@ class PlannerConfig:
     # 2 sin(turn / 2) hinge_error / lever above this: the held blade may tear (0 = off)
     max_hinge_misfit: float = 0.4
     check_leaf_branch: bool = False
+    push_back_check: bool = True
     max_reveals_per_fruit: int = 2
     next_leaf_min_gain: float = 0.05
     reveal_moved_leaf_again: bool = True

@@ -227,6 +227,36 @@ class _LeafChecks:
                                       what="branch", ignore_touching=True)
         return why
 
+    def PushedBackReason(self, action) -> str:
+        """The leaf-fruit check of the observed leaf shifted back whole by
+        a straight pull's push away from the camera (``PushedBackLeaf``;
+        '' for turns and pulls toward the camera)."""
+        if action.family != "pull":
+            return ""
+        pushed, s = PushedBackLeaf(self.ctx.leaf_W, self.ctx.p_WC, action.p_WG, action.dp_W)
+        if pushed is None:
+            return ""
+        why = self.Reason(pushed)
+        return f"{why} if pushed back {s * 100:.1f} cm" if why else ""
+
+
+def PushedBackLeaf(leaf_W: np.ndarray, p_WC: np.ndarray, p_WG: np.ndarray,
+                   dp_W: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """The leaf points (N, 3; W, m) shifted by the part of a grasp motion
+    ``dp_W`` (m) along the ray from the camera ``p_WC`` through the grasp
+    ``p_WG``, and that part s (m); (None, s) when the motion does not move
+    the grasp away from the camera (s <= 0). A blade pushed back at one
+    point can slide back whole on its petiole (``planner.push_back_check``)."""
+    ray = np.asarray(p_WG, float) - np.asarray(p_WC, float)
+    n = np.linalg.norm(ray)
+    if n == 0:
+        return None, 0.0
+    ray /= n
+    s = float(np.asarray(dp_W, float) @ ray)
+    if s <= 0:
+        return None, s
+    return np.asarray(leaf_W, float) + s * ray, s
+
 
 def _PredictVisibility(ctx: PlanningContext, cset: CandidateSet, cfg: PlannerConfig,
                        cands: list[Candidate], forced: Candidate | None, n_max: int) -> None:
@@ -251,6 +281,8 @@ def _PredictVisibility(ctx: PlanningContext, cset: CandidateSet, cfg: PlannerCon
             if not (c.feasible or is_forced):
                 continue
             why = leaf_checks.Reason(c.deformed_leaf_W)
+            if not why and cfg.push_back_check:
+                why = leaf_checks.PushedBackReason(c.action)
             if why:
                 c.reason = c.reason or why
                 if not is_forced:
