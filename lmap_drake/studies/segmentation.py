@@ -14,7 +14,8 @@ Default scenarios: every scenario in diagrams/suite.yaml if that file exists,
 otherwise Defaults and OneOfEverything from diagrams/default.yaml.
 
 Writes JSON: ``{backend: {"mean": {"fruit_iou", "leaf_iou", "branch_iou"},
-"mean_non_green": {...}, "mean_green": {...}, "phantom_fruits_per_view",
+"pooled": {the same, over every view's pixels together}, "mean_non_green": {...},
+"mean_green": {...}, "phantom_fruits_per_view",
 "per_fruit_color": {colour: {"fruit_iou", "views"}}, "scenarios": {name: {...}}}}``.
 IoU is over pixels; the robot counts as background, a neighbouring plant's
 pixels (the greenhouse's next row) are left out. A class absent from both
@@ -133,9 +134,12 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     row = {}
     keep = NeighbourClassMap(label) == 0
     row["neighbour_pixels"] = int((~keep).sum())
+    row["pixels"] = {}
     for key, c in CLASSES:
         v = ClassIou(seg.class_map[keep], truth[keep], c)
         row[key] = None if math.isnan(v) else round(v, 4)
+        a, b = seg.class_map[keep] == c, truth[keep] == c
+        row["pixels"][key] = [int((a & b).sum()), int((a | b).sum())]  # intersection, union
     # the same without the robot's pixels: what reaches the planner, whose
     # points pass the robot self-filter (perception.points, from the joints)
     cls, inst = DecodeLabels(label)
@@ -185,6 +189,7 @@ def Summary(rows: list[dict]) -> dict:
     colors = sorted({c for r in rows for c in r["fruit_colors"]})
     n = max(len(rows), 1)
     return {"mean": {k: v for k, v in m.items() if k.endswith("_iou")},
+            "pooled": _Pooled(rows),
             "mean_without_robot": {k: v for k, v in _mean(
                 [r["without_robot"] for r in rows if "without_robot" in r]).items()
                 if k.endswith("_iou")},
@@ -206,6 +211,20 @@ def Summary(rows: list[dict]) -> dict:
             "instances": {"fruit_instances": sum(len(r["fruit_instances"]) for r in rows),
                           "phantoms": sum(r["phantoms"] for r in rows)},
             "views_evaluated": len(rows)}
+
+
+def _Pooled(rows: list[dict]) -> dict:
+    """Per class, the IoU of every view's pixels together (the sums of the
+    intersections over the sums of the unions; None with no pixel of the
+    class anywhere): the dataset-level IoU of the segmentation benchmarks.
+    Beside the per-view ``mean``, in which a view with no true fruit and a
+    few pixels called fruit scores 0 and weighs as much as any other."""
+    out = {}
+    for key, _ in CLASSES:
+        pairs = [r["pixels"][key] for r in rows if "pixels" in r]
+        union = sum(u for _, u in pairs)
+        out[key] = round(sum(i for i, _ in pairs) / union, 4) if union else None
+    return out
 
 
 def _BoundarySummary(rows: list[dict]) -> dict | None:
@@ -278,7 +297,8 @@ def EvalSegmentation(out, scenario_file: Path | None = None, scenario_names: lis
     Path(out).write_text(json.dumps(res, indent=2))
     for b in backends:
         g, o = res[b]["mean_green"], res[b]["mean_non_green"]
-        print(f"{b:12s} mean {res[b]['mean']}  fruit IoU green {g['fruit_iou']} "
+        print(f"{b:12s} mean {res[b]['mean']}  pooled {res[b]['pooled']}  "
+              f"fruit IoU green {g['fruit_iou']} "
               f"(n={g['fruit_n']}), others {o['fruit_iou']} (n={o['fruit_n']}); phantom fruit "
               f"instances {res[b]['instances']['phantoms']} of "
               f"{res[b]['instances']['fruit_instances']}")

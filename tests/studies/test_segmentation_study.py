@@ -50,3 +50,30 @@ def test_view_rows_score_the_leaf_boundary_band_against_the_true_seams():
     none = ViewRow(Segmentation(exact.class_map, exact.instance_map), truth, label, rgb)
     none["fruit_color"] = None
     assert "leaf_boundary" not in none and Summary([none])["leaf_boundary"] is None
+
+
+def test_pooled_iou_sums_the_pixels_of_every_view_where_the_mean_averages_views():
+    import numpy as np
+    from lmap_drake.labels import FRUIT, LEAF, EncodeLabel
+    from lmap_drake.perception.segmentation import LabelSegmenter, Segmentation, TruthClassMap
+    from lmap_drake.studies.segmentation import Summary, ViewRow
+    rgb = np.full((40, 60, 3), 90, np.uint8)
+    with_fruit = np.zeros((40, 60), np.int32)
+    with_fruit[5:35, 5:30] = EncodeLabel(LEAF, 0)
+    with_fruit[10:30, 35:55] = EncodeLabel(FRUIT, 0)      # 400 fruit pixels
+    fruitless = np.zeros((40, 60), np.int32)
+    fruitless[5:35, 5:30] = EncodeLabel(LEAF, 0)
+    rows = []
+    for label in (with_fruit, fruitless):
+        exact = LabelSegmenter().Segment(None, None, label)
+        cls = exact.class_map.copy()
+        if label is fruitless:
+            cls[0:2, 0:2] = FRUIT                            # 4 stray pixels called fruit
+        r = ViewRow(Segmentation(cls, exact.instance_map), TruthClassMap(label), label, rgb)
+        r["fruit_color"] = None
+        rows.append(r)
+    assert [r["fruit_iou"] for r in rows] == [1.0, 0.0]
+    s = Summary(rows)
+    assert s["mean"]["fruit_iou"] == 0.5
+    assert s["pooled"]["fruit_iou"] == round(400 / 404, 4)
+    assert s["pooled"]["leaf_iou"] == 1.0 and s["pooled"]["branch_iou"] is None
