@@ -208,14 +208,19 @@ class _LeafChecks:
         self.rest_branch = None    # the branch distance there
         self.anchors = None        # the fruits' mesh distances there (``DistanceAnchors``)
 
-    def Reason(self, deformed_leaf_W: np.ndarray) -> str:
-        ctx, cfg = self.ctx, self.cfg
+    def FruitReason(self, deformed_leaf_W: np.ndarray) -> str:
+        """The leaf-fruit check alone."""
+        ctx = self.ctx
         if self.rest_sdf is None and ctx.fruit_sdf is not None:
             self.rest_sdf = np.asarray(ctx.fruit_sdf(ctx.leaf_W), float)
             self.anchors = DistanceAnchors(ctx.fruit_sdf, ctx.leaf_W)
-        why = LeafCollisionReason(ctx.leaf_W, deformed_leaf_W, ctx.fruit_sdf,
-                                  cfg.collision_margin, ctx.fruit_box, self.rest_sdf,
-                                  anchors=self.anchors)
+        return LeafCollisionReason(ctx.leaf_W, deformed_leaf_W, ctx.fruit_sdf,
+                                   self.cfg.collision_margin, ctx.fruit_box, self.rest_sdf,
+                                   anchors=self.anchors)
+
+    def Reason(self, deformed_leaf_W: np.ndarray) -> str:
+        ctx, cfg = self.ctx, self.cfg
+        why = self.FruitReason(deformed_leaf_W)
         if not why and cfg.check_leaf_branch and ctx.branch_distance is not None:
             # the held leaf swung into a stem or shoot (the FEM leaf
             # then presses it, loading its own petiole); points resting
@@ -236,7 +241,9 @@ class _LeafChecks:
         pushed, s = PushedBackLeaf(self.ctx.leaf_W, self.ctx.p_WC, action.p_WG, action.dp_W)
         if pushed is None:
             return ""
-        why = self.Reason(pushed)
+        # the fruit only: shifted whole, the blade's base would enter the
+        # branch it hangs from
+        why = self.FruitReason(pushed)
         return f"{why} if pushed back {s * 100:.1f} cm" if why else ""
 
 

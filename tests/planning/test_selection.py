@@ -50,3 +50,12 @@ def test_a_pull_pushing_the_leaf_back_toward_its_fruit_is_checked_with_the_leaf_
     arc = Action(p_WG, np.eye(3), family="arc", pivot_W=c + [0.0, -0.045, 0.08],
                  axis_W=[1.0, 0.0, 0.0], angle=0.5)
     assert arc.dp_W[1] > 0.01 and checks.PushedBackReason(arc) == ""
+    # the shifted leaf is checked against the fruits only: shifted whole, the
+    # blade's base would enter the branch it hangs from (check_leaf_branch)
+    import dataclasses as dc
+    stem = SimpleNamespace(leaf_W=leaf, p_WC=p_WC, fruit_sdf=lambda q: np.full(len(q), 1.0),
+                           fruit_box=None, branch_box=None,
+                           branch_distance=lambda q: np.abs(np.asarray(q)[:, 1] + 0.027))
+    checks = _LeafChecks(stem, dc.replace(PlannerConfig(), check_leaf_branch=True))
+    assert checks.Reason(shifted).startswith("leaf-branch (")
+    assert checks.PushedBackReason(back_up) == ""
