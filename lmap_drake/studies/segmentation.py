@@ -134,12 +134,12 @@ def ViewRow(seg, truth: np.ndarray, label: np.ndarray, rgb: np.ndarray) -> dict:
     row = {}
     keep = NeighbourClassMap(label) == 0
     row["neighbour_pixels"] = int((~keep).sum())
-    row["pixels"] = {}
+    row["pixels"] = {}             # per class: [intersection, union] pixel counts
     for key, c in CLASSES:
-        v = ClassIou(seg.class_map[keep], truth[keep], c)
-        row[key] = None if math.isnan(v) else round(v, 4)
         a, b = seg.class_map[keep] == c, truth[keep] == c
-        row["pixels"][key] = [int((a & b).sum()), int((a | b).sum())]  # intersection, union
+        inter, union = int((a & b).sum()), int((a | b).sum())
+        row[key] = round(inter / union, 4) if union else None   # ClassIou's, NaN as None
+        row["pixels"][key] = [inter, union]
     # the same without the robot's pixels: what reaches the planner, whose
     # points pass the robot self-filter (perception.points, from the joints)
     cls, inst = DecodeLabels(label)
