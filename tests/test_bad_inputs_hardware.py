@@ -254,7 +254,7 @@ def test_ur_emulator_cli_refuses_remote_host_and_bad_port(capsys, argv, match):
 def test_twin_gripper_refuses_out_of_range_registers():
     from lmap_drake.station.hardware_config import GripperConfig
     from lmap_drake.twin.robotiq_server import RobotiqSocketServer
-    from lmap_drake.twin.twin import TwinGripper
+    from lmap_drake.twin.gripper import TwinGripper
     g = TwinGripper(GripperConfig(), 0.085)
     with RobotiqSocketServer(g) as server, socket.create_connection(
             ("127.0.0.1", server.port), timeout=5) as s:

@@ -32,7 +32,9 @@ MAX_SETTLE_TIME = 1.0
 # stop; the same with the pads opened to the approach's 3.5 cm), in 3 of 3
 # runs with the test suite or two busy processes beside it, and passed
 # alone. A rise that lasts stops the arm two samples (40 ms, 4 mm at the
-# approach's 10 cm/s) later than before.
+# approach's 10 cm/s) later than before. (The bursts were the twin's own
+# held servo samples; it now ramps between them: 0.5-0.6 N median, peak
+# 3.9-5.9 N: docs/explanation/planner-parameters.md.)
 RETREAT_WINDOW = 5
 
 # A stop eases the commanded joints to rest over STOP_TIME (s) from where

@@ -1,5 +1,5 @@
 """The Robotiq 2F-85 URCap socket (port 63352) served over a register model:
-the digital twin's gripper (``twin.TwinGripper``: the simulated fingers)
+the digital twin's gripper (``twin.gripper.TwinGripper``: the simulated fingers)
 behind the protocol the hardware station's ``RobotiqClient`` speaks (ASCII
 lines ``SET VAR value ...`` -> ``ack``, ``GET VAR`` -> ``VAR value``;
 anything else -> ``?``). Not a gripper: nothing here moves one.
