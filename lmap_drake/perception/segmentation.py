@@ -43,7 +43,7 @@ from scipy import ndimage
 from lmap_drake.errors import WeightsError
 from lmap_drake.labels import (BACKGROUND, BRANCH, FRUIT, LEAF, ROBOT,
                                LeafBoundaryMask, OracleLabels)
-from lmap_drake.perception.fruit_fragments import JoinFruitFragments
+from lmap_drake.perception.fruit_fragments import DropFruitSpecks, JoinFruitFragments
 from lmap_drake.perception.leaf_boundaries import SplitRegionsAtNecks
 from lmap_drake.perception.leaf_patches import FruitPatchesInLeaves, VetoLeafPatches
 from lmap_drake.perception.points import Intrinsics, Neighbour, PointsImage, ValidDepthMask
@@ -417,10 +417,10 @@ class SegNetSegmenter(Segmenter):
     KEEP = 4
 
     def __init__(self, K: Intrinsics, weights_file: str | Path, depth_cut: float = 1.5,
-                 device: str = "cpu", leaf_patches: bool = True):
+                 device: str = "cpu", leaf_patches: bool = True, min_fruit_pixels: int = 0):
         from lmap_drake.perception.segnet import LoadSegNet
         self.K, self.depth_cut, self.device = K, float(depth_cut), device
-        self.leaf_patches = bool(leaf_patches)
+        self.leaf_patches, self.min_fruit_pixels = bool(leaf_patches), int(min_fruit_pixels)
         self.net = LoadSegNet(weights_file, device)
         self._kept: list[tuple[bytes, Segmentation]] = []
 
@@ -455,12 +455,18 @@ class SegNetSegmenter(Segmenter):
             boundary = np.zeros(d.shape, bool)
             boundary[box] = out[NUM_CLASSES] > 0.0
             boundary &= cls == LEAF
-        inst = JoinFruitFragments(cls, InstancesFromComponents(cls, d, 0.02,
-                                                               leaf_boundary=boundary),
-                                  d, self.K, 0.02)
         e = np.exp(logits - logits.max(0))
         prob = np.zeros((len(e),) + d.shape)
         prob[:, box[0], box[1]] = e / e.sum(0)
+
+        def instances(cls):
+            return JoinFruitFragments(cls, InstancesFromComponents(cls, d, 0.02,
+                                                                   leaf_boundary=boundary),
+                                      d, self.K, 0.02)
+        inst = instances(cls)
+        if self.min_fruit_pixels > 0 and DropFruitSpecks(cls, inst, prob, self.min_fruit_pixels,
+                                                          d, self.K.fx):
+            inst = instances(cls)
         p_cls = np.take_along_axis(prob, cls[None], 0)[0]  # probability of the class given
         conf, flags = InstanceConfidence(cls, inst, p_cls), []
         if self.leaf_patches:
@@ -495,7 +501,8 @@ def MakeSegmenter(cfg, K: Intrinsics) -> Segmenter:
         path = Path(cfg.segnet_weights)
         return SegNetSegmenter(K, path if path.is_absolute() else REPO_ROOT / path,
                                cfg.depth_cut, cfg.segnet_device,
-                               getattr(cfg, "fruit_leaf_patches", True))
+                               getattr(cfg, "fruit_leaf_patches", True),
+                               getattr(cfg, "min_fruit_pixels", 0))
     raise SegmenterError(f"perception.segmenter '{name}' unknown; choose one of "
                          f"{', '.join(SEGMENTERS)}")
 

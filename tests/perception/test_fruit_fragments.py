@@ -4,7 +4,7 @@ depth jump, more than one fruit's size, or specks are not joined."""
 import numpy as np
 
 from lmap_drake.labels import BRANCH, FRUIT, LEAF
-from lmap_drake.perception.fruit_fragments import JoinFruitFragments
+from lmap_drake.perception.fruit_fragments import DropFruitSpecks, JoinFruitFragments
 from lmap_drake.perception.points import Intrinsics
 from lmap_drake.perception.config import PerceptionConfig
 from lmap_drake.perception.segmentation import InstancesFromComponents, MakeSegmenter
@@ -97,3 +97,32 @@ def test_the_small_render_seen_by_the_two_worlds_weights_has_one_fruit():
     assert len(np.unique(pieces[fruit])) == 2
     big = [(n, conf) for c, i, n, conf in seg.Instances() if c == FRUIT and n >= 100]
     assert len(big) == 1 and big[0][0] == fruit.sum() and big[0][1] > 0.8
+
+
+def test_fruit_specks_become_their_next_most_probable_class():
+    """A fruit instance under ``min_pixels`` farther than ``reach`` from a
+    larger one takes, pixel by pixel, the most probable class other than
+    fruit; one as small but near a larger fruit (a piece of it beyond a
+    leaf) and the larger one stay fruit."""
+    cls = np.full((100, 100), LEAF, np.int64)
+    inst = np.full((100, 100), -1, np.int64)
+    cls[2:10, 2:10], inst[2:10, 2:10] = FRUIT, 0        # 64 pixels
+    cls[12:14, 2:5], inst[12:14, 2:5] = FRUIT, 1        # 6 pixels, 3 px (3 mm) below it
+    cls[90:92, 90:93], inst[90:92, 90:93] = FRUIT, 2    # 6 pixels, 11 cm away
+    depth = np.full((100, 100), 0.6)
+    fx = 600.0                                           # 1 mm per pixel at 0.6 m
+    prob = np.zeros((4, 100, 100))                       # background, branch, leaf, fruit
+    prob[FRUIT] = 0.6
+    prob[LEAF], prob[BRANCH] = 0.3, 0.1
+    prob[BRANCH, 90, 90:93] = 0.35                       # its first row: more branch than leaf
+    before = cls.copy()
+    assert DropFruitSpecks(cls, inst, prob, 20, depth, fx, reach=0.08)
+    assert (cls[2:10, 2:10] == FRUIT).all() and (cls[12:14, 2:5] == FRUIT).all()
+    assert (cls[90, 90:93] == BRANCH).all() and (cls[91, 90:93] == LEAF).all()
+    assert (cls != before).sum() == 6
+    assert not DropFruitSpecks(cls, inst, prob, 20, depth, fx, reach=0.08)   # none left
+    assert not DropFruitSpecks(before.copy(), inst, prob, 6, depth, fx, reach=0.08)  # 6 is not < 6
+    # seen from twice as far the speck lies 23 cm from the fruit (11 cm at 0.6 m)
+    far = before.copy()
+    assert DropFruitSpecks(far, inst, prob, 20, 2 * depth, fx, reach=0.15)
+    assert (far[90:92, 90:93] != FRUIT).all()

@@ -199,3 +199,4 @@ def test_pixel_instances_of_leaves_are_cut_at_the_leaf_boundary():
     assert len(np.unique(two[cls == LEAF])) == 2
     for t in (0, 1):                       # band pixels went to their own side
         assert len(np.unique(two[ids == t])) == 1
+
