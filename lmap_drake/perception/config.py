@@ -37,9 +37,10 @@ class PerceptionConfig:
     # leaf continuing its depth: a phantom) gets confidence 0, so it is no
     # target but stays an obstacle (leaf_patches.VetoLeafPatches). false: the ablation.
     fruit_leaf_patches: bool = True
-    # segnet: a fruit instance of fewer pixels is called its pixels' next most
-    # probable class (a speck of a few pixels is no fruit the pipeline can use:
-    # shape.min_fruit_points; 0 = keep every one). Why: docs/how-to/train-segmenter.md
+    # segnet: a fruit instance of fewer pixels, farther than a fruit's length
+    # from every larger one, is called its pixels' next most probable class (no
+    # fruit is completed from fewer points than shape.min_fruit_points; 0 = keep
+    # every one; perception/fruit_fragments.py, docs/how-to/train-segmenter.md)
     min_fruit_pixels: int = 20
     # label: the greenhouse's neighbouring plants as leaf / branch (what the
     # camera sees, and what an arm must keep clear of in a real row) or, false,

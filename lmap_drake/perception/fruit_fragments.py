@@ -188,7 +188,8 @@ def DropFruitSpecks(cls: np.ndarray, inst: np.ndarray, prob: np.ndarray, min_pix
     for i in small:
         m = fruit & (inst == i)
         z = depth[m]
-        z = float(np.median(z[np.isfinite(z) & (z > 0)])) if np.isfinite(z).any() else np.inf
+        z = z[np.isfinite(z) & (z > 0)]
+        z = float(np.median(z)) if len(z) else np.inf      # no return: no fruit to be part of
         if not float(d_px[m].min()) * z / fx < reach:
             speck |= m
     if not speck.any():
