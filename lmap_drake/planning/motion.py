@@ -288,12 +288,18 @@ def PlanActionPath(robot, action, q_start: np.ndarray, step: float = 0.01
 
 def TimeJointPath(t0: float, q0: np.ndarray, waypoints: list[np.ndarray],
                   speed_fraction: float = 0.5, min_segment: float = 0.25,
-                  duration: float | None = None) -> PiecewisePolynomial:
+                  duration: float | None = None, rest_at_first: bool = False
+                  ) -> PiecewisePolynomial:
     """Cubic joint trajectory from ``q0`` through ``waypoints`` starting at
     ``t0``, each segment long enough that no joint exceeds
     ``speed_fraction`` x the UR5 velocity limit (cubic peak speed is 1.5x
     the mean) and none shorter than ``min_segment`` (s; one for all or one
-    per segment); with ``duration``, the segments are stretched to fill it."""
+    per segment); with ``duration``, the segments are stretched to fill it.
+    ``rest_at_first``: the arm comes to rest at the first waypoint, so the
+    move there stays on the straight joint line (a free move checked on
+    that line, ``approach.FreeMoveFractions``); through the first waypoint
+    each joint's speed would come from its next segments and the joints
+    would leave the line (0.82 rad in ``random_multi_2525_007``)."""
     qs = [np.asarray(q0, float)] + [np.asarray(q, float) for q in waypoints]
     mins = np.broadcast_to(np.asarray(min_segment, float), (len(qs) - 1,))
     seg = [max(float(m), 1.5 * float(np.abs(b - a).max()) / (speed_fraction * UR5_VELOCITY_LIMIT))
@@ -304,4 +310,12 @@ def TimeJointPath(t0: float, q0: np.ndarray, waypoints: list[np.ndarray],
     if len(qs) == 2:
         return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
             times, np.array(qs).T, np.zeros(6), np.zeros(6))
+    if rest_at_first:
+        first = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
+            times[:2], np.array(qs[:2]).T, np.zeros(6), np.zeros(6))
+        rest = (PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
+                    times[1:], np.array(qs[1:]).T, np.zeros(6), np.zeros(6)) if len(qs) == 3
+                else PiecewisePolynomial.CubicShapePreserving(times[1:], np.array(qs[1:]).T, True))
+        first.ConcatenateInTime(rest)
+        return first
     return PiecewisePolynomial.CubicShapePreserving(times, np.array(qs).T, True)

@@ -60,13 +60,14 @@ class ArmMotions:
         return PlanActionPath(self._robot, action, q_grasp)
 
     def TimePath(self, t: float, q0, waypoints: list, fraction: float,
-                 duration: float | None = None, min_segment: float = 0.05):
+                 duration: float | None = None, min_segment: float = 0.05,
+                 rest_at_first: bool = False):
         """A joint trajectory from ``q0`` through ``waypoints`` at
         ``fraction`` x speed_scale of the UR5 velocity limit, retimed so that
         no joint exceeds 95 % of ``max_joint_speed``; then checked."""
         limit = 0.95 * self._max_joint_speed
         f = min(fraction * self.speed_scale, limit / UR5_VELOCITY_LIMIT)
-        traj = TimeJointPath(t, q0, waypoints, f, min_segment, duration)
+        traj = TimeJointPath(t, q0, waypoints, f, min_segment, duration, rest_at_first)
         for _ in range(4):
             times = np.arange(traj.start_time(), traj.end_time() + 0.005, 0.005)
             qs = np.array([traj.value(min(x, traj.end_time())).ravel() for x in times])
@@ -74,7 +75,7 @@ class ArmMotions:
             if speed <= limit:
                 break
             stretched = (traj.end_time() - t) * speed / limit * 1.02
-            traj = TimeJointPath(t, q0, waypoints, f, min_segment, stretched)
+            traj = TimeJointPath(t, q0, waypoints, f, min_segment, stretched, rest_at_first)
         if self._check is not None:
             period = 0.01
             times = np.arange(traj.start_time(), traj.end_time() + 0.5 * period, period)

@@ -158,9 +158,11 @@ class ArmSequence:
         self.progress(f"{mode}" + (f": {message}" if message else ""))
 
     def _start_path(self, st: ControllerStatus, t: float, waypoints: list, fraction: float,
-                    duration: float | None = None, min_segment: float = 0.05) -> None:
+                    duration: float | None = None, min_segment: float = 0.05,
+                    rest_at_first: bool = False) -> None:
         q0 = st.trajectory.value(t).ravel() if st.trajectory is not None else st.q_hold
-        st.trajectory = self.motions.TimePath(t, q0, waypoints, fraction, duration, min_segment)
+        st.trajectory = self.motions.TimePath(t, q0, waypoints, fraction, duration, min_segment,
+                                              rest_at_first)
         st.q_hold = np.asarray(waypoints[-1], float)
 
     @staticmethod
@@ -407,7 +409,9 @@ class ArmSequence:
         st.pregrasp_opening = approach.opening or self._pregrasp_opening
         # The whole motion is checked before anything moves (timing does not
         # depend on the start time, so the checks hold at execution).
-        pre = m.TimePath(t, st.q_hold, st.pregrasp_path, 0.5)
+        # (at rest at the via point: the free move there was checked on the
+        # straight joint line)
+        pre = m.TimePath(t, st.q_hold, st.pregrasp_path, 0.5, rest_at_first=True)
         app = m.TimePath(pre.end_time(), st.pregrasp_path[-1], approach.to_grasp,
                          **m.ApproachTiming(st.pregrasp_path[-1], approach.to_grasp))
         m.TimePath(app.end_time(), approach.to_grasp[-1], st.pull_path, 0.3,
@@ -497,7 +501,7 @@ class ArmSequence:
 
     def _StartMotion(self, st: ControllerStatus, t: float, message: str) -> None:
         st.gripper_cmd = st.pregrasp_opening
-        self._start_path(st, t, st.pregrasp_path, 0.5)
+        self._start_path(st, t, st.pregrasp_path, 0.5, rest_at_first=True)
         self._enter(st, "pregrasp", t, message)
 
     def _GraspMissed(self, st: ControllerStatus, t: float, width: float) -> None:

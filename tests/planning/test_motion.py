@@ -136,3 +136,27 @@ def test_a_step_through_a_fast_wrist_turn_is_straightened_by_continuation():
         p = Xv.translation() - X_a.translation()
         z = X_a.rotation().col(2)
         assert np.linalg.norm(p - (p @ z) * z) < 1e-4
+
+
+def test_a_path_at_rest_at_its_first_waypoint_keeps_the_free_move_on_its_joint_line():
+    """The free move to the via point is checked on the straight joint line
+    (``approach.FreeMoveFractions``); through the via point each joint's
+    speed comes from its next segments and the joints leave the line."""
+    from lmap_drake.planning.motion import TimeJointPath
+    q0 = np.zeros(6)
+    via = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+    after = [via + [0.0, 0.15 * k, 0.0, 0.0, 0.0, 0.0] for k in range(1, 5)]   # joint 1 goes on
+
+    def off_line(traj):
+        t1 = traj.get_segment_times()[1]
+        Q = np.array([traj.value(t).ravel() for t in np.linspace(0.0, t1, 200)])
+        s = Q @ via / (via @ via)
+        return float(np.abs(Q - s[:, None] * via).max()), Q[-1]
+
+    through, _ = off_line(TimeJointPath(0.0, q0, [via] + after, 0.5, 0.25))
+    at_rest, end = off_line(TimeJointPath(0.0, q0, [via] + after, 0.5, 0.25, rest_at_first=True))
+    assert through > 0.05            # the joints out of step (rad)
+    assert at_rest < 1e-9 and np.allclose(end, via)
+    traj = TimeJointPath(0.0, q0, [via] + after, 0.5, 0.25, rest_at_first=True)
+    assert np.allclose(traj.value(traj.end_time()).ravel(), after[-1])
+    assert np.allclose(traj.EvalDerivative(traj.get_segment_times()[1], 1).ravel(), 0.0)
