@@ -307,15 +307,17 @@ def TimeJointPath(t0: float, q0: np.ndarray, waypoints: list[np.ndarray],
     if duration is not None and sum(seg) < duration:
         seg = [s * duration / sum(seg) for s in seg]
     times = t0 + np.r_[0.0, np.cumsum(seg)]
+    if rest_at_first and len(qs) > 2:
+        first = _RestToRest(times[:2], qs[:2])
+        first.ConcatenateInTime(_RestToRest(times[1:], qs[1:]))
+        return first
+    return _RestToRest(times, qs)
+
+
+def _RestToRest(times: np.ndarray, qs: list[np.ndarray]) -> PiecewisePolynomial:
+    """Cubic through joint vectors ``qs`` at ``times``, at rest at both ends
+    (two points: the straight joint line; more: shape-preserving)."""
     if len(qs) == 2:
         return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
             times, np.array(qs).T, np.zeros(6), np.zeros(6))
-    if rest_at_first:
-        first = PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
-            times[:2], np.array(qs[:2]).T, np.zeros(6), np.zeros(6))
-        rest = (PiecewisePolynomial.CubicWithContinuousSecondDerivatives(
-                    times[1:], np.array(qs[1:]).T, np.zeros(6), np.zeros(6)) if len(qs) == 3
-                else PiecewisePolynomial.CubicShapePreserving(times[1:], np.array(qs[1:]).T, True))
-        first.ConcatenateInTime(rest)
-        return first
     return PiecewisePolynomial.CubicShapePreserving(times, np.array(qs).T, True)
